@@ -1,0 +1,357 @@
+"""The one place that reads and writes rosbag2 recordings (MCAP and SQLite3), via ``rosbags``.
+
+Times handed to and from this module are float seconds relative to the recording's first
+message (``Recording.t0_ns``), so that 20 kHz sample times keep their precision; absolute
+nanoseconds are only used inside the bag. Everything streams: a recording is never loaded
+whole unless a caller asks for a whole topic.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.typesys import Stores, get_typestore
+
+from . import contract as c
+from .atomic import atomic_output
+from .errors import BagError
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+_CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
+_FLOAT64 = struct.Struct("<d")
+
+#: Start of simulated recordings: a fixed, plausible wall-clock epoch so that bags look like
+#: real ones to ``ros2 bag play`` and stay byte-for-byte reproducible.
+SIM_EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z
+
+
+def _slash(topic: str) -> str:
+    return topic if topic.startswith("/") else "/" + topic
+
+
+def is_recording(path: str | os.PathLike[str]) -> bool:
+    """True for a rosbag2 directory (with metadata.yaml) or a single .mcap/.db3 file."""
+    p = Path(path)
+    return (p.is_dir() and (p / "metadata.yaml").is_file()) or (
+        p.is_file() and p.suffix in (".mcap", ".db3")
+    )
+
+
+class Recording:
+    """A rosbag2 recording opened for streaming reads; use as a context manager."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"{self.path}: no such recording")
+        if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
+            raise BagError(f"{self.path}: not a rosbag2 directory (metadata.yaml is missing)")
+        if self.path.is_file() and self.path.suffix not in (".mcap", ".db3"):
+            raise BagError(f"{self.path}: not a recording (expected a bag directory or .mcap file)")
+        try:
+            self._reader = Reader(self.path)
+            self._reader.open()
+        except Exception as exc:  # rosbags raises many types for corrupt input
+            raise BagError(f"{self.path}: cannot open recording ({_reason(exc)})") from None
+        #: set when a tolerant read stopped early on a damaged part of the recording
+        self.read_error: str | None = None
+        conns = self._reader.connections
+        self._conns: dict[str, list[Any]] = {}
+        for conn in conns:
+            self._conns.setdefault(c.bare(conn.topic), []).append(conn)
+        self.t0_ns: int = int(self._reader.start_time) if self._reader.message_count else 0
+        self.end_ns: int = int(self._reader.end_time) if self._reader.message_count else 0
+
+    # -- context manager -------------------------------------------------------------------
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._reader.close()
+
+    # -- what is in it ---------------------------------------------------------------------
+    @property
+    def duration_s(self) -> float:
+        return max(0.0, (self.end_ns - self.t0_ns) * 1e-9)
+
+    @property
+    def message_count(self) -> int:
+        return int(self._reader.message_count)
+
+    def topics(self) -> dict[str, str]:
+        """Topic name (without leading slash) -> message type."""
+        return {name: conns[0].msgtype for name, conns in self._conns.items()}
+
+    def count(self, topic: str) -> int:
+        return sum(conn.msgcount for conn in self._conns.get(c.bare(topic), []))
+
+    def has(self, topic: str, msgtype: str | None = None) -> bool:
+        conns = self._conns.get(c.bare(topic))
+        return bool(conns) and (msgtype is None or conns[0].msgtype == msgtype)
+
+    def require(self, topic: str, msgtype: str) -> list[Any]:
+        """Connections of ``topic``; BagError naming the file and topic if absent or mistyped."""
+        name = c.bare(topic)
+        conns = self._conns.get(name)
+        if not conns:
+            raise BagError(f"{self.path}: topic /{name} is missing")
+        found = {conn.msgtype for conn in conns}
+        if found != {msgtype}:
+            raise BagError(
+                f"{self.path}: topic /{name} has type {', '.join(sorted(found))}, expected {msgtype}"
+            )
+        return conns
+
+    # -- streaming -------------------------------------------------------------------------
+    def raw(self, topics: Iterable[str], tolerant: bool = False) -> Iterator[tuple[str, int, Any, bytes]]:
+        """(bare topic, bag time ns, connection, raw CDR) in bag-time order.
+
+        With ``tolerant`` a damaged part ends the stream and is recorded in ``read_error``
+        instead of raising, so that callers can keep what was readable.
+        """
+        conns = [conn for t in topics for conn in self._conns.get(c.bare(t), [])]
+        if not conns:
+            return
+        it = self._reader.messages(connections=conns)
+        while True:
+            try:
+                conn, ns, data = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:
+                msg = f"{self.path}: recording is damaged after {self._done_s(conns)} ({_reason(exc)})"
+                if tolerant:
+                    self.read_error = msg
+                    return
+                raise BagError(msg) from None
+            self._last_ns = ns
+            yield c.bare(conn.topic), ns, conn, data
+
+    def _done_s(self, conns: list[Any]) -> str:
+        ns = getattr(self, "_last_ns", None)
+        return "the start" if ns is None else f"{(ns - self.t0_ns) * 1e-9:.3f} s"
+
+    def messages(self, topics: Iterable[str], tolerant: bool = False) -> Iterator[tuple[str, float, Any]]:
+        """(bare topic, t [s from t0], decoded message) in time order."""
+        for name, ns, conn, data in self.raw(topics, tolerant=tolerant):
+            yield name, (ns - self.t0_ns) * 1e-9, self._decode(data, conn, name)
+
+    def _decode(self, data: bytes, conn: Any, name: str) -> Any:
+        if conn.msgtype == c.FLOAT64 and len(data) == 12 and data[:4] == _CDR_LE:
+            return _Float64(_FLOAT64.unpack_from(data, 4)[0])  # fast path: 12-byte CDR
+        try:
+            return TYPESTORE.deserialize_cdr(data, conn.msgtype)
+        except Exception as exc:
+            raise BagError(f"{self.path}: topic /{name}: cannot decode {conn.msgtype} ({_reason(exc)})") from None
+
+    def scalars(self, topic: str) -> tuple[np.ndarray, np.ndarray]:
+        """Whole Float64 topic as (t [s], value) arrays."""
+        self.require(topic, c.FLOAT64)
+        t, v = [], []
+        for _, ts, msg in self.messages([topic]):
+            t.append(ts)
+            v.append(msg.data)
+        return np.asarray(t, dtype=float), np.asarray(v, dtype=float)
+
+    def battery_voltages(self, topic: str = c.TOPIC_BATTERY_VOLTAGE) -> tuple[np.ndarray, np.ndarray]:
+        """Whole BatteryState topic as (t [s], voltage): bag time, as the node publishes it."""
+        self.require(topic, c.BATTERY_STATE)
+        t, v = [], []
+        for _, ts, msg in self.messages([topic]):
+            t.append(ts)
+            v.append(msg.voltage)
+        return np.asarray(t, dtype=float), np.asarray(v, dtype=float)
+
+    def tachometer(self, topic: str = c.TOPIC_TACH_ADC) -> Iterator[tuple[float, np.ndarray]]:
+        """Stream of (t of the batch's last sample [s], float32 samples)."""
+        self.require(topic, c.FLOAT32_ARRAY)
+        for _, ts, msg in self.messages([topic]):
+            yield ts, np.asarray(msg.data, dtype=np.float32)
+
+
+@dataclass
+class _Float64:
+    """What the fast path decodes a std_msgs/Float64 into (same attribute as the real one)."""
+
+    data: float
+
+
+def _reason(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) < 200 else text[:197] + "..."
+
+
+def open_recording(path: str | os.PathLike[str]) -> Recording:
+    """Open a rosbag2 directory (MCAP or SQLite3) or a single .mcap file for reading."""
+    return Recording(path)
+
+
+class BagWriter:
+    """Write a rosbag2 recording atomically (staged, renamed when closed without error).
+
+    MCAP with zstd chunk compression by default (what ``ros2 bag record`` writes in Jazzy,
+    compressed so that 20 kHz tachometer data stays small); ``storage='sqlite3'`` for the
+    older format. Times are seconds relative to ``t0_ns``.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        force: bool = False,
+        t0_ns: int = SIM_EPOCH_NS,
+        storage: str = "mcap",
+    ) -> None:
+        if storage not in ("mcap", "sqlite3"):
+            raise BagError(f"{path}: unknown storage {storage!r} (mcap or sqlite3)")
+        self.path = Path(path)
+        self.force = force
+        self.t0_ns = int(t0_ns)
+        self.storage = storage
+        self._conns: dict[str, Any] = {}
+        self._stage: contextlib.AbstractContextManager[Path] | None = None
+        self._writer: Writer | None = None
+        self.messages_written = 0
+
+    def __enter__(self) -> BagWriter:
+        self._stage = atomic_output(self.path, force=self.force)
+        tmp = self._stage.__enter__()
+        try:
+            plugin = StoragePlugin.MCAP if self.storage == "mcap" else StoragePlugin.SQLITE3
+            self._writer = Writer(tmp, version=9, storage_plugin=plugin)
+            if self.storage == "mcap":
+                self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._writer.open()
+        except BaseException as exc:
+            self._stage.__exit__(type(exc), exc, exc.__traceback__)
+            raise
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> bool | None:
+        assert self._stage is not None and self._writer is not None
+        try:
+            self._writer.close()
+        except Exception as close_exc:
+            if exc is None:
+                exc_type, exc, tb = type(close_exc), close_exc, close_exc.__traceback__
+        result = self._stage.__exit__(exc_type, exc, tb)
+        if exc is not None and exc_type is not None and not result:
+            if exc_type.__module__.startswith("rosbags"):
+                raise BagError(f"{self.path}: cannot write recording ({_reason(exc)})") from None
+        return result
+
+    def _conn(self, topic: str, msgtype: str) -> Any:
+        name = c.bare(topic)
+        conn = self._conns.get(name)
+        if conn is None:
+            assert self._writer is not None, "BagWriter used outside its with-block"
+            conn = self._writer.add_connection(_slash(name), msgtype, typestore=TYPESTORE)
+            self._conns[name] = conn
+        elif conn.msgtype != msgtype:
+            raise BagError(f"{self.path}: topic /{name} already written as {conn.msgtype}")
+        return conn
+
+    def _ns(self, t: float) -> int:
+        return self.t0_ns + int(round(t * 1e9))
+
+    def write_raw(self, topic: str, msgtype: str, t: float, data: bytes) -> None:
+        assert self._writer is not None
+        self._writer.write(self._conn(topic, msgtype), self._ns(t), data)
+        self.messages_written += 1
+
+    def write_msg(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
+        self.write_raw(topic, msgtype, t, bytes(TYPESTORE.serialize_cdr(msg, msgtype)))
+
+    def write_float64(self, topic: str, t: float, value: float) -> None:
+        # 12-byte CDR written directly: the same bytes serialize_cdr makes (tested), 10x faster.
+        self.write_raw(topic, c.FLOAT64, t, _CDR_LE + _FLOAT64.pack(float(value)))
+
+    def write_float32_array(self, topic: str, t: float, samples: np.ndarray) -> None:
+        msg = _multiarray(np.asarray(samples, dtype=np.float32))
+        self.write_msg(topic, c.FLOAT32_ARRAY, t, msg)
+
+    def write_battery_state(self, topic: str, t: float, voltage: float) -> None:
+        self.write_msg(topic, c.BATTERY_STATE, t, battery_state(self._ns(t), voltage))
+
+    def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "") -> None:
+        self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix))
+
+
+# --- message construction (Jazzy definitions through the rosbags typestore) ---------------
+def _stamp(ns: int) -> Any:
+    Time = TYPESTORE.types["builtin_interfaces/msg/Time"]
+    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+
+
+def _header(ns: int, frame_id: str = "") -> Any:
+    Header = TYPESTORE.types["std_msgs/msg/Header"]
+    return Header(stamp=_stamp(ns), frame_id=frame_id)
+
+
+def _multiarray(samples: np.ndarray) -> Any:
+    T = TYPESTORE.types
+    layout = T["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
+    return T["std_msgs/msg/Float32MultiArray"](layout=layout, data=samples)
+
+
+def battery_state(ns: int, voltage: float) -> Any:
+    """BatteryState with the filtered voltage; unknown fields NaN as the message docs ask."""
+    T = TYPESTORE.types
+    BS = T["sensor_msgs/msg/BatteryState"]
+    nan = math.nan
+    return BS(
+        header=_header(ns),
+        voltage=float(voltage),
+        temperature=nan,
+        current=nan,
+        charge=nan,
+        capacity=nan,
+        design_capacity=nan,
+        percentage=nan,
+        power_supply_status=BS.POWER_SUPPLY_STATUS_UNKNOWN,
+        power_supply_health=BS.POWER_SUPPLY_HEALTH_UNKNOWN,
+        power_supply_technology=BS.POWER_SUPPLY_TECHNOLOGY_LIPO,
+        present=True,
+        cell_voltage=np.zeros(0, dtype=np.float32),
+        cell_temperature=np.zeros(0, dtype=np.float32),
+        location="",
+        serial_number="",
+    )
+
+
+def diagnostic_array(ns: int, statuses: Iterable[Any], prefix: str = "") -> Any:
+    """DiagnosticArray from CoreStatus-like objects (name, level, message, values)."""
+    T = TYPESTORE.types
+    KV = T["diagnostic_msgs/msg/KeyValue"]
+    DS = T["diagnostic_msgs/msg/DiagnosticStatus"]
+    items = [
+        DS(
+            level=int(s.level),
+            name=f"{prefix}{s.name}",
+            message=str(s.message),
+            hardware_id="bldc_propulsion",
+            values=[KV(key=str(k), value=str(v)) for k, v in s.values.items()],
+        )
+        for s in statuses
+    ]
+    return T["diagnostic_msgs/msg/DiagnosticArray"](header=_header(ns), status=items)

@@ -1,0 +1,78 @@
+"""Names, types and units of ../shared/interfaces.md, in one place.
+
+Other programs and recordings depend on these strings: change them only with a deprecation path.
+"""
+
+from __future__ import annotations
+
+# --- PWM command (pulse width / 20 ms period) ---
+PWM_STOP = 0.05  #: 1 ms pulse: motor stopped
+PWM_FULL = 0.10  #: 2 ms pulse: full throttle
+PWM_FRAME_HZ = 50.0  #: ESC frame rate
+PWM_PERIOD_US = 20000.0  #: one 50 Hz frame in microseconds (ESC us -> PWM level)
+
+# --- Input topics (relative names; recordings carry them with a leading slash) ---
+TOPIC_PWM = "pwm"
+TOPIC_BATTERY_ADC = "battery/adc"
+TOPIC_TACH_ADC = "tachometer/adc"
+TOPIC_THRUST_MEASURED = "thrust/measured"
+
+# --- Output topics ---
+TOPIC_BATTERY_VOLTAGE = "battery/voltage"
+TOPIC_ROTOR_SPEED = "rotor/speed"
+TOPIC_ROTOR_RPM = "rotor/rpm"
+TOPIC_PREDICTED_SPEED = "predicted/speed"
+TOPIC_PREDICTED_THRUST = "predicted/thrust"
+TOPIC_DIAGNOSTICS = "diagnostics"
+
+# --- Simulator ground truth (never read by train, evaluate, replay or discrepancy) ---
+TOPIC_TRUTH_SPEED = "truth/speed"
+TOPIC_TRUTH_THRUST = "truth/thrust"
+TRUTH_PREFIX = "truth/"
+
+# --- Message types (ROS 2 Jazzy) ---
+FLOAT64 = "std_msgs/msg/Float64"
+FLOAT32_ARRAY = "std_msgs/msg/Float32MultiArray"
+BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+
+INPUT_TOPICS: dict[str, str] = {
+    TOPIC_PWM: FLOAT64,
+    TOPIC_BATTERY_ADC: FLOAT64,
+    TOPIC_TACH_ADC: FLOAT32_ARRAY,
+    TOPIC_THRUST_MEASURED: FLOAT64,
+}
+OUTPUT_TOPICS: dict[str, str] = {
+    TOPIC_BATTERY_VOLTAGE: BATTERY_STATE,
+    TOPIC_ROTOR_SPEED: FLOAT64,
+    TOPIC_ROTOR_RPM: FLOAT64,
+    TOPIC_PREDICTED_SPEED: FLOAT64,
+    TOPIC_PREDICTED_THRUST: FLOAT64,
+    TOPIC_DIAGNOSTICS: DIAGNOSTIC_ARRAY,
+}
+TRUTH_TOPICS: dict[str, str] = {TOPIC_TRUTH_SPEED: FLOAT64, TOPIC_TRUTH_THRUST: FLOAT64}
+
+# --- Physical effects the discrepancy workflow can name (and the simulator can switch) ---
+EFFECTS: tuple[str, ...] = (
+    "battery_voltage",
+    "rotor_lag",
+    "input_delay",
+    "esc_deadband",
+    "spin_down_asymmetry",
+    "motor_heating",
+)
+
+# --- Model inputs (the paper's three, in its order) ---
+INPUT_BATTERY_VOLTAGE = "battery_voltage"
+INPUT_PWM = "pwm"
+INPUT_PWM_FILTERED = "pwm_filtered"
+DEFAULT_INPUTS: tuple[str, ...] = (INPUT_BATTERY_VOLTAGE, INPUT_PWM, INPUT_PWM_FILTERED)
+PAPER_PWM_TAU_S = 0.25  #: time constant of the paper's PWM input filter
+PAPER_HIDDEN = 25
+
+RAD_S_TO_RPM = 60.0 / (2.0 * 3.141592653589793)
+
+
+def bare(topic: str) -> str:
+    """Topic name without the leading slash, as the contract writes it."""
+    return topic[1:] if topic.startswith("/") else topic

@@ -1,0 +1,326 @@
+"""Model inputs that the discrepancy workflow adds, online (streaming) and offline (batch).
+
+Each added input is a function of the recorded command and battery voltage only, so that the
+estimator can compute it on the vehicle exactly as the trainer does offline. The batch
+functions run the same exact discretisation as the streaming classes (zero-order hold of the
+command between its events, exact exponential between time points), so a model trained on a
+recording predicts on replay what it predicted in training.
+
+| input name | effect | parameters | meaning |
+|---|---|---|---|
+| ``pwm_lag`` | rotor_lag | ``tau_s`` | command through a first-order lag (from rest) |
+| ``pwm_delayed`` | input_delay | ``delay_s`` | command as it was ``delay_s`` ago (dead time) |
+| ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level) |
+| ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag with one time constant rising, another falling |
+| ``thermal_load`` | motor_heating | ``tau_s`` | first-order thermal state driven by an I^2 R proxy |
+
+The I^2 R proxy of ``thermal_load`` is ``(duty * V / 12 V)^4`` with ``duty = (pwm - 0.05) / 0.05``
+clipped to [0, 1]: with a propeller load the motor current grows as the square of the speed and
+the speed as the applied voltage ``duty * V``, so the copper loss grows as its fourth power. Its
+state starts at 0 (a motor at ambient temperature when the recording starts).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from .. import contract as c
+
+PWM_LAG = "pwm_lag"
+PWM_DELAYED = "pwm_delayed"
+PWM_ABOVE_START = "pwm_above_start"
+PWM_ASYMMETRIC_LAG = "pwm_asymmetric_lag"
+THERMAL_LOAD = "thermal_load"
+
+#: State of the command lags when a recording starts: the rotor at rest (PWM_STOP), as a bench
+#: run starts; after a start mid-run the lag's state converges within a few time constants.
+REST_PWM = c.PWM_STOP
+#: Reference voltage of the thermal proxy (a 3S pack near nominal).
+THERMAL_REFERENCE_V = 12.0
+
+#: Parameters of each added input and the defaults used when a model does not give them.
+DEFAULT_PARAMS: dict[str, dict[str, float]] = {
+    PWM_LAG: {"tau_s": 0.1},
+    PWM_DELAYED: {"delay_s": 0.04},
+    PWM_ABOVE_START: {"threshold": 0.055},
+    PWM_ASYMMETRIC_LAG: {"tau_up_s": 0.1, "tau_down_s": 0.3},
+    THERMAL_LOAD: {"tau_s": 120.0},
+}
+
+#: Which recorded streams each input needs ("pwm", "voltage").
+NEEDS: dict[str, tuple[str, ...]] = {
+    PWM_LAG: ("pwm",),
+    PWM_DELAYED: ("pwm",),
+    PWM_ABOVE_START: ("pwm",),
+    PWM_ASYMMETRIC_LAG: ("pwm",),
+    THERMAL_LOAD: ("pwm", "voltage"),
+}
+
+
+def _param(params: Mapping[str, float] | None, name: str, key: str) -> float:
+    p = dict(DEFAULT_PARAMS[name])
+    p.update(params or {})
+    value = float(p[key])
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"{name}.{key} = {value!r}: must be finite and >= 0")
+    return value
+
+
+def thermal_proxy(pwm: np.ndarray | float, volts: np.ndarray | float) -> np.ndarray | float:
+    """I^2 R proxy (dimensionless, 1 at full throttle on 12 V) from command and battery voltage."""
+    duty = np.clip((np.asarray(pwm, dtype=float) - c.PWM_STOP) / (c.PWM_FULL - c.PWM_STOP), 0.0, 1.0)
+    out = (duty * np.asarray(volts, dtype=float) / THERMAL_REFERENCE_V) ** 4
+    return float(out) if np.ndim(out) == 0 else out
+
+
+# --- exact first-order lag of a zero-order-held input -------------------------------------------
+def _held(t_events: np.ndarray, values: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Value of the last event at or before each time (the first value before the first event)."""
+    idx = np.searchsorted(t_events, times, side="right") - 1
+    return values[np.clip(idx, 0, len(values) - 1)]
+
+
+def lag_on_times(times: np.ndarray, u: np.ndarray, tau_s: float, y0: float) -> np.ndarray:
+    """y at ``times`` of dy/dt = (u - y)/tau where u[k] is held on [times[k], times[k+1]).
+
+    y[0] = y0. Exact for a piecewise-constant input: y[k+1] = u[k] + (y[k] - u[k]) exp(-h/tau).
+    Vectorised with cumulative products in chunks (so they never underflow); tau = 0 gives y = u
+    held (y[k] = u[k-1]: the value reached at the end of each interval).
+    """
+    n = len(times)
+    y = np.empty(n)
+    if n == 0:
+        return y
+    y[0] = y0
+    if n == 1:
+        return y
+    h = np.diff(times)
+    if tau_s <= 0.0:
+        y[1:] = u[:-1]
+        return y
+    x = h / tau_s  # decay exponent of each interval
+    start = 0  # interval index where the current chunk begins
+    y_start = y0
+    m = n - 1
+    while start < m:
+        # chunk: as many intervals as keep the cumulative exponent below 300
+        cum = np.cumsum(x[start:])
+        stop = start + max(1, int(np.searchsorted(cum, 300.0, side="right")))
+        stop = min(stop, m)
+        xs = x[start:stop]
+        us = u[start:stop]
+        L = np.cumsum(xs)  # exponent from chunk start to the end of each interval
+        # y_end[j] = e^{-L_j} y_start + sum_{i<=j} e^{-(L_j - L_i)} (1 - e^{-x_i}) u_i
+        w = np.exp(L - xs) * (-np.expm1(-xs)) * us  # e^{L_{i-1}} (1 - e^{-x_i}) u_i
+        acc = np.cumsum(w)
+        y[start + 1: stop + 1] = np.exp(-L) * (y_start + acc)
+        y_start = y[stop]
+        start = stop
+    return y
+
+
+def _merged(grid: np.ndarray, *event_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted unique union of grid and event times, and the grid's positions in it."""
+    allt = np.unique(np.concatenate([grid, *event_times]))
+    return allt, np.searchsorted(allt, grid)
+
+
+def _start(grid: np.ndarray, pwm_t: np.ndarray) -> float:
+    return float(min(grid[0], pwm_t[0])) if len(grid) else 0.0
+
+
+# --- batch (offline) -------------------------------------------------------------------------------
+def pwm_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray, volt: np.ndarray,
+            params: Mapping[str, float] | None = None) -> np.ndarray:
+    """Command through a first-order lag of time constant ``tau_s`` (state starts at the first command)."""
+    tau = _param(params, PWM_LAG, "tau_s")
+    times, pos = _merged(grid, pwm_t)
+    u = _held(pwm_t, pwm, times)
+    return lag_on_times(times, u, tau, REST_PWM)[pos]
+
+
+def pwm_delayed(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray, volt: np.ndarray,
+                params: Mapping[str, float] | None = None) -> np.ndarray:
+    """Command as it was ``delay_s`` before each grid time (the first command before the first event)."""
+    d = _param(params, PWM_DELAYED, "delay_s")
+    return _held(pwm_t, pwm, np.asarray(grid, dtype=float) - d)
+
+
+def pwm_above_start(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+                    volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """max(pwm - threshold, 0): the part of the command above the ESC's start level."""
+    thr = _param(params, PWM_ABOVE_START, "threshold")
+    return np.maximum(_held(pwm_t, pwm, grid) - thr, 0.0)
+
+
+def asymmetric_lag_on_times(times: np.ndarray, u: np.ndarray, tau_up: float, tau_down: float,
+                            y0: float) -> np.ndarray:
+    """Like ``lag_on_times`` with tau_up while u > y and tau_down while u < y (exact per interval:
+    with a held input the state moves monotonically towards it, so the direction is fixed)."""
+    n = len(times)
+    y = np.empty(n)
+    if n == 0:
+        return y
+    y[0] = y0
+    h = np.diff(times)
+    a_up = np.exp(-h / tau_up) if tau_up > 0 else np.zeros_like(h)
+    a_dn = np.exp(-h / tau_down) if tau_down > 0 else np.zeros_like(h)
+    yk = float(y0)
+    ul = u.tolist()
+    au = a_up.tolist()
+    ad = a_dn.tolist()
+    out = [yk]
+    for k in range(n - 1):
+        uk = ul[k]
+        a = au[k] if uk > yk else ad[k]
+        yk = uk + (yk - uk) * a
+        out.append(yk)
+    y[:] = out
+    return y
+
+
+def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+                       volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """Command through a lag with ``tau_up_s`` when it rises and ``tau_down_s`` when it falls."""
+    up = _param(params, PWM_ASYMMETRIC_LAG, "tau_up_s")
+    down = _param(params, PWM_ASYMMETRIC_LAG, "tau_down_s")
+    times, pos = _merged(grid, pwm_t)
+    u = _held(pwm_t, pwm, times)
+    return asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
+
+
+def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+                 volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """First-order thermal state (time constant ``tau_s``) driven by the I^2 R proxy; starts at 0."""
+    tau = _param(params, THERMAL_LOAD, "tau_s")
+    times, pos = _merged(grid, pwm_t, volt_t)
+    q = thermal_proxy(_held(pwm_t, pwm, times), _held(volt_t, volt, times))
+    return lag_on_times(times, np.asarray(q), tau, 0.0)[pos]
+
+
+BATCH: dict[str, Callable[..., np.ndarray]] = {
+    PWM_LAG: pwm_lag,
+    PWM_DELAYED: pwm_delayed,
+    PWM_ABOVE_START: pwm_above_start,
+    PWM_ASYMMETRIC_LAG: pwm_asymmetric_lag,
+    THERMAL_LOAD: thermal_load,
+}
+
+
+# --- streaming (online) ------------------------------------------------------------------------------
+class StreamingFeature:
+    """One added input, fed event by event: ``update_pwm``, ``update_voltage``, ``value(t)``.
+
+    Times must not go backwards (an older event is ignored, as the estimator ignores it).
+    ``value(t)`` before any command returns NaN.
+    """
+
+    def __init__(self, name: str, params: Mapping[str, float] | None = None) -> None:
+        if name not in BATCH:
+            raise KeyError(name)
+        self.name = name
+        self.params = {**DEFAULT_PARAMS[name], **(params or {})}
+        for key in self.params:
+            _param(self.params, name, key)
+        self.t: float | None = None  # time the state refers to
+        self.y = 0.0
+        self.pwm: float | None = None
+        self.volts: float | None = None
+        self._history: deque[tuple[float, float]] = deque()  # (t, pwm) for the delay
+
+    # input held since self.t
+    def _u(self) -> float:
+        if self.name == THERMAL_LOAD:
+            if self.pwm is None or self.volts is None:
+                return 0.0
+            return float(thermal_proxy(self.pwm, self.volts))
+        return float(self.pwm) if self.pwm is not None else 0.0
+
+    def _advance(self, t: float) -> None:
+        if self.t is None or t <= self.t:
+            return
+        h = t - self.t
+        u = self._u()
+        if self.name == PWM_LAG:
+            tau = self.params["tau_s"]
+            a = math.exp(-h / tau) if tau > 0 else 0.0
+            self.y = u + (self.y - u) * a
+        elif self.name == PWM_ASYMMETRIC_LAG:
+            tau = self.params["tau_up_s"] if u > self.y else self.params["tau_down_s"]
+            a = math.exp(-h / tau) if tau > 0 else 0.0
+            self.y = u + (self.y - u) * a
+        elif self.name == THERMAL_LOAD:
+            tau = self.params["tau_s"]
+            a = math.exp(-h / tau) if tau > 0 else 0.0
+            self.y = u + (self.y - u) * a
+        self.t = t
+
+    def _first_event(self, t: float) -> None:
+        if self.t is None:
+            self.t = t
+            if self.name in (PWM_LAG, PWM_ASYMMETRIC_LAG):
+                self.y = REST_PWM
+
+    def update_pwm(self, t: float, pwm: float) -> None:
+        if self.t is not None and t < self.t:
+            return
+        if self.t is None:
+            self.pwm = float(pwm)
+            self._first_event(t)
+        else:
+            self._advance(t)
+            self.pwm = float(pwm)
+        self._history.append((float(t), float(pwm)))
+        self._trim()
+
+    def update_voltage(self, t: float, volts: float) -> None:
+        if self.name != THERMAL_LOAD:
+            return
+        if self.t is not None and t < self.t:
+            return
+        if self.t is None:
+            self.volts = float(volts)
+            self.t = t
+        else:
+            self._advance(t)
+            self.volts = float(volts)
+
+    def _trim(self) -> None:
+        if self.name != PWM_DELAYED:
+            if len(self._history) > 1:
+                self._history.popleft()
+            return
+        d = self.params["delay_s"]
+        newest = self._history[-1][0]
+        # keep the last event at or before (newest - delay) and everything after it
+        while len(self._history) > 1 and self._history[1][0] <= newest - d - 1.0:
+            self._history.popleft()
+
+    def value(self, t: float) -> float:
+        if self.pwm is None:
+            return float("nan")
+        if self.name == PWM_ABOVE_START:
+            return max(float(self.pwm) - self.params["threshold"], 0.0)
+        if self.name == PWM_DELAYED:
+            target = t - self.params["delay_s"]
+            out = self._history[0][1]
+            for te, v in self._history:
+                if te <= target:
+                    out = v
+                else:
+                    break
+            return float(out)
+        self._advance(t)
+        return float(self.y)
+
+
+def compute(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+            volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """Batch value of added input ``name`` on ``grid`` (KeyError for an unknown name)."""
+    return BATCH[name](np.asarray(grid, dtype=float), np.asarray(pwm_t, dtype=float),
+                       np.asarray(pwm, dtype=float), np.asarray(volt_t, dtype=float),
+                       np.asarray(volt, dtype=float), params)

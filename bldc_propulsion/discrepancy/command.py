@@ -1,0 +1,120 @@
+"""The `discrepancy` subcommand: arguments, loading, and the summary for people and scripts."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any
+
+from .. import contract as c
+from ..cli import CommandResult, progress
+from ..errors import BadInputError, OutputExistsError
+from ..training.train import load_all
+from .workflow import ALPHA, MIN_EFFECT, Options, run_workflow
+
+
+def _effects(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("at least one effect name")
+    return names
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--model", metavar="MODEL.npz", help="trained network model (.npz from `train`)")
+    src.add_argument("--physics", nargs="?", const="", metavar="CONFIG",
+                     help="the bench physics as the model (not available yet)")
+    p.add_argument("--measured", nargs="+", required=True, metavar="BAG",
+                   help="recordings the model is to be checked against")
+    p.add_argument("--reference", nargs="+", metavar="BAG",
+                   help="the model's own reference recordings (default: its training recordings, "
+                        "from the model's metadata)")
+    p.add_argument("--holdout", nargs="+", metavar="BAG",
+                   help="recordings kept out of everything, for the before/after RMSE")
+    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--effects", type=_effects, metavar="NAME,...",
+                   help="only consider these effects (default: all of " + ", ".join(c.EFFECTS) + ")")
+    p.add_argument("--alpha", type=float, default=ALPHA, help=f"significance level (default {ALPHA})")
+    p.add_argument("--min-reduction", type=float, default=MIN_EFFECT,
+                   help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
+    p.add_argument("--hidden", type=int, help="hidden neurons of the retrained model (default: as the model)")
+    p.add_argument("--max-epochs", type=int, default=300, help="epoch limit of the retraining (default 300)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the retraining")
+    p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
+    p.add_argument("-o", "--output", metavar="NEW.npz", help="save the model with the effect(s) added")
+    p.add_argument("--force", action="store_true", help="replace an existing output model")
+    p.set_defaults(run=run)
+
+
+def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
+    """The model's training recordings from its metadata: (found, missing). A relative path is
+    tried as written (relative to the working directory) and relative to the model file."""
+    sources = (model.metadata or {}).get("sources", {}).get("train", [])
+    found, missing = [], []
+    for src in sources:
+        path = src.get("path") if isinstance(src, dict) else str(src)
+        if not path:
+            continue
+        path = path.split("#", 1)[0]  # a part of a recording (discrepancy retraining)
+        candidates = [path, os.path.join(os.path.dirname(os.path.abspath(model_path)), path)]
+        hit = next((p for p in candidates if os.path.exists(p)), None)
+        if hit is None:
+            missing.append(path)
+        elif hit not in found:
+            found.append(hit)
+    return found, missing
+
+
+def run(args: argparse.Namespace) -> CommandResult:
+    from ..model import load_model, save_model
+
+    if args.physics is not None:
+        raise BadInputError("--physics: the physics-model path is not available yet; use --model MODEL.npz")
+    for name in args.effects or []:
+        if name not in c.EFFECTS:
+            raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    if args.max_effects < 1:
+        raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
+    if not 0.0 < args.alpha < 1.0:
+        raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
+    if args.output and Path(args.output).exists() and not args.force:
+        raise OutputExistsError(f"{args.output}: already exists (use --force to replace it)")
+    model = load_model(args.model)
+    warnings: list[str] = []
+    if args.reference:
+        ref_paths = list(args.reference)
+    else:
+        ref_paths, missing = reference_paths(model, args.model)
+        if missing:
+            warnings.append(f"{len(missing)} of the model's training recordings not found "
+                            f"(e.g. {missing[0]}); give --reference")
+    progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
+             f"{len(args.holdout or [])} holdout recording(s)")
+    measured = load_all(args.measured, "measured")
+    reference = load_all(ref_paths, "reference") if ref_paths else []
+    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
+                   max_epochs=args.max_epochs, seed=args.seed, alpha=args.alpha,
+                   min_effect=args.min_reduction, report_dir=args.report)
+    result = run_workflow(model, measured, reference, holdout, opts, progress)
+    data = result.data
+    lines = list(result.lines)
+    if args.output:
+        if data["named"]:
+            meta = result.model.metadata
+            meta["discrepancy"] = {
+                "base_model": str(args.model),
+                "added": [{"effect": n, "input": data["added_inputs"][k],
+                           "parameters": data["evidence"][n].get("fitted_parameters", {})}
+                          for k, n in enumerate(data["named"])],
+            }
+            save_model(result.model, args.output, force=args.force)
+            data["model"] = str(args.output)
+            lines.append(f"saved the model with {', '.join(data['named'])} added to {args.output}")
+        else:
+            lines.append(f"nothing added: {args.output} not written")
+    warnings += data.pop("warnings", [])
+    data["warnings"] = warnings
+    return CommandResult(data, "\n".join(lines), warnings=warnings)

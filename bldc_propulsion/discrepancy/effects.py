@@ -1,0 +1,180 @@
+"""One candidate per effect of the contract: a feature from recorded signals, and how to add it.
+
+A candidate offers, for each value of its parameter grid, extra regression columns built from
+the recorded command and battery voltage only (never from the measured speed) for the
+residual-correction model of ``scoring.py``, and the model input (name + parameters) that the
+network gets when the effect is added. The grids are chosen so the dynamic candidates are
+specific: ``rotor_lag`` is a symmetric first-order lag, ``input_delay`` a pure dead time (no
+lag change), ``spin_down_asymmetry`` a lag whose falling time constant is at least twice
+its rising one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import contract as c
+from ..core import effect_features as ef
+from ..training.dataset import Signals
+
+Params = dict[str, float]
+
+
+@dataclass
+class Context:
+    """What the columns of one recording are built from (all on the recording's grid)."""
+
+    sig: Signals
+    prediction: np.ndarray  #: the model's predicted speed (rad/s)
+    speed_scale: float  #: rad/s that maps the prediction to ~[0, 1]
+
+    @property
+    def p(self) -> np.ndarray:
+        """PWM level centred and scaled to about [-1, 1]."""
+        return (self.sig.pwm - 0.075) / 0.025
+
+    @property
+    def yhat(self) -> np.ndarray:
+        return self.prediction / self.speed_scale
+
+
+def _feature(ctx: Context, name: str, params: Params) -> np.ndarray:
+    s = ctx.sig
+    pwm_t, pwm = s.pwm_events
+    volt_t, volt = s.voltage_events
+    return ef.compute(name, s.t, pwm_t, pwm, volt_t, volt, params)
+
+
+def _interacted(x: np.ndarray, ctx: Context) -> np.ndarray:
+    """x, x * pwm, x * prediction: the effect's size may depend on the operating point."""
+    return np.column_stack([x, x * ctx.p, x * ctx.yhat])
+
+
+@dataclass
+class Candidate:
+    """An effect as a hypothesis the data can confirm or reject."""
+
+    effect: str
+    input_name: str  #: model input added when the effect is added
+    grid: list[Params]  #: parameter values tried (fitted by choosing the best on training blocks)
+    columns: Callable[[Context, Params], np.ndarray]
+    describe: Callable[[Params], str]  #: the fitted feature in words
+    model_params: Callable[[Params], Params] = field(default=lambda p: dict(p))
+
+
+def _lag_columns(ctx: Context, params: Params) -> np.ndarray:
+    d = (_feature(ctx, ef.PWM_LAG, params) - ctx.sig.pwm) / 0.025
+    return _interacted(d, ctx)
+
+
+def _delay_columns(ctx: Context, params: Params) -> np.ndarray:
+    d = (_feature(ctx, ef.PWM_DELAYED, params) - ctx.sig.pwm) / 0.025
+    return _interacted(d, ctx)
+
+
+def _asym_columns(ctx: Context, params: Params) -> np.ndarray:
+    d = (_feature(ctx, ef.PWM_ASYMMETRIC_LAG, params) - ctx.sig.pwm) / 0.025
+    return _interacted(d, ctx)
+
+
+def _deadband_columns(ctx: Context, params: Params) -> np.ndarray:
+    thr = params["threshold"]
+    below = (ctx.sig.pwm < thr).astype(float)
+    above = np.maximum(ctx.sig.pwm - thr, 0.0) / 0.025
+    # below the start level the speed is zero whatever the model predicts (-> -yhat);
+    # above it the throttle map is compressed (a term in pwm - threshold)
+    return np.column_stack([below, below * ctx.yhat, above, above**2])
+
+
+def _heating_columns(ctx: Context, params: Params) -> np.ndarray:
+    # a hotter winding lowers the speed in proportion to the load: terms in theta * speed only
+    th = _feature(ctx, ef.THERMAL_LOAD, params)
+    return np.column_stack([th * ctx.yhat, th * ctx.yhat**2])
+
+
+def _voltage_columns(ctx: Context, params: Params) -> np.ndarray:
+    # the speed scales with the voltage the ESC chops: terms in V and V * speed
+    v = (ctx.sig.voltage - 11.5) / 1.0
+    return np.column_stack([v, v * ctx.yhat, v * ctx.yhat**2])
+
+
+def _pct(x: float) -> str:
+    return f"{x * 1000:.0f} ms"
+
+
+CANDIDATES: dict[str, Candidate] = {
+    "battery_voltage": Candidate(
+        "battery_voltage", c.INPUT_BATTERY_VOLTAGE, [{}], _voltage_columns,
+        lambda p: "the filtered battery voltage",
+    ),
+    "rotor_lag": Candidate(
+        "rotor_lag", ef.PWM_LAG,
+        [{"tau_s": t} for t in (0.03, 0.05, 0.07, 0.1, 0.14, 0.2, 0.3, 0.45)],
+        _lag_columns,
+        lambda p: f"the command through a first-order lag of {p['tau_s']:.2f} s",
+    ),
+    "input_delay": Candidate(
+        "input_delay", ef.PWM_DELAYED,
+        [{"delay_s": d} for d in (0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12)],
+        _delay_columns,
+        lambda p: f"the command delayed by a dead time of {_pct(p['delay_s'])}",
+    ),
+    "esc_deadband": Candidate(
+        "esc_deadband", ef.PWM_ABOVE_START,
+        [{"threshold": x} for x in (0.052, 0.053, 0.054, 0.055, 0.056, 0.057, 0.058, 0.06)],
+        _deadband_columns,
+        lambda p: f"no drive below an ESC start level of PWM {p['threshold']:.3f}",
+    ),
+    "spin_down_asymmetry": Candidate(
+        "spin_down_asymmetry", ef.PWM_ASYMMETRIC_LAG,
+        [{"tau_up_s": u, "tau_down_s": d} for u in (0.05, 0.08, 0.12, 0.18) for d in (0.2, 0.3, 0.45, 0.7, 1.0)
+         if d >= 2.0 * u],
+        _asym_columns,
+        lambda p: (f"a lag of {p['tau_up_s']:.2f} s when the command rises but "
+                   f"{p['tau_down_s']:.2f} s when it falls"),
+    ),
+    "motor_heating": Candidate(
+        "motor_heating", ef.THERMAL_LOAD,
+        [{"tau_s": t} for t in (30.0, 60.0, 120.0, 240.0)],
+        _heating_columns,
+        lambda p: f"a thermal state (time constant {p['tau_s']:.0f} s) driven by the I^2R losses",
+    ),
+}
+
+
+def null_columns(ctx: Context, model_inputs: np.ndarray | None) -> np.ndarray:
+    """What the correction may use without any effect: the operating point and the model's own
+    inputs, re-weighted. An effect scores only by what it adds beyond these, so a mere
+    mis-scaling of the model (a gain, an offset, a bent static map) is not taken for an effect."""
+    p = ctx.p
+    y = ctx.yhat
+    cols = [np.ones_like(p), p, p**2, p**3, y, y**2]
+    if model_inputs is not None and model_inputs.size:
+        for j in range(model_inputs.shape[1]):
+            z = model_inputs[:, j]
+            cols += [z, z * p]
+    return np.column_stack(cols)
+
+
+def candidates_for(model_inputs: Sequence[str], restrict: Sequence[str] | None = None) -> list[Candidate]:
+    """The candidates that make sense for a model with ``model_inputs``.
+
+    ``battery_voltage`` is a candidate only when the model lacks that input; an effect whose
+    input is already in the model (with a name of its own) is not offered again.
+    """
+    names = list(restrict) if restrict else list(c.EFFECTS)
+    out = []
+    for name in names:
+        cand = CANDIDATES[name]
+        if cand.input_name in model_inputs:
+            continue
+        out.append(cand)
+    return out
+
+
+def summary(cand: Candidate, params: Params) -> dict[str, Any]:
+    return {"input": cand.input_name, "parameters": cand.model_params(params), "feature": cand.describe(params)}

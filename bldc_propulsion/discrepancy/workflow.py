@@ -1,0 +1,431 @@
+"""The discrepancy workflow: simulate, find the disagreement, name the effect, add it, show the gap.
+
+1. Simulate: run the model over the measured recordings' inputs; residual r = measured - predicted.
+2. Disagree: windows where the smoothed |r| exceeds 3 x the reference residual's robust sigma,
+   with their operating conditions; whiteness and input cross-correlation tests; residual per
+   operating condition (the disagreement map).
+3. Name: every candidate effect (``effects.py``) is scored on held-out time blocks of the
+   measured data and of the reference data (``scoring.py``). NEW: significant (p < alpha) with a
+   clear effect size on the measured data, and not (or much less) on the reference. STRUCTURAL:
+   the reference improves about as much. The best new effect is named.
+4. Add: the network is retrained with the effect's input (fitted parameters) on reference +
+   measured recordings, early-stopped on the measured recordings' last part.
+5. Show: holdout RMSE before and after, overall and inside the holdout's disagreement windows.
+   Repeat from 2 with the new model until nothing new is significant or ``max_effects``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import contract as c
+from ..errors import BadInputError, ModelError
+from ..training.dataset import Signals
+from ..training.evaluate import predict_speed
+from ..training.train import features_of, train_model
+from . import effects as fx
+from . import residuals as rs
+from . import scoring as sc
+
+Progress = Callable[[str], None]
+
+#: Decision thresholds (see the module docstring).
+ALPHA = 0.01  #: significance level of the held-out randomisation test
+MIN_EFFECT = 0.10  #: least fractional held-out MSE reduction (beyond the null correction)
+STRUCTURAL_RATIO = 0.5  #: reference reduction >= this x measured reduction -> structural
+#: An effect must beat every other candidate of the same family (dynamics) by this fraction of
+#: the held-out MSE to be preferred over a simpler one: lag < delay < asymmetric lag.
+VALIDATION_FRACTION = 0.2
+
+
+@dataclass
+class Options:
+    max_effects: int = 3
+    restrict: Sequence[str] | None = None
+    hidden: int | None = None
+    max_epochs: int = 300
+    patience: int = 6
+    seed: int = 0
+    alpha: float = ALPHA
+    min_effect: float = MIN_EFFECT
+    report_dir: str | None = None
+
+
+@dataclass
+class DataSet:
+    """Recordings, the current model's prediction on them, and the residual."""
+
+    signals: list[Signals]
+    predictions: list[np.ndarray] = field(default_factory=list)
+    inputs: list[np.ndarray] = field(default_factory=list)  # model inputs scaled to [-1, 1]
+
+    @property
+    def residuals(self) -> list[np.ndarray]:
+        return [s.speed - p for s, p in zip(self.signals, self.predictions)]
+
+
+def check_inputs_computable(model: Any, signals: Sequence[Signals]) -> None:
+    """BadInputError naming the input that cannot be computed from the recordings."""
+    for name in model.input_names:
+        for s in signals:
+            try:
+                x = features_of(s, [name], model.feature_params())
+            except (KeyError, ValueError, BadInputError) as exc:
+                raise BadInputError(
+                    f"model input '{name}' cannot be computed from {s.path}: {exc}"
+                ) from None
+            if not np.any(np.isfinite(x)):
+                raise BadInputError(f"model input '{name}' cannot be computed from {s.path} (no valid value)")
+
+
+def run_model(model: Any, signals: Sequence[Signals]) -> DataSet:
+    ds = DataSet(list(signals))
+    for s in signals:
+        ds.predictions.append(predict_speed(model, s))
+        X = features_of(s, model.input_names, model.feature_params())
+        lo, hi = np.asarray(model.input_min), np.asarray(model.input_max)
+        span = np.where(hi > lo, hi - lo, 1.0)
+        ds.inputs.append(np.clip(2.0 * (X - lo) / span - 1.0, -1.5, 1.5))
+    return ds
+
+
+def _rmse(residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray] | None = None) -> float:
+    parts = []
+    for k, r in enumerate(residuals):
+        sel = np.isfinite(r)
+        if masks is not None:
+            sel &= masks[k]
+        parts.append(r[sel])
+    x = np.concatenate(parts) if parts else np.zeros(0)
+    return float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")
+
+
+# --- step 3: scores -------------------------------------------------------------------------------
+def score_dataset(ds: DataSet, cands: Sequence[fx.Candidate], speed_scale: float, what: str) -> dict[str, sc.Score]:
+    blocks = sc.make_blocks([s.duration_s for s in ds.signals], what)
+    labels = sc.block_labels([len(s.t) for s in ds.signals], blocks)
+    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions)]
+    r = np.concatenate(ds.residuals)
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs)])
+    out: dict[str, sc.Score] = {}
+    for cand in cands:
+        extras = [np.vstack([cand.columns(cx, prm) for cx in ctxs]) for prm in cand.grid]
+        out[cand.effect] = sc.score_candidate(r, labels, null_X, extras, cand.grid)
+    return out
+
+
+def fitted_params(ds: DataSet, cand: fx.Candidate, speed_scale: float) -> dict[str, float]:
+    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions)]
+    r = np.concatenate(ds.residuals)
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs)])
+    extras = [np.vstack([cand.columns(cx, prm) for cx in ctxs]) for prm in cand.grid]
+    return sc.fit_params(r, null_X, extras, cand.grid)
+
+
+def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: float) -> str:
+    """'new', 'structural' or 'not significant'."""
+    sig_meas = meas.p_value < alpha and meas.fraction >= min_effect
+    sig_ref = ref is not None and ref.p_value < alpha and ref.fraction >= min_effect
+    if sig_meas:
+        if ref is not None and sig_ref and ref.fraction >= STRUCTURAL_RATIO * meas.fraction:
+            return "structural"
+        return "new"
+    if sig_ref:
+        return "structural"
+    return "not significant"
+
+
+def sentence(effect: str, cand: fx.Candidate, params: dict[str, float], meas: sc.Score,
+             ref: sc.Score | None, verdict: str) -> str:
+    ref_txt = (f"{100 * max(ref.fraction, 0):.0f} % on the reference data (p = {ref.p_value:.2g})"
+               if ref is not None else "the reference data were not available")
+    if verdict == "new":
+        return (f"{effect}: {cand.describe(params)} removes {100 * meas.fraction:.0f} % of the model's "
+                f"remaining residual on held-out time blocks of the measured data "
+                f"({meas.blocks_improved} of {meas.blocks} blocks better, p = {meas.p_value:.2g}) "
+                f"but only {ref_txt}")
+    if verdict == "structural":
+        return (f"{effect}: {cand.describe(params)} removes {100 * meas.fraction:.0f} % of the held-out "
+                f"residual on the measured data and {ref_txt}: the model lacks it on its own "
+                f"training data too (structural, not new in the measured data)")
+    return (f"{effect}: {cand.describe(params)} removes {100 * meas.fraction:.0f} % of the held-out "
+            f"residual (p = {meas.p_value:.2g}): not significant")
+
+
+# --- step 4: add the effect ---------------------------------------------------------------------
+def slice_signals(s: Signals, t0: float, t1: float, tag: str) -> Signals:
+    """The part t0 <= t <= t1 of a recording (events kept up to t1, so filters keep their history)."""
+    sel = (s.t >= t0) & (s.t <= t1)
+    pt, pv = s.pwm_events
+    vt, vv = s.voltage_events
+    kp = pt <= t1
+    kv = vt <= t1
+    return dataclasses.replace(
+        s, path=f"{s.path}#{tag}", sha256=f"{s.sha256}#{tag}", t=s.t[sel], pwm=s.pwm[sel],
+        voltage=s.voltage[sel], speed=s.speed[sel],
+        thrust=s.thrust[sel] if s.thrust is not None else None,
+        current=s.current[sel] if s.current is not None else None,
+        pwm_events=(pt[kp], pv[kp]), voltage_events=(vt[kv], vv[kv]),
+    )
+
+
+def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference: Sequence[Signals],
+            measured: Sequence[Signals], opts: Options, progress: Progress) -> Any:
+    """The network with the effect's input added, trained on reference + measured recordings."""
+    inputs = list(model.input_names)
+    feature_params = {k: dict(v) for k, v in (model.feature_params() or {}).items()}
+    if cand.input_name not in inputs:
+        inputs.append(cand.input_name)
+    if params:
+        feature_params[cand.input_name] = cand.model_params(params)
+    train, val = list(reference), []
+    for s in measured:
+        cut = s.t[0] + (1.0 - VALIDATION_FRACTION) * (s.t[-1] - s.t[0])
+        train.append(slice_signals(s, s.t[0], cut, "train"))
+        val.append(slice_signals(s, cut, s.t[-1], "validation"))
+    hidden = opts.hidden or int(np.asarray(model.W1).shape[0])
+    progress(f"retraining {len(inputs)}-{hidden}-1 on {', '.join(inputs)} "
+             f"({len(train)} training parts, {len(val)} validation parts)")
+    outcome = train_model(
+        train, val, inputs=inputs, hidden=hidden, seed=opts.seed, pwm_tau_s=float(model.pwm_tau_s),
+        feature_params=feature_params, thrust_coefficient=float(model.thrust_coefficient),
+        max_epochs=opts.max_epochs, patience=opts.patience,
+    )
+    return outcome.model
+
+
+# --- the loop ------------------------------------------------------------------------------------
+@dataclass
+class WorkflowResult:
+    data: dict[str, Any]
+    model: Any  # final model (the base model if nothing was added)
+    lines: list[str]
+
+
+def windows_of(ds: DataSet, threshold: float) -> tuple[list[rs.Window], list[np.ndarray]]:
+    wins: list[rs.Window] = []
+    masks = []
+    for s, r in zip(ds.signals, ds.residuals):
+        w, m = rs.find_windows(s.path, s.t, r, s.pwm, s.voltage, threshold)
+        wins += w
+        masks.append(m)
+    return wins, masks
+
+
+def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
+                 holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+    restrict = list(opts.restrict) if opts.restrict else None
+    for name in restrict or []:
+        if name not in c.EFFECTS:
+            raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    check_inputs_computable(model, [*measured, *reference, *holdout])
+    warnings: list[str] = []
+    if not reference:
+        warnings.append("no reference recordings (give --reference or keep the model's training "
+                        "recordings where its metadata says): new and structural findings cannot be told apart")
+    in_sample_holdout = not holdout
+    if in_sample_holdout:
+        warnings.append("no --holdout recordings: before/after RMSE is on the measured recordings, "
+                        "which the new model was trained on (optimistic)")
+    hold = list(holdout) if holdout else list(measured)
+
+    # step 1
+    progress(f"step 1: running the model over {len(measured)} measured recording(s)")
+    base = model
+    meas = run_model(model, measured)
+    ref = run_model(model, reference) if reference else None
+    hold_base = run_model(model, hold)
+    speed_scale = max(float(model.output_max), 1.0)
+
+    # step 2
+    noise = rs.robust_sigma(np.concatenate(ref.residuals if ref else meas.residuals))
+    if not np.isfinite(noise) or noise <= 0:
+        noise = rs.robust_sigma(np.concatenate(meas.residuals))
+    threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
+    windows, _ = windows_of(meas, threshold)
+    tests = rs.residual_tests(meas.residuals, [
+        {"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)} for s in meas.signals])
+    tests_ref = (rs.residual_tests(ref.residuals, [
+        {"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)} for s in ref.signals]) if ref else None)
+    conditions = rs.condition_bins([s.t for s in meas.signals], meas.residuals,
+                                   [s.pwm for s in meas.signals], [s.voltage for s in meas.signals])
+    progress(f"step 2: {len(windows)} disagreement window(s) above {threshold:.1f} rad/s; "
+             f"measured residual RMSE {_rmse(meas.residuals):.2f} rad/s"
+             + (f", reference {_rmse(ref.residuals):.2f} rad/s" if ref else ""))
+
+    named: list[str] = []
+    structural: list[dict[str, Any]] = []
+    evidence: dict[str, Any] = {}
+    iterations: list[dict[str, Any]] = []
+    current = model
+    cur_meas, cur_ref = meas, ref
+    added_inputs: list[str] = []
+    while True:
+        cands = [cd for cd in fx.candidates_for(current.input_names, restrict) if cd.effect not in named]
+        if not cands:
+            break
+        progress(f"step 3: scoring {len(cands)} candidate effect(s) on held-out time blocks")
+        s_meas = score_dataset(cur_meas, cands, speed_scale, "measured")
+        s_ref = score_dataset(cur_ref, cands, speed_scale, "reference") if cur_ref else {}
+        round_ev: dict[str, Any] = {}
+        best: tuple[float, fx.Candidate] | None = None
+        for cand in cands:
+            m, r = s_meas[cand.effect], s_ref.get(cand.effect)
+            verdict = classify(m, r, opts.alpha, opts.min_effect)
+            params = m.params
+            text = sentence(cand.effect, cand, params, m, r, verdict)
+            round_ev[cand.effect] = {
+                "verdict": verdict,
+                "measured": m.as_dict(),
+                "reference": r.as_dict() if r is not None else None,
+                "p_value": m.p_value,
+                "feature": cand.describe(params),
+                "sentence": text,
+            }
+            progress(f"  {cand.effect:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
+                     + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
+                     + f"  -> {verdict}")
+            if verdict == "new" and (best is None or m.fraction > best[0]):
+                best = (m.fraction, cand)
+            if verdict == "structural" and cand.effect not in [x["effect"] for x in structural]:
+                structural.append({"effect": cand.effect, "sentence": text,
+                                   "measured_mse_reduction": m.fraction,
+                                   "reference_mse_reduction": r.fraction if r else None})
+        for k, v in round_ev.items():
+            if k not in evidence or k not in named:
+                evidence[k] = v
+        iterations.append({"evidence": round_ev})
+        if best is None or len(named) >= opts.max_effects:
+            if best is None:
+                progress("  no new effect is significant")
+            break
+        cand = best[1]
+        params = fitted_params(cur_meas, cand, speed_scale) if len(cand.grid) > 1 else {}
+        named.append(cand.effect)
+        evidence[cand.effect]["named"] = True
+        evidence[cand.effect]["fitted_parameters"] = params
+        progress(f"  named: {round_ev[cand.effect]['sentence']}")
+        progress(f"step 4: adding {cand.effect} as input '{cand.input_name}' {params or ''}")
+        new_model = retrain(current, cand, params, reference, measured, opts, progress)
+        added_inputs.append(cand.input_name)
+        hold_new = run_model(new_model, hold)
+        iterations[-1].update({
+            "named": cand.effect, "input": cand.input_name, "parameters": params,
+            "holdout_rmse_rad_s": _rmse(hold_new.residuals),
+        })
+        progress(f"step 5: holdout RMSE {_rmse(hold_base.residuals):.2f} -> {_rmse(hold_new.residuals):.2f} rad/s")
+        current = new_model
+        if len(named) >= opts.max_effects:
+            break
+        cur_meas = run_model(current, measured)
+        cur_ref = run_model(current, reference) if reference else None
+
+    # step 5: the gap
+    hold_final = run_model(current, hold) if current is not base else hold_base
+    hold_windows, hold_masks = windows_of(hold_base, threshold)
+    before = _rmse(hold_base.residuals)
+    after = _rmse(hold_final.residuals)
+    win_before = _rmse(hold_base.residuals, hold_masks) if any(m.any() for m in hold_masks) else None
+    win_after = _rmse(hold_final.residuals, hold_masks) if any(m.any() for m in hold_masks) else None
+    data: dict[str, Any] = {
+        "named": named,
+        "structural": structural,
+        "holdout_rmse_before": before,
+        "holdout_rmse_after": after,
+        "holdout_rmse_in_windows_before": win_before,
+        "holdout_rmse_in_windows_after": win_after,
+        "holdout_in_sample": in_sample_holdout,
+        "holdout_recordings": [s.path for s in hold],
+        "windows": [w.as_dict() for w in windows],
+        "holdout_windows": [w.as_dict() for w in hold_windows],
+        "window_threshold_rad_s": threshold,
+        "evidence": evidence,
+        "residual_tests": {"measured": tests.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
+        "conditions": conditions,
+        "iterations": iterations,
+        "added_inputs": added_inputs,
+        "reference_recordings": [s.path for s in reference],
+        "measured_recordings": [s.path for s in measured],
+        "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
+                     "structural_ratio": STRUCTURAL_RATIO,
+                     "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
+        "warnings": warnings,
+        "model": None,
+    }
+    if opts.report_dir:
+        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, windows,
+                                      hold_windows, data)
+    lines = summary_lines(data)
+    return WorkflowResult(data, current, lines)
+
+
+def summary_lines(data: dict[str, Any]) -> list[str]:
+    lines = []
+    if data["named"]:
+        lines.append("new effect(s) found in the measured data: " + ", ".join(data["named"]))
+        for name in data["named"]:
+            lines.append("  " + data["evidence"][name]["sentence"])
+    else:
+        lines.append("no new effect is significant in the measured data: nothing named")
+    for s in data["structural"]:
+        lines.append("structural (also on the reference data): " + s["sentence"])
+    lines.append(f"{len(data['windows'])} disagreement window(s) in the measured data "
+                 f"(smoothed |residual| > {data['window_threshold_rad_s']:.1f} rad/s)")
+    for w in data["windows"][:5]:
+        cnd = w["conditions"]
+        lines.append(f"  {Path(w['path']).name} {w['t_start_s']:.1f}-{w['t_end_s']:.1f} s: "
+                     f"RMS {w['rms_residual_rad_s']:.1f} rad/s at PWM {cnd['pwm']:.3f} ({cnd['pwm_direction']}), "
+                     f"{cnd['battery_voltage_v']:.2f} V, {cnd['time_under_load_s']:.0f} s under load")
+    wt = data["residual_tests"]["measured"]
+    if wt.get("whiteness"):
+        lines.append(f"residual whiteness: Ljung-Box p = {wt['whiteness']['ljung_box_p']:.2g} "
+                     f"({wt['whiteness']['lags_outside_bounds']}/{wt['whiteness']['lags_tested']} lags outside "
+                     f"+/-{wt['bound_95']:.3f})")
+    hold = "holdout" if not data["holdout_in_sample"] else "measured (in-sample)"
+    lines.append(f"{hold} RMSE {data['holdout_rmse_before']:.2f} -> {data['holdout_rmse_after']:.2f} rad/s"
+                 + (f"; inside its disagreement windows {data['holdout_rmse_in_windows_before']:.2f} -> "
+                    f"{data['holdout_rmse_in_windows_after']:.2f} rad/s"
+                    if data["holdout_rmse_in_windows_before"] is not None else ""))
+    return lines
+
+
+def write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
+                 windows: Sequence[rs.Window], hold_windows: Sequence[rs.Window], data: dict[str, Any]) -> str:
+    """Disagreement map and before/after figures (training/report.py) and an index.html."""
+    from ..training import report as rp
+
+    if d.exists() and not d.is_dir():
+        raise BadInputError(f"--report {d}: exists and is not a directory")
+    d.mkdir(parents=True, exist_ok=True)
+    figs = []
+    pwm = np.concatenate([s.pwm for s in meas.signals])
+    rate = np.concatenate([rs.pwm_rate(s.t, s.pwm) for s in meas.signals])
+    volt = np.concatenate([s.voltage for s in meas.signals])
+    res = np.concatenate(meas.residuals)
+    rp.fig_disagreement_map(pwm, rate, res, d / "disagreement_map.png", voltage=volt)
+    figs.append(("disagreement_map.png", "mean residual (measured - model) per PWM level and rate, "
+                 "and vs battery voltage, on the measured recordings"))
+    for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions)):
+        name = f"before_after_{k}.png"
+        spans = [(w.t_start_s, w.t_end_s) for w in hold_windows if w.path == s.path]
+        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans)
+        figs.append((name, f"{s.path}: model before and after adding {', '.join(data['named']) or 'nothing'}"))
+    rows = [{"effect": k, "verdict": v["verdict"],
+             "measured reduction": v["measured"]["mse_reduction"], "measured p": v["measured"]["p_value"],
+             "reference reduction": (v["reference"] or {}).get("mse_reduction"),
+             "reference p": (v["reference"] or {}).get("p_value"), "feature": v["feature"]}
+            for k, v in data["evidence"].items()]
+    gap = [{"holdout RMSE before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
+            "in windows before": data["holdout_rmse_in_windows_before"],
+            "in windows after": data["holdout_rmse_in_windows_after"]}]
+    rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs,
+                   [("candidate effects (held-out scores)", rows), ("the gap", gap)])
+    return str(d)

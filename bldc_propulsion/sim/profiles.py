@@ -1,0 +1,153 @@
+"""Seeded, reproducible ESC command profiles: one PWM level per 50 Hz frame (zero-order hold).
+
+Each profile is ``f(duration_s, rng) -> levels`` with one level in [PWM_STOP, PWM_FULL] per
+frame; frame k starts at k / PWM_FRAME_HZ. The same seed always gives the same profile.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from ..contract import PWM_FRAME_HZ, PWM_FULL, PWM_STOP
+from ..errors import BadInputError
+
+Profile = Callable[[float, np.random.Generator], np.ndarray]
+
+_MID = 0.5 * (PWM_STOP + PWM_FULL)
+
+
+def _frames(duration_s: float) -> int:
+    """Frames needed to cover [0, duration_s)."""
+    return max(1, int(math.ceil(duration_s * PWM_FRAME_HZ - 1e-9)))
+
+
+def _frame_t(n: int) -> np.ndarray:
+    return np.arange(n, dtype=float) / PWM_FRAME_HZ
+
+
+def _hold(levels: list[float], holds_s: list[float], n: int) -> np.ndarray:
+    """Piecewise-constant sequence of (level, hold) cut or padded (last level) to n frames."""
+    counts = np.maximum(1, np.round(np.asarray(holds_s) * PWM_FRAME_HZ).astype(int))
+    out = np.repeat(np.asarray(levels, dtype=float), counts)
+    if len(out) < n:
+        out = np.concatenate([out, np.full(n - len(out), out[-1] if len(out) else PWM_STOP)])
+    return out[:n]
+
+
+def staircase(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Steps of 0.005 up from 0.05 to 0.10 and back down, 4-6 s each (the paper's training data)."""
+    n = _frames(duration_s)
+    up = list(np.round(np.arange(PWM_STOP, PWM_FULL + 1e-9, 0.005), 6))
+    cycle = up + up[-2:0:-1]  # 0.05 .. 0.10 .. 0.055, then repeats from 0.05
+    levels: list[float] = []
+    holds: list[float] = []
+    total = 0.0
+    while total < duration_s:
+        for lvl in cycle:
+            h = float(rng.uniform(4.0, 6.0))
+            levels.append(float(lvl))
+            holds.append(h)
+            total += h
+            if total >= duration_s:
+                break
+    return _hold(levels, holds, n)
+
+
+def triangle(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Linear sweep 0.05 -> 0.10 -> 0.05 over 60 s, repeated (paper Fig. 5)."""
+    del rng  # deterministic: the paper's sweep
+    t = _frame_t(_frames(duration_s))
+    period = 60.0
+    phase = (t % period) / period
+    tri = 1.0 - np.abs(2.0 * phase - 1.0)  # 0 -> 1 -> 0
+    return PWM_STOP + (PWM_FULL - PWM_STOP) * tri
+
+
+def constant(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """One level, 0.085, for the whole run: battery drain at a fixed command (paper Figs. 3-4)."""
+    del rng
+    return np.full(_frames(duration_s), 0.085)
+
+
+def chirp(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Noisy chirp around mid throttle, 0.05 Hz rising to 3 Hz (paper Fig. 13, validation data).
+
+    The frequency rises exponentially so each octave gets the same time; frame noise of
+    0.002 mimics the paper's "noisy pwm input".
+    """
+    t = _frame_t(_frames(duration_s))
+    f0, f1 = 0.05, 3.0
+    span = max(duration_s, 1e-9)
+    k = math.log(f1 / f0) / span
+    phase = 2.0 * math.pi * f0 * (np.expm1(k * t) / k)
+    lvl = _MID + 0.015 * np.sin(phase) + rng.normal(0.0, 0.002, len(t))
+    return np.clip(lvl, PWM_STOP, PWM_FULL)
+
+
+def random_steps(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Random levels over the whole range held for random 0.5-5 s: rich excitation."""
+    n = _frames(duration_s)
+    levels: list[float] = []
+    holds: list[float] = []
+    total = 0.0
+    while total < duration_s:
+        levels.append(float(np.round(rng.uniform(PWM_STOP, PWM_FULL), 4)))
+        holds.append(float(rng.uniform(0.5, 5.0)))
+        total += holds[-1]
+    return _hold(levels, holds, n)
+
+
+def high_load(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Long high throttle (0.095-0.10) with brief dips every 15-40 s: heats the motor."""
+    n = _frames(duration_s)
+    levels: list[float] = []
+    holds: list[float] = []
+    total = 0.0
+    while total < duration_s:
+        levels.append(float(np.round(rng.uniform(0.095, PWM_FULL), 4)))
+        holds.append(float(rng.uniform(15.0, 40.0)))
+        levels.append(float(np.round(rng.uniform(0.065, 0.08), 4)))
+        holds.append(float(rng.uniform(0.5, 2.0)))
+        total += holds[-1] + holds[-2]
+    return _hold(levels, holds, n)
+
+
+PROFILES: dict[str, Profile] = {
+    "staircase": staircase,
+    "triangle": triangle,
+    "constant": constant,
+    "chirp": chirp,
+    "random_steps": random_steps,
+    "high_load": high_load,
+}
+
+
+def check_duration(duration_s: float) -> float:
+    """A finite, positive duration (BadInputError otherwise)."""
+    try:
+        d = float(duration_s)
+    except (TypeError, ValueError):
+        raise BadInputError(f"--duration {duration_s!r}: not a number") from None
+    if not math.isfinite(d) or d <= 0.0:
+        raise BadInputError(f"--duration {duration_s!r}: must be a finite number of seconds > 0")
+    return d
+
+
+def make_profile(
+    name: str, duration_s: float, seed_or_rng: int | np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(frame start times [s], PWM levels) of profile ``name`` covering [0, duration_s)."""
+    if name not in PROFILES:
+        raise BadInputError(f"--profile {name}: unknown profile (known: {', '.join(PROFILES)})")
+    d = check_duration(duration_s)
+    if isinstance(seed_or_rng, np.random.Generator):
+        rng = seed_or_rng
+    else:
+        if isinstance(seed_or_rng, bool) or not isinstance(seed_or_rng, (int, np.integer)) or seed_or_rng < 0:
+            raise BadInputError(f"--seed {seed_or_rng!r}: must be a whole number >= 0")
+        rng = np.random.default_rng(int(seed_or_rng))
+    levels = np.asarray(PROFILES[name](d, rng), dtype=float)
+    return _frame_t(len(levels)), levels

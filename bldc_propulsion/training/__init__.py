@@ -1,0 +1,1 @@
+"""Offline training: network maths (network.py), Levenberg-Marquardt (lm.py) and the workflow."""

@@ -1,0 +1,211 @@
+"""The `train` and `evaluate` subcommands: arguments, work, summaries."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import contract as c
+from ..cli import CommandResult, progress
+from ..errors import BadInputError, OutputExistsError
+from ..model import load_model, save_model
+from .dataset import Signals, load_signals
+from .evaluate import evaluate, predict_speed
+from .train import load_all, train_model
+
+#: b of the nominal bench (12x4.5 propeller, CT ~0.105, rho 1.225, D 0.305 m): used when no
+#: recording has /thrust/measured and no --thrust-coefficient is given.
+DEFAULT_THRUST_COEFFICIENT = 2.8e-5
+
+
+def _inputs(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("at least one input name")
+    if len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(f"{text!r} names an input twice")
+    return names
+
+
+def add_train_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("train", nargs="+", metavar="TRAIN_BAG", help="training recordings")
+    p.add_argument("--validation", nargs="+", required=True, metavar="BAG",
+                   help="validation recordings (separate experiments; they stop the training)")
+    p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
+    p.add_argument("--inputs", type=_inputs, default=list(c.DEFAULT_INPUTS),
+                   help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
+    p.add_argument("--hidden", type=int, default=c.PAPER_HIDDEN, help="hidden neurons (default 25)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the initial weights")
+    p.add_argument("--max-epochs", type=int, default=1000, help="epoch limit (default 1000)")
+    p.add_argument("--patience", type=int, default=6,
+                   help="stop after this many epochs without validation improvement (default 6)")
+    p.add_argument("--thrust-coefficient", type=float, default=DEFAULT_THRUST_COEFFICIENT,
+                   help="b in thrust = b w^2 (N s^2/rad^2) when no recording has /thrust/measured")
+    p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
+    p.add_argument("--force", action="store_true", help="replace an existing model file")
+    p.set_defaults(run=run_train)
+
+
+def _check_disjoint(train: list[str], validation: list[str]) -> None:
+    both = {os.path.realpath(p) for p in train} & {os.path.realpath(p) for p in validation}
+    if both:
+        raise BadInputError(
+            f"{sorted(both)[0]}: given for both training and validation (they must be separate recordings)"
+        )
+
+
+def run_train(args: argparse.Namespace) -> CommandResult:
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
+    _check_disjoint(args.train, args.validation)
+    progress(f"reading {len(args.train)} training and {len(args.validation)} validation recordings")
+    train = load_all(args.train, "training")
+    validation = load_all(args.validation, "validation")
+    by_hash = {s.sha256: s.path for s in train}
+    for s in validation:
+        if s.sha256 in by_hash:
+            raise BadInputError(f"{s.path}: same recording as training recording {by_hash[s.sha256]}")
+
+    def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
+        progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
+
+    outcome = train_model(
+        train, validation, inputs=args.inputs, hidden=args.hidden, seed=args.seed,
+        thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
+        patience=args.patience, progress=report_epoch,
+    )
+    save_model(outcome.model, out, force=args.force)
+    meta = outcome.model.metadata
+    data: dict[str, Any] = {
+        "model": str(out),
+        "inputs": list(args.inputs),
+        "hidden": args.hidden,
+        "epochs": meta["epochs"],
+        "best_epoch": meta["best_epoch"],
+        "stop_reason": meta["stop_reason"],
+        "train_cost": meta["train_cost"],
+        "validation_cost": meta["validation_cost"],
+        "train_rmse_rad_s": outcome.train_rmse_rad_s,
+        "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
+        "thrust_coefficient": outcome.thrust.coefficient,
+        "thrust_fit": {"source": outcome.thrust.source, "residual_rms_n": outcome.thrust.residual_rms_n,
+                       "samples": outcome.thrust.samples},
+        "samples": meta["samples"],
+    }
+    if args.report:
+        data["report"] = write_training_report(Path(args.report), outcome)
+    fit = outcome.thrust
+    text = "\n".join([
+        f"trained {len(args.inputs)}-{args.hidden}-1 on {', '.join(args.inputs)}: "
+        f"{meta['epochs']} epochs, best {meta['best_epoch']} ({meta['stop_reason']})",
+        f"  RMSE training {outcome.train_rmse_rad_s:.2f} rad/s, validation {outcome.validation_rmse_rad_s:.2f} rad/s "
+        f"({meta['samples']['train']} / {meta['samples']['validation']} samples)",
+        f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source}"
+        + (f", residual {fit.residual_rms_n:.3f} N RMS)" if fit.residual_rms_n is not None else ")"),
+        f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
+    ])
+    return CommandResult(data, text)
+
+
+def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--model", required=True, help="model file (.npz) from `train`")
+    p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
+    p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
+    p.set_defaults(run=run_evaluate)
+
+
+def run_evaluate(args: argparse.Namespace) -> CommandResult:
+    model = load_model(args.model)
+    signals = [load_signals(p) for p in args.recordings]
+    rmse, scores, preds = evaluate(model, signals)
+    data: dict[str, Any] = {
+        "model": str(args.model),
+        "rmse_rad_s": rmse,
+        "recordings": [s.as_dict() for s in scores],
+    }
+    lines = [f"model {args.model}: overall RMSE {rmse:.2f} rad/s"]
+    for s in scores:
+        lines.append(
+            f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
+            f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
+        )
+        for b in s.bands:
+            lines.append(
+                f"      command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz: RMSE {b['rmse_rad_s']:.2f} rad/s "
+                f"({b['rmse_percent_of_range']:.2f} %)"
+            )
+    if args.report:
+        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores)
+        lines.append(f"  figures in {data['report']}")
+    return CommandResult(data, "\n".join(lines))
+
+
+# --- reports -------------------------------------------------------------------------------
+def _report_dir(path: Path) -> Path:
+    if path.exists() and not path.is_dir():
+        raise BadInputError(f"{path}: --report must be a directory")
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def write_training_report(path: Path, outcome: Any) -> str:
+    from . import report
+
+    d = _report_dir(path)
+    figs: list[tuple[str, str]] = []
+    h = outcome.lm.history
+    report.fig_training(np.asarray(h["train_cost"]), np.asarray(h["val_cost"]), outcome.lm.best_epoch,
+                        d / "fig12_training.png")
+    figs.append(("fig12_training.png", "Fig. 12: training and validation cost per epoch"))
+    first = outcome.train[0]
+    raw = _raw_battery(first)
+    if raw is not None:
+        report.fig_battery_filter(raw[0], raw[1], raw[2], d / "fig01_battery_filter.png",
+                                  pwm_t=first.t, pwm=first.pwm)
+        figs.append(("fig01_battery_filter.png", f"Fig. 1-2: raw vs filtered battery voltage ({first.path})"))
+    ramp = next((s for s in outcome.train if "triangle" in s.path or "ramp" in s.path), outcome.train[-1])
+    report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png")
+    figs.append(("fig05_ramp.png", f"Figs. 5-6: PWM and measured speed ({ramp.path})"))
+    for k, sig in enumerate(outcome.validation):
+        pred = predict_speed(outcome.model, sig)
+        name = f"fig13_validation_{k}.png"
+        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
+        figs.append((name, f"Fig. 13: predicted vs measured speed on validation recording {sig.path}"))
+    report.write_index(d, "bldc_propulsion training report", figs)
+    return str(d)
+
+
+def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> str:
+    from . import report
+
+    d = _report_dir(path)
+    figs: list[tuple[str, str]] = []
+    for k, (sig, pred) in enumerate(zip(signals, preds)):
+        name = f"fig13_{k}.png"
+        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
+        figs.append((name, f"predicted vs measured speed: {sig.path}"))
+        name = f"scatter_{k}.png"
+        report.fig_prediction_scatter(sig.speed, pred, d / name)
+        figs.append((name, f"predicted vs measured: {sig.path}"))
+    rows = [{k: v for k, v in s.as_dict().items() if k != "bands"} for s in scores]
+    report.write_index(d, "bldc_propulsion evaluation report", figs, [("per recording", rows)])
+    return str(d)
+
+
+def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(t, raw battery V with divider undone, filtered V) for Fig. 1, when battery/adc exists."""
+    from ..bagio import open_recording
+    from ..core.battery_filter import BatteryFilterConfig
+
+    with open_recording(sig.path) as rec:
+        if not rec.has(c.TOPIC_BATTERY_ADC):
+            return None
+        t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
+    ratio = BatteryFilterConfig().divider_ratio
+    return t, adc * ratio, np.interp(t, *sig.voltage_events)
+

@@ -1,0 +1,46 @@
+"""`bldc-propulsion import-csv`: arguments and runner (the converter is import_csv.py)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..cli import CommandResult, progress
+from ..errors import BadInputError
+
+
+def _pole_pairs(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive integer")
+    return value
+
+
+def add_import_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``import-csv``: ``CSV -o BAG [--force] [--pole-pairs N]``."""
+    parser.add_argument("csv", metavar="CSV", help="RCbenchmark / Tyto Robotics CSV log")
+    parser.add_argument("-o", "--output", required=True, help="bag directory to write")
+    parser.add_argument("--force", action="store_true", help="replace an existing output")
+    parser.add_argument(
+        "--pole-pairs", type=_pole_pairs, default=None, metavar="N",
+        help=(
+            "divide the 'Motor Electrical Speed (RPM)' column by N (e.g. 7 for a 14-pole "
+            "outrunner) because it holds raw commutation RPM. Default: none, the column is "
+            "taken as shaft RPM, which is what the RCbenchmark software writes (it divides by "
+            "the pole count set in its setup). Not used when optical RPM has data."
+        ),
+    )
+    parser.set_defaults(run=run_import)
+
+
+def run_import(args: argparse.Namespace) -> CommandResult:
+    """Run the import; ``--json`` data has ``path``, ``rows`` and the full summary."""
+    from .import_csv import import_csv, summary_text
+
+    if not args.output:
+        raise BadInputError("-o/--output: an output bag path is required")
+    progress(f"importing {args.csv}")
+    info = import_csv(args.csv, args.output, force=args.force, pole_pairs=args.pole_pairs)
+    return CommandResult(info, summary_text(info), warnings=list(info.get("warnings", [])))

@@ -1,0 +1,173 @@
+"""Recordings -> aligned signals on one time grid, decoded by the same cores the nodes run.
+
+Measured speed is ``rotor/speed`` when a recording carries it (ESC telemetry, an imported
+thrust-stand log), else decoded from ``tachometer/adc``; battery voltage is ``battery/voltage``
+when recorded, else ``battery/adc`` through the battery filter. ``truth/*`` is never read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import contract as c
+from ..bagio import open_recording
+from ..core.battery_filter import BatteryFilter, BatteryFilterConfig
+from ..core.tachometer import TachometerConfig, TachometerDecoder
+from ..errors import BadInputError, BagError
+
+#: Grid on which features and targets are aligned: 100 Hz resolves the rotor's ~0.1 s time
+#: constant and the 50 Hz command, and matches the estimator node's output rate.
+GRID_RATE_HZ = 100.0
+#: Least recording (after alignment) that is worth training or evaluating on.
+MIN_SAMPLES = 50
+
+
+@dataclass
+class Signals:
+    """One recording's signals on a common grid (SI units)."""
+
+    path: str
+    sha256: str
+    t: np.ndarray  #: grid times (s from the recording's start)
+    pwm: np.ndarray  #: PWM level, zero-order hold of the command
+    voltage: np.ndarray  #: filtered battery voltage (V)
+    speed: np.ndarray  #: measured rotor speed (rad/s)
+    thrust: np.ndarray | None  #: measured thrust (N) if recorded
+    current: np.ndarray | None = None  #: battery current (A) if recorded
+    speed_source: str = ""
+    voltage_source: str = ""
+    #: raw event streams, for features that need them (e.g. PWM command times)
+    pwm_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
+    voltage_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+
+def recording_sha256(path: str | os.PathLike[str]) -> str:
+    """sha256 over a bag's files (sorted relative names and contents): provenance in models."""
+    p = Path(path)
+    h = hashlib.sha256()
+    files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+    for f in files:
+        h.update(str(f.relative_to(p) if p.is_dir() else f.name).encode())
+        with open(f, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def decode_speed(rec, config: TachometerConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Speed samples (t, rad/s) from ``tachometer/adc`` through the tachometer core.
+
+    Each 4-edge estimate is the mean speed over the last revolution, so it is placed at the
+    middle of that revolution (removes the half-revolution lag: 60 ms at 50 rad/s). While the
+    core reports no signal (rotor stopped), zeros are placed at the batch times.
+    """
+    dec = TachometerDecoder(config or TachometerConfig())
+    edges_per_rev = 2 * dec.config.blades
+    times: list[np.ndarray] = []
+    values: list[np.ndarray] = []
+    edge_hist = np.zeros(0)
+    for t_batch, samples in rec.tachometer():
+        out = dec.process_batch(t_batch, samples)
+        if len(out.edge_t):
+            edge_hist = np.concatenate([edge_hist, out.edge_t])[-(edges_per_rev + 64):]
+        if len(out.speed):
+            # speed k spans one revolution ending at its edge: centre = end - pi/speed
+            mid = out.edge_t[-len(out.speed):] - np.pi / np.maximum(out.speed, 1e-9)
+            times.append(mid)
+            values.append(np.asarray(out.speed, dtype=float))
+        elif out.speed_now == 0.0 and not out.signal_ok:
+            times.append(np.array([t_batch]))
+            values.append(np.array([0.0]))
+    if not times:
+        return np.zeros(0), np.zeros(0)
+    t = np.concatenate(times)
+    v = np.concatenate(values)
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
+
+
+def _hold(t_events: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Zero-order hold of an event stream at grid times (value of the last event <= t)."""
+    idx = np.searchsorted(t_events, grid, side="right") - 1
+    return values[np.clip(idx, 0, len(values) - 1)]
+
+
+def load_signals(
+    path: str | os.PathLike[str],
+    *,
+    grid_rate_hz: float = GRID_RATE_HZ,
+    battery: BatteryFilterConfig | None = None,
+    tachometer: TachometerConfig | None = None,
+    need_speed: bool = True,
+) -> Signals:
+    """Read one recording and align its signals on a ``grid_rate_hz`` grid."""
+    with open_recording(path) as rec:
+        if rec.message_count == 0:
+            raise BagError(f"{path}: recording is empty")
+        pwm_t, pwm = rec.scalars(c.TOPIC_PWM)
+        if len(pwm_t) < 2:
+            raise BagError(f"{path}: topic /pwm has {len(pwm_t)} messages, need at least 2")
+        if rec.has(c.TOPIC_BATTERY_VOLTAGE):
+            volt_t, volt = rec.battery_voltages(c.TOPIC_BATTERY_VOLTAGE)
+            voltage_source = "battery/voltage (recorded)"
+        elif rec.has(c.TOPIC_BATTERY_ADC):
+            adc_t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
+            filt = BatteryFilter(battery or BatteryFilterConfig())
+            v = filt.process(adc_t, adc)
+            ok = np.isfinite(v)
+            volt_t, volt = adc_t[ok], v[ok]
+            voltage_source = "battery/adc through the battery filter"
+        else:
+            raise BagError(f"{path}: neither /battery/voltage nor /battery/adc is recorded")
+        if len(volt_t) < 2:
+            raise BagError(f"{path}: battery voltage has fewer than 2 valid samples")
+        speed_t = speed = None
+        speed_source = ""
+        if rec.has(c.TOPIC_ROTOR_SPEED):
+            speed_t, speed = rec.scalars(c.TOPIC_ROTOR_SPEED)
+            speed_source = "rotor/speed (recorded)"
+        elif rec.has(c.TOPIC_TACH_ADC):
+            speed_t, speed = decode_speed(rec, tachometer)
+            speed_source = "tachometer/adc through the tachometer decoder"
+        elif need_speed:
+            raise BagError(f"{path}: neither /rotor/speed nor /tachometer/adc is recorded")
+        thrust_t = thrust = None
+        if rec.has(c.TOPIC_THRUST_MEASURED):
+            thrust_t, thrust = rec.scalars(c.TOPIC_THRUST_MEASURED)
+        current_t = current = None
+        if rec.has("battery/current", c.FLOAT64):
+            current_t, current = rec.scalars("battery/current")
+
+    start = max(pwm_t[0], volt_t[0], speed_t[0] if speed_t is not None and len(speed_t) else -np.inf)
+    stop = min(pwm_t[-1], volt_t[-1], speed_t[-1] if speed_t is not None and len(speed_t) else np.inf)
+    if need_speed and (speed_t is None or len(speed_t) < 2):
+        raise BagError(f"{path}: no rotor speed could be measured (tachometer decoded no speed)")
+    grid = np.arange(np.ceil(start * grid_rate_hz), np.floor(stop * grid_rate_hz) + 1) / grid_rate_hz
+    if len(grid) < MIN_SAMPLES:
+        raise BadInputError(
+            f"{path}: only {max(len(grid), 0)} aligned samples at {grid_rate_hz:g} Hz "
+            f"(need at least {MIN_SAMPLES}: the recording is too short)"
+        )
+    return Signals(
+        path=str(path),
+        sha256=recording_sha256(path),
+        t=grid,
+        pwm=_hold(pwm_t, pwm, grid),
+        voltage=np.interp(grid, volt_t, volt),
+        speed=np.interp(grid, speed_t, speed) if speed_t is not None else np.full(len(grid), np.nan),
+        thrust=np.interp(grid, thrust_t, thrust) if thrust_t is not None and len(thrust_t) > 1 else None,
+        current=np.interp(grid, current_t, current) if current_t is not None and len(current_t) > 1 else None,
+        speed_source=speed_source,
+        voltage_source=voltage_source,
+        pwm_events=(pwm_t, pwm),
+        voltage_events=(volt_t, volt),
+    )

@@ -1,0 +1,111 @@
+"""How far a model's predicted speed is from the measured speed, per recording and per band."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal, stats
+
+from ..model import NetworkModel
+from .dataset import Signals
+from .train import features_of
+
+#: Command frequency bands (Hz) for chirp recordings: the paper notes the error grows with the
+#: PWM signal's frequency; these bands quantify it around the rotor's ~1.5 Hz corner.
+BANDS_HZ: tuple[tuple[float, float], ...] = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0))
+
+
+def predict_speed(model: NetworkModel, sig: Signals) -> np.ndarray:
+    """Predicted speed (rad/s) on the recording's grid, clipped to >= 0 as the estimator does."""
+    X = features_of(sig, model.input_names, model.feature_params())
+    X = np.clip(X, model.input_min, model.input_max)
+    return np.maximum(model.forward(X), 0.0)
+
+
+def command_frequency(t: np.ndarray, pwm: np.ndarray) -> np.ndarray:
+    """Instantaneous frequency (Hz) of the command's dominant oscillation.
+
+    The command is detrended, low-passed at 5 Hz (zero phase) to drop the added noise, and the
+    phase of its analytic signal (Hilbert transform) is differentiated and median-smoothed
+    over 2 s.
+    """
+    fs = 1.0 / float(np.median(np.diff(t)))
+    x = pwm - np.mean(pwm)
+    b, a = signal.butter(2, min(5.0 / (fs / 2.0), 0.99))
+    x = signal.filtfilt(b, a, x)
+    phase = np.unwrap(np.angle(signal.hilbert(x)))
+    f = np.gradient(phase, t) / (2.0 * np.pi)
+    k = int(2.0 * fs) | 1
+    return signal.medfilt(np.abs(f), k) if len(f) > k else np.abs(f)
+
+
+def is_chirp(t: np.ndarray, pwm: np.ndarray) -> tuple[bool, np.ndarray]:
+    """A chirp-like recording: its command frequency rises steadily over at least 2 octaves."""
+    if len(t) < 500 or np.ptp(pwm) <= 0:
+        return False, np.zeros(len(t))
+    f = command_frequency(t, pwm)
+    core = slice(len(f) // 20, len(f) - len(f) // 20)  # Hilbert edge effects
+    rho = stats.spearmanr(t[core], f[core]).statistic
+    lo, hi = np.percentile(f[core], [10, 90])
+    return bool(rho > 0.7 and hi > 4.0 * max(lo, 1e-3)), f
+
+
+@dataclass
+class RecordingScore:
+    path: str
+    rmse_rad_s: float
+    rmse_percent_of_range: float
+    max_error_rad_s: float
+    speed_range_rad_s: float
+    samples: int
+    bands: list[dict[str, float]] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "rmse_rad_s": self.rmse_rad_s,
+            "rmse_percent_of_range": self.rmse_percent_of_range,
+            "max_error_rad_s": self.max_error_rad_s,
+            "speed_range_rad_s": self.speed_range_rad_s,
+            "samples": self.samples,
+            "bands": self.bands,
+        }
+
+
+def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
+    """Errors of one recording, and the prediction they were computed from."""
+    pred = predict_speed(model, sig)
+    err = pred - sig.speed
+    ok = np.isfinite(err)
+    rng = float(np.ptp(sig.speed[ok])) if ok.any() else 0.0
+    rmse = float(np.sqrt(np.mean(err[ok] ** 2)))
+    out = RecordingScore(
+        path=sig.path,
+        rmse_rad_s=rmse,
+        rmse_percent_of_range=100.0 * rmse / rng if rng > 0 else float("nan"),
+        max_error_rad_s=float(np.max(np.abs(err[ok]))),
+        speed_range_rad_s=rng,
+        samples=int(ok.sum()),
+    )
+    chirp, freq = is_chirp(sig.t, sig.pwm)
+    if chirp:
+        for lo, hi in BANDS_HZ:
+            sel = ok & (freq >= lo) & (freq < hi)
+            if sel.sum() >= 50:
+                band_rmse = float(np.sqrt(np.mean(err[sel] ** 2)))
+                out.bands.append({
+                    "low_hz": lo, "high_hz": hi, "samples": int(sel.sum()), "rmse_rad_s": band_rmse,
+                    "rmse_percent_of_range": 100.0 * band_rmse / rng if rng > 0 else float("nan"),
+                })
+    return out, pred
+
+
+def evaluate(model: NetworkModel, signals: Sequence[Signals]) -> tuple[float, list[RecordingScore], list[np.ndarray]]:
+    """Overall RMSE (rad/s) over all samples, per-recording scores and predictions."""
+    scores, preds = zip(*(score(model, s) for s in signals)) if signals else ((), ())
+    errs = np.concatenate([p - s.speed for p, s in zip(preds, signals)])
+    errs = errs[np.isfinite(errs)]
+    return float(np.sqrt(np.mean(errs**2))), list(scores), list(preds)

@@ -1,0 +1,164 @@
+"""Train the speed model from recordings: features by the cores, weights by Levenberg-Marquardt."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from .. import contract as c
+from ..core.features import compute_features
+from ..errors import BadInputError
+from ..model import NetworkModel
+from .dataset import Signals, load_signals
+from .lm import LMResult, train_lm
+from .network import minmax_apply, minmax_fit, unpack
+
+
+def features_of(sig: Signals, names: Sequence[str], params: dict[str, dict[str, float]] | None = None) -> np.ndarray:
+    """Model inputs of one recording on its grid, computed by the estimator's feature code."""
+    pwm_t, pwm = sig.pwm_events
+    volt_t, volt = sig.voltage_events
+    return compute_features(sig.t, pwm_t, pwm, volt_t, volt, list(names), params or {})
+
+
+@dataclass
+class ThrustFit:
+    """Least-squares b in thrust = b w^2, and how well it fits."""
+
+    coefficient: float
+    residual_rms_n: float | None
+    samples: int
+    source: str
+
+
+def fit_thrust_coefficient(signals: Sequence[Signals], default: float) -> ThrustFit:
+    """b = sum(T w^2) / sum(w^4) over samples with measured thrust; else the configured b."""
+    w2 = [s.speed**2 for s in signals if s.thrust is not None]
+    thrust = [s.thrust for s in signals if s.thrust is not None]
+    if not w2:
+        return ThrustFit(default, None, 0, "configured (no /thrust/measured recorded)")
+    x = np.concatenate(w2)
+    y = np.concatenate(thrust)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if len(x) < 10 or float(np.dot(x, x)) <= 0.0:
+        return ThrustFit(default, None, 0, "configured (too little thrust data to fit)")
+    b = float(np.dot(x, y) / np.dot(x, x))
+    rms = float(np.sqrt(np.mean((y - b * x) ** 2)))
+    return ThrustFit(b, rms, int(len(x)), "least squares on /thrust/measured")
+
+
+@dataclass
+class TrainOutcome:
+    model: NetworkModel
+    lm: LMResult
+    train: list[Signals]
+    validation: list[Signals]
+    thrust: ThrustFit
+    train_rmse_rad_s: float
+    validation_rmse_rad_s: float
+
+
+def stack(signals: Sequence[Signals], names: Sequence[str], params: dict[str, dict[str, float]]) -> tuple[np.ndarray, np.ndarray]:
+    X = np.vstack([features_of(s, names, params) for s in signals])
+    y = np.concatenate([s.speed for s in signals])
+    ok = np.all(np.isfinite(X), axis=1) & np.isfinite(y)
+    return X[ok], y[ok]
+
+
+def train_model(
+    train: Sequence[Signals],
+    validation: Sequence[Signals],
+    *,
+    inputs: Sequence[str] = c.DEFAULT_INPUTS,
+    hidden: int = c.PAPER_HIDDEN,
+    seed: int = 0,
+    pwm_tau_s: float = c.PAPER_PWM_TAU_S,
+    feature_params: dict[str, dict[str, float]] | None = None,
+    thrust_coefficient: float,
+    max_epochs: int = 1000,
+    patience: int = 6,
+    progress: Callable[[int, float, float, float], None] | None = None,
+) -> TrainOutcome:
+    """Fit an n-H-1 network on ``train``, early-stopped on ``validation`` (separate recordings)."""
+    if not train or not validation:
+        raise BadInputError("training needs at least one training and one validation recording")
+    if hidden < 1:
+        raise BadInputError(f"--hidden {hidden}: must be at least 1")
+    params = {c.INPUT_PWM_FILTERED: {"tau_s": pwm_tau_s}, **(feature_params or {})}
+    X, y = stack(train, inputs, params)
+    Xv, yv = stack(validation, inputs, params)
+    n_params = hidden * (len(inputs) + 2) + 1
+    if len(y) < max(2 * n_params, 50):
+        raise BadInputError(
+            f"too little training data: {len(y)} samples for {n_params} weights "
+            f"(record longer or use fewer --hidden)"
+        )
+    if len(yv) < 20:
+        raise BadInputError(f"too little validation data: {len(yv)} samples")
+    try:
+        xmin, xmax = minmax_fit(X)
+    except ValueError as exc:
+        names = ", ".join(inputs)
+        raise BadInputError(f"training inputs ({names}) do not vary: {exc}") from None
+    ymin, ymax = float(np.min(y)), float(np.max(y))
+    if not ymax > ymin:
+        raise BadInputError("the measured speed does not vary in the training recordings")
+    Xs, Xvs = minmax_apply(X, xmin, xmax), minmax_apply(Xv, xmin, xmax)
+    ys = 2.0 * (y - ymin) / (ymax - ymin) - 1.0
+    yvs = 2.0 * (yv - ymin) / (ymax - ymin) - 1.0
+    result = train_lm(Xs, ys, Xvs, yvs, hidden, seed=seed, max_epochs=max_epochs,
+                      patience=patience, progress=progress)
+    W1, b1, W2, b2 = unpack(result.phi, len(inputs), hidden)
+    fit = fit_thrust_coefficient(train, thrust_coefficient)
+    metadata: dict[str, Any] = {
+        "package_version": __version__,
+        "sources": {
+            "train": [{"path": s.path, "sha256": s.sha256} for s in train],
+            "validation": [{"path": s.path, "sha256": s.sha256} for s in validation],
+        },
+        "epochs": int(result.epochs),
+        "best_epoch": int(result.best_epoch),
+        "stop_reason": result.stop_reason,
+        "train_cost": float(result.history["train_cost"][result.best_epoch]),
+        "validation_cost": float(result.history["val_cost"][result.best_epoch]),
+        "history": {k: [float(x) for x in v] for k, v in result.history.items()},
+        "seed": int(seed),
+        "hidden": int(hidden),
+        "samples": {"train": int(len(y)), "validation": int(len(yv))},
+        "thrust_fit": {"source": fit.source, "residual_rms_n": fit.residual_rms_n, "samples": fit.samples},
+        "feature_params": params,
+    }
+    model = NetworkModel(
+        input_names=tuple(inputs),
+        input_min=np.asarray(xmin, dtype=float),
+        input_max=np.asarray(xmax, dtype=float),
+        output_min=ymin,
+        output_max=ymax,
+        W1=W1,
+        b1=b1,
+        W2=W2,
+        b2=float(b2),
+        pwm_tau_s=float(pwm_tau_s),
+        thrust_coefficient=float(fit.coefficient),
+        metadata=metadata,
+    )
+    rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
+    rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
+    return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
+
+
+def load_all(paths: Sequence[str | os.PathLike[str]], what: str) -> list[Signals]:
+    """Load recordings; a recording listed twice (same content) is refused, not double-counted."""
+    out = [load_signals(p) for p in paths]
+    seen: dict[str, str] = {}
+    for s in out:
+        if s.sha256 in seen:
+            raise BadInputError(f"{s.path}: same recording as {seen[s.sha256]} ({what})")
+        seen[s.sha256] = s.path
+    return out

@@ -1,0 +1,4 @@
+#!/usr/bin/env bash
+# Run the test suite in .venv (created on first use). Extra arguments go to pytest.
+source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
+exec .venv/bin/python -m pytest -q "$@" test

@@ -1,0 +1,206 @@
+"""Launch files, parameter file and node parameter tables agree (no ROS needed)."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+import dataclasses
+import importlib
+import math
+from pathlib import Path
+
+import pytest
+
+from bldc_propulsion.nodes import params as P
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / "launch"
+CONFIG = ROOT / "config" / "propulsion.yaml"
+NODES = ROOT / "bldc_propulsion" / "nodes"
+NODE_SOURCES = {
+    P.BATTERY_FILTER: NODES / "battery_filter_node.py",
+    P.TACHOMETER: NODES / "tachometer_node.py",
+    P.THRUST_ESTIMATOR: NODES / "thrust_estimator_node.py",
+}
+CORE_CONFIGS = {
+    P.BATTERY_FILTER: ("bldc_propulsion.core.battery_filter", "BatteryFilterConfig"),
+    P.TACHOMETER: ("bldc_propulsion.core.tachometer", "TachometerConfig"),
+}
+
+
+def load_yaml(path: Path):
+    try:
+        import yaml
+    except ImportError:  # PyYAML is on every ROS machine; ruamel.yaml in the plain venv
+        from ruamel.yaml import YAML
+
+        return YAML(typ="safe", pure=True).load(path.read_text())
+    return yaml.safe_load(path.read_text())
+
+
+def launch_arguments(path: Path) -> dict[str, str | None]:
+    """DeclareLaunchArgument(name, default_value=...) calls: {name: literal default or None}."""
+    out: dict[str, str | None] = {}
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "DeclareLaunchArgument":
+            name = node.args[0].value
+            default = next((k.value for k in node.keywords if k.arg == "default_value"), None)
+            out[name] = default.value if isinstance(default, ast.Constant) else None
+    return out
+
+
+def test_launch_files_parse_and_define_generate_launch_description():
+    for path in (LAUNCH / "propulsion.launch.py", LAUNCH / "quadrotor.launch.py"):
+        tree = ast.parse(path.read_text(), str(path))
+        names = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+        assert "generate_launch_description" in names, path
+
+
+def test_single_motor_launch_arguments():
+    args = launch_arguments(LAUNCH / "propulsion.launch.py")
+    assert set(args) == {"namespace", "use_sim_time", "params_file", "model", "single_process"}
+    assert args["namespace"] == ""  # root names: `ros2 bag play BENCH_BAG --clock` feeds it
+    assert args["use_sim_time"] == "false"
+    assert args["model"] == ""
+    assert args["single_process"] == "false"
+    assert args["params_file"] is None  # the installed config/propulsion.yaml (substitution)
+
+
+def test_quadrotor_launch_arguments_and_motor_namespaces():
+    args = launch_arguments(LAUNCH / "quadrotor.launch.py")
+    assert set(args) == {"use_sim_time", "params_file", "model", "single_process"}
+    source = (LAUNCH / "quadrotor.launch.py").read_text()
+    assert "propulsion.launch.py" in source and "propulsion_all" in source
+    assert P.namespaces(4) == ["motor0", "motor1", "motor2", "motor3"]
+
+
+def test_launch_files_start_the_entry_points_setup_py_installs():
+    setup = (ROOT / "setup.py").read_text()
+    for name in (*P.NODE_NAMES, "propulsion_all"):
+        assert f'"{name}"' in setup, f"setup.py has no entry point {name}"
+    source = (LAUNCH / "propulsion.launch.py").read_text()
+    for name in P.NODE_NAMES:
+        assert f"'{name}'" in source
+
+
+def test_parameter_file_uses_wildcard_namespace_and_node_names():
+    data = load_yaml(CONFIG)
+    # "/**/<node>": that node in any namespace, root or /motor0.. /motor3 (rcl wildcards)
+    assert set(data) == {f"/**/{node}" for node in P.NODE_NAMES}
+    for node in P.NODE_NAMES:
+        assert list(data[f"/**/{node}"]) == ["ros__parameters"]
+
+
+@pytest.mark.parametrize("node", P.NODE_NAMES)
+def test_parameter_file_matches_node_tables(node):
+    given = load_yaml(CONFIG)[f"/**/{node}"]["ros__parameters"]
+    table = {p.name: p for p in P.NODE_PARAMS[node]}
+    assert set(given) == set(table), f"{node}: yaml and declared parameters differ"
+    for name, value in given.items():
+        p = table[name]
+        # rclpy refuses an int for a double parameter (and vice versa): types must be exact
+        assert type(value) is type(p.default), f"{node}.{name}: {value!r} vs {p.default!r}"
+        assert value == p.default, f"{node}.{name}: yaml {value!r}, node default {p.default!r}"
+        if p.min is not None:
+            assert p.min <= value <= p.max
+
+
+@pytest.mark.parametrize("node", P.NODE_NAMES)
+def test_every_node_declares_its_table_and_nothing_else(node):
+    source = NODE_SOURCES[node].read_text()
+    tree = ast.parse(source, str(NODE_SOURCES[node]))
+    assert "declare_parameters(self, " in source
+    assert not any(
+        isinstance(n, ast.Attribute) and n.attr == "declare_parameter" for n in ast.walk(tree)
+    ), "parameters are declared from the table only"
+    table_name = {P.BATTERY_FILTER: "BATTERY_FILTER_PARAMS", P.TACHOMETER: "TACHOMETER_PARAMS",
+                  P.THRUST_ESTIMATOR: "THRUST_ESTIMATOR_PARAMS"}[node]
+    assert f"declare_parameters(self, {table_name})" in source
+
+
+@pytest.mark.parametrize("node", sorted(CORE_CONFIGS))
+def test_core_parameters_are_core_config_fields_with_the_same_defaults(node):
+    module_name, class_name = CORE_CONFIGS[node]
+    try:
+        config_class = getattr(importlib.import_module(module_name), class_name)
+    except ImportError as e:  # pragma: no cover - the core is written alongside
+        pytest.skip(f"{module_name} not importable: {e}")
+    fields = {f.name for f in dataclasses.fields(config_class)}
+    defaults = config_class()
+    for p in P.NODE_PARAMS[node]:
+        if not p.core:
+            continue
+        assert p.name in fields, f"{class_name} has no field {p.name}"
+        assert getattr(defaults, p.name) == pytest.approx(p.default), p.name
+
+
+def test_tables_are_consistent():
+    for table in P.NODE_PARAMS.values():
+        P.check_table(table)
+        names = [p.name for p in table]
+        assert len(names) == len(set(names))
+        assert all(p.description for p in table)
+    with pytest.raises(ValueError):
+        P.check_table((P.Param("x", 5.0, "d", 0.0, 1.0),))
+    with pytest.raises(ValueError):
+        P.check_table((P.Param("x", 5, "d", 0.0, 10.0),))
+
+
+def test_core_kwargs_keeps_only_core_parameters():
+    values = {p.name: p.default for p in P.BATTERY_FILTER_PARAMS}
+    kwargs = P.core_kwargs(P.BATTERY_FILTER_PARAMS, values)
+    assert "publish_decimation" not in kwargs
+    assert kwargs["divider_ratio"] == 1.999
+
+
+def test_level_byte_is_the_diagnostic_byte_field():
+    assert P.level_byte(0) == b"\x00"
+    assert P.level_byte(1) == b"\x01"
+    assert P.level_byte(2) == b"\x02"
+    assert P.level_byte(7) == b"\x03"  # clamped to STALE
+    assert isinstance(P.level_byte(1), bytes) and len(P.level_byte(1)) == 1
+
+
+def test_stamp_round_trip():
+    for t in (0.0, 1.5, 1234567.000000001, 1e-9, 2.999999999):
+        sec, nanosec = P.seconds_to_stamp(t)
+        assert 0 <= nanosec < 1_000_000_000
+        assert P.stamp_to_seconds(sec, nanosec) == pytest.approx(t, abs=1e-9)
+    assert P.seconds_to_stamp(2.9999999999) == (3, 0)
+
+
+def test_plain_helpers():
+    assert P.diagnostic_name("/motor0/tachometer", "signal") == "/motor0/tachometer: signal"
+    assert P.key_values({"rejected": "3", "n": 4}) == [("rejected", "3"), ("n", "4")]
+    assert math.isnan(P.finite_or_nan(float("inf")))
+    assert P.finite_or_nan(2) == 2.0
+    assert P.namespaces(1) == [""]
+    with pytest.raises(ValueError):
+        P.namespaces(0)
+
+
+def test_node_package_imports_without_rclpy():
+    code = ("import sys, bldc_propulsion.nodes, bldc_propulsion.nodes.params; "
+            "sys.exit('rclpy' in sys.modules)")
+    subprocess.run([sys.executable, "-c", code], cwd=ROOT, check=True,
+                   env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def test_node_sources_compile():
+    for path in sorted(NODES.glob("*.py")):
+        compile(path.read_text(), str(path), "exec")
+
+
+def test_receipt_clock_smooths_clock_steps_and_keeps_real_gaps():
+    clock = P.ReceiptClock(0.1)
+    # /clock at 40 Hz: 1 kHz samples arrive in bursts sharing one receipt time
+    receipts = [100.0 + 0.025 * (k // 25) for k in range(200)]
+    times = [clock(r, 0.001) for r in receipts]
+    assert times[0] == 100.0
+    assert all(b - a == pytest.approx(0.001) for a, b in zip(times, times[1:]))
+    # a real gap (bag paused 2 s) restarts from the receipt time
+    assert clock(times[-1] + 2.0, 0.001) == pytest.approx(times[-1] + 2.0)
+    raw = P.ReceiptClock(0.0)
+    assert raw(5.0, 0.001) == 5.0 and raw(5.0, 0.001) == 5.0  # 0 = receipt times as they are

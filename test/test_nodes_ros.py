@@ -1,0 +1,277 @@
+"""The rclpy nodes in-process on ROS 2 Jazzy (skipped where rclpy is missing).
+
+Every test drives time through /clock (use_sim_time), as ``ros2 bag play --clock`` does, so
+the nodes see exactly the synthetic times and nothing depends on the machine's speed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import BatteryState  # noqa: E402
+from std_msgs.msg import Float32MultiArray, Float64  # noqa: E402
+
+from bldc_propulsion import contract  # noqa: E402
+from bldc_propulsion.errors import BadInputError  # noqa: E402
+from bldc_propulsion.nodes.all_in_one import build_nodes  # noqa: E402
+from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode  # noqa: E402
+from bldc_propulsion.nodes.tachometer_node import TachometerNode  # noqa: E402
+from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode, main  # noqa: E402
+
+SIM_TIME = Parameter("use_sim_time", value=True)
+T0 = 100.0  # s, start of the synthetic recording
+
+
+class Harness:
+    """A node under test, a helper node that publishes inputs and records outputs, /clock."""
+
+    def __init__(self, context, node):
+        self.context = context
+        self.node = node
+        self.helper = rclpy.create_node("test_helper", context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(node)
+        self.executor.add_node(self.helper)
+        self.clock_pub = self.helper.create_publisher(Clock, "/clock", 10)
+        self.received: dict[str, list] = {}
+        self.pubs: dict[str, object] = {}
+
+    def record(self, msg_type, topic):
+        self.received[topic] = []
+        self.helper.create_subscription(msg_type, topic, self.received[topic].append, 100)
+
+    def publisher(self, msg_type, topic):
+        self.pubs[topic] = self.helper.create_publisher(msg_type, topic, 100)
+        return self.pubs[topic]
+
+    def spin_until(self, condition, timeout_s=5.0):
+        deadline = time.monotonic() + timeout_s
+        while not condition():
+            assert time.monotonic() < deadline, "timed out waiting for the node"
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def wait_for_subscribers(self, topic):
+        self.spin_until(lambda: self.pubs[topic].get_subscription_count() > 0)
+
+    def set_time(self, t_s):
+        sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
+        self.clock_pub.publish(Clock(clock=TimeMsg(sec=sec, nanosec=nanosec)))
+        target = int(round(t_s * 1e9))
+        self.spin_until(lambda: self.node.get_clock().now().nanoseconds >= target)
+
+    def send(self, topic, msg, t_s, expect=None):
+        """Publish ``msg`` at sim time ``t_s``; wait until ``expect`` outputs grew by one."""
+        self.set_time(t_s)
+        before = len(self.received[expect]) if expect else 0
+        self.pubs[topic].publish(msg)
+        if expect:
+            self.spin_until(lambda: len(self.received[expect]) > before)
+        else:
+            for _ in range(5):
+                self.executor.spin_once(timeout_sec=0.005)
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.helper.destroy_node()
+
+
+@pytest.fixture
+def context():
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+
+
+def make(context, node_class, **overrides):
+    params = [SIM_TIME] + [Parameter(k, value=v) for k, v in overrides.items()]
+    return Harness(context, node_class(context=context, parameter_overrides=params))
+
+
+def statuses(harness):
+    return [s for msg in harness.received[contract.TOPIC_DIAGNOSTICS] for s in msg.status]
+
+
+# --- tachometer ---
+
+def tach_signal(speed_rad_s, rate_hz, n, t0, blades=2, high=3.0, low=0.2, duty=0.15):
+    """Phototransistor voltage: high, low while a blade cuts the beam (duty of each passage)."""
+    t = t0 + np.arange(n) / rate_hz
+    phase = (t * speed_rad_s / (2 * math.pi) * blades) % 1.0  # blade passages
+    return np.where(phase < duty, low, high).astype(np.float32)
+
+
+def test_tachometer_measures_a_known_speed_and_reports_loss(context):
+    h = make(context, TachometerNode)
+    try:
+        h.record(Float64, contract.TOPIC_ROTOR_SPEED)
+        h.record(Float64, contract.TOPIC_ROTOR_RPM)
+        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+        h.publisher(Float32MultiArray, contract.TOPIC_TACH_ADC)
+        h.wait_for_subscribers(contract.TOPIC_TACH_ADC)
+        rate, batch, speed = 20000.0, 200, 600.0
+        signal = tach_signal(speed, rate, 60 * batch, T0)
+        for k in range(60):  # 0.6 s of batches, time of the last sample of each
+            t_last = T0 + ((k + 1) * batch - 1) / rate
+            msg = Float32MultiArray(data=signal[k * batch:(k + 1) * batch].tolist())
+            h.send(contract.TOPIC_TACH_ADC, msg, t_last, expect=contract.TOPIC_ROTOR_SPEED)
+        measured = h.received[contract.TOPIC_ROTOR_SPEED][-1].data
+        assert measured == pytest.approx(speed, rel=0.01)
+        rpm = h.received[contract.TOPIC_ROTOR_RPM][-1].data
+        assert rpm == pytest.approx(measured * 60.0 / (2.0 * math.pi), rel=1e-9)
+
+        # no more batches: the timer reports speed 0 and the loss on diagnostics
+        t_end = T0 + 60 * batch / rate
+        for step in range(1, 31):
+            h.set_time(t_end + 0.1 * step)
+            for _ in range(3):
+                h.executor.spin_once(timeout_sec=0.005)
+        assert h.received[contract.TOPIC_ROTOR_SPEED][-1].data == 0.0
+        assert any(s.level != DiagnosticStatus.OK for s in statuses(h)[-3:])
+        assert all(s.name.startswith("/tachometer") for s in statuses(h))
+        assert all(s.hardware_id == "bldc_propulsion" for s in statuses(h))
+    finally:
+        h.close()
+
+
+# --- battery filter ---
+
+def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context):
+    h = make(context, BatteryFilterNode)
+    try:
+        h.record(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+        h.publisher(Float64, contract.TOPIC_BATTERY_ADC)
+        h.wait_for_subscribers(contract.TOPIC_BATTERY_ADC)
+        adc = 6.2
+        t = T0
+        for _ in range(300):
+            t += 0.001
+            h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
+                   expect=contract.TOPIC_BATTERY_VOLTAGE)
+        last = h.received[contract.TOPIC_BATTERY_VOLTAGE][-1]
+        assert last.voltage == pytest.approx(1.999 * adc, rel=0.01)
+        assert last.present is True
+        assert math.isnan(last.current) and math.isnan(last.percentage)
+        assert last.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN
+        stamp = last.header.stamp.sec + last.header.stamp.nanosec * 1e-9
+        assert stamp == pytest.approx(t, abs=1e-6)  # time of the sample, on the node clock
+
+        n_out = len(h.received[contract.TOPIC_BATTERY_VOLTAGE])
+        t += 0.001
+        h.send(contract.TOPIC_BATTERY_ADC, Float64(data=math.nan), t)
+        assert len(h.received[contract.TOPIC_BATTERY_VOLTAGE]) == n_out  # rejected, not published
+        for _ in range(20):  # later samples are filtered as before
+            t += 0.001
+            h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
+                   expect=contract.TOPIC_BATTERY_VOLTAGE)
+        assert h.received[contract.TOPIC_BATTERY_VOLTAGE][-1].voltage == pytest.approx(
+            1.999 * adc, rel=0.01)
+
+        diagnostics = h.received[contract.TOPIC_DIAGNOSTICS]
+        n_diag = len(diagnostics)
+        h.set_time(t + 1.5)  # the 1 Hz diagnostics timer fires once more
+        h.spin_until(lambda: len(diagnostics) > n_diag)
+        (status,) = diagnostics[-1].status
+        assert status.level == DiagnosticStatus.WARN, status
+        assert status.name.startswith("/battery_filter")
+        rejected = {kv.key: kv.value for kv in status.values if "reject" in kv.key}
+        assert any(v not in ("0", "") for v in rejected.values()), status
+    finally:
+        h.close()
+
+
+# --- thrust estimator ---
+
+def test_thrust_estimator_predicts_with_the_fallback_and_warns(context):
+    h = make(context, ThrustEstimatorNode)
+    try:
+        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+        h.record(Float64, contract.TOPIC_PREDICTED_THRUST)
+        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+        h.publisher(Float64, contract.TOPIC_PWM)
+        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+        h.wait_for_subscribers(contract.TOPIC_PWM)
+        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
+        voltage = BatteryState(voltage=12.0, present=True)
+        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
+        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
+        h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
+        for k in range(1, 50):
+            h.set_time(T0 + 0.01 * k)
+            h.executor.spin_once(timeout_sec=0.005)
+        h.set_time(T0 + 1.5)
+        h.spin_until(lambda: len(h.received[contract.TOPIC_PREDICTED_SPEED]) > 5
+                     and statuses(h))
+        speeds = [m.data for m in h.received[contract.TOPIC_PREDICTED_SPEED]]
+        thrusts = [m.data for m in h.received[contract.TOPIC_PREDICTED_THRUST]]
+        assert all(math.isfinite(s) and s >= 0.0 for s in speeds)
+        assert all(math.isfinite(f) and f >= 0.0 for f in thrusts)
+        assert any(s.level == DiagnosticStatus.WARN and "fallback" in s.message.lower()
+                   for s in statuses(h))
+    finally:
+        h.close()
+
+
+def test_thrust_estimator_refuses_a_bad_model(context, tmp_path):
+    bad = tmp_path / "broken.npz"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(BadInputError, match="broken.npz"):
+        ThrustEstimatorNode(context=context,
+                            parameter_overrides=[Parameter("model_path", value=str(bad))])
+
+
+def test_thrust_estimator_main_exits_2_on_a_bad_model(tmp_path, capsys):
+    missing = tmp_path / "missing.npz"
+    status = main(["thrust_estimator", "--ros-args", "-p", f"model_path:={missing}"])
+    assert status == 2
+    assert "missing.npz" in capsys.readouterr().err
+
+
+def test_thrust_estimator_keeps_the_last_good_model_on_a_bad_reload(context, tmp_path):
+    node = ThrustEstimatorNode(context=context)
+    try:
+        bad = tmp_path / "broken.npz"
+        bad.write_bytes(b"not a model")
+        result = node.set_parameters([Parameter("model_path", value=str(bad))])[0]
+        assert not result.successful and "broken.npz" in result.reason
+        assert node.get_parameter("model_path").value == ""
+    finally:
+        node.destroy_node()
+
+
+# --- all in one ---
+
+def test_all_in_one_builds_three_nodes_per_motor(context):
+    nodes = build_nodes(4, context=context)
+    try:
+        names = sorted(n.get_fully_qualified_name() for n in nodes)
+        assert names == sorted(f"/motor{i}/{name}" for i in range(4)
+                               for name in ("battery_filter", "tachometer", "thrust_estimator"))
+        executor = SingleThreadedExecutor(context=context)
+        for n in nodes:
+            executor.add_node(n)
+        executor.spin_once(timeout_sec=0.01)
+        executor.shutdown()
+    finally:
+        for n in nodes:
+            n.destroy_node()
+    one = build_nodes(1, context=context)
+    try:
+        assert sorted(n.get_fully_qualified_name() for n in one) == [
+            "/battery_filter", "/tachometer", "/thrust_estimator"]
+    finally:
+        for n in one:
+            n.destroy_node()

@@ -1,0 +1,354 @@
+"""Physics of the simulated bench: what a motor engineer would check on a real one."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter, lfilter_zi
+
+from bldc_propulsion.contract import EFFECTS, PWM_FRAME_HZ, PWM_FULL, PWM_STOP
+from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.sim import (
+    EFFECT_DOCS,
+    PROFILES,
+    BenchParams,
+    SimResult,
+    make_profile,
+    params_with_overrides,
+    simulate,
+)
+
+# the paper's battery filter, eq. (1), at 1 kHz
+FILTER_B = [4.9975e-4, 4.9975e-4]
+FILTER_A = [1.0, -0.9995]
+
+
+def step(l0: float, l1: float, t_step: float, duration: float, seed: int = 0, **kw) -> SimResult:
+    """Command l0 from t = 0, then l1 from t_step."""
+    return simulate("step", duration, seed, pwm=(np.array([0.0, t_step]), np.array([l0, l1])), **kw)
+
+
+def window(res: SimResult, t0: float, t1: float) -> slice:
+    return slice(int(round(t0 * 1000)), int(round(t1 * 1000)))
+
+
+def fall_time(res: SimResult, t_step: float, fraction: float = 0.9) -> float:
+    """Time after t_step for the speed to lose ``fraction`` of its value at t_step."""
+    k0 = int(round(t_step * 1000)) - 1
+    w0 = res.truth_speed[k0]
+    after = np.nonzero((res.truth_t > t_step) & (res.truth_speed < (1 - fraction) * w0))[0]
+    assert len(after), "speed never fell"
+    return float(res.truth_t[after[0]] - t_step)
+
+
+# --- operating point ----------------------------------------------------------------------
+def test_full_throttle_steady_state_on_full_pack() -> None:
+    res = step(PWM_FULL, PWM_FULL, 0.0, 4.0)
+    w = res.truth_speed[window(res, 3.0, 4.0)].mean()
+    i = res.truth_current[window(res, 3.0, 4.0)].mean()
+    assert 550.0 <= w <= 650.0
+    assert 14.0 <= i <= 16.0
+    b = res.params.thrust_coefficient
+    np.testing.assert_allclose(res.truth_thrust, b * res.truth_speed**2)
+    assert 8.0 < res.truth_thrust[window(res, 3.0, 4.0)].mean() < 12.0  # ~1 kgf, 12x4.5 at 5.8 krpm
+
+
+def test_speed_rises_with_throttle_over_staircase() -> None:
+    res = simulate("staircase", 80.0, 3)
+    # steady speed at the end of each hold, grouped by level
+    change = np.nonzero(np.diff(res.pwm))[0]  # last frame of each hold
+    by_level: dict[float, list[float]] = {}
+    for f in change:
+        k = int(round(res.pwm_t[f] * 1000)) + 10  # within the last frame, after the ESC delay
+        by_level.setdefault(round(float(res.pwm[f]), 4), []).append(float(res.truth_speed[k]))
+    levels = sorted(by_level)
+    assert len(levels) >= 8
+    assert by_level[PWM_STOP] == [0.0] * len(by_level[PWM_STOP])
+    for lo, hi in zip(levels, levels[1:]):
+        if hi > 0.055:
+            assert min(by_level[hi]) > max(by_level[lo]), (lo, hi, by_level)
+
+
+def test_no_rotation_below_threshold_and_rotation_just_above() -> None:
+    below = step(PWM_STOP, 0.054, 0.0, 3.0)
+    assert np.all(below.truth_speed == 0.0)
+    assert np.all(below.truth_current == 0.0)
+    above = step(PWM_STOP, 0.057, 0.0, 3.0)
+    assert above.truth_speed[-1] > 10.0
+
+
+# --- battery ------------------------------------------------------------------------------
+def test_speed_falls_as_battery_discharges() -> None:
+    full = simulate("constant", 5.0, 1, soc=1.0)
+    low = simulate("constant", 5.0, 1, soc=0.15)
+    assert low.truth_voltage[-1] < full.truth_voltage[-1] - 1.0
+    assert low.truth_speed[-1] < full.truth_speed[-1] - 20.0
+    # over a long constant run, with heating off so only the battery acts
+    run = simulate("constant", 150.0, 1, effects={"motor_heating": 0.0})
+    early = run.truth_speed[window(run, 10.0, 20.0)].mean()
+    late = run.truth_speed[window(run, 140.0, 150.0)].mean()
+    assert late < early - 5.0
+    assert run.truth_soc[-1] < run.truth_soc[0] - 0.05
+    assert np.all(np.diff(run.truth_soc) <= 0.0)
+
+
+def test_open_circuit_voltage_of_3s_pack() -> None:
+    for soc, lo, hi in ((1.0, 12.5, 12.7), (0.5, 10.9, 11.4), (0.01, 9.8, 10.3)):
+        res = simulate("constant", 0.01, 0, soc=soc, pwm=(np.array([0.0]), np.array([PWM_STOP])))
+        assert lo <= res.truth_voltage[0] <= hi, soc
+
+
+def test_paper_filter_recovers_terminal_voltage() -> None:
+    res = simulate("constant", 20.0, 4)
+    assert np.ptp(res.battery_adc[5000:] * res.params.adc_divider_ratio) > 1.0  # modulated
+    zi = lfilter_zi(FILTER_B, FILTER_A) * res.battery_adc[0]  # started settled, motor stopped
+    f, _ = lfilter(FILTER_B, FILTER_A, res.battery_adc, zi=zi)
+    err = f - res.truth_voltage
+    assert np.max(np.abs(err[window(res, 8.0, 20.0)])) < 0.1
+
+
+def test_modulation_grows_with_current() -> None:
+    def swing(r: SimResult) -> float:
+        return float(np.std(r.battery_adc[1000:] * r.params.adc_divider_ratio - r.truth_voltage[1000:]))
+
+    hi = step(PWM_FULL, PWM_FULL, 0.0, 3.0)
+    lo = step(0.065, 0.065, 0.0, 3.0)
+    assert swing(hi) > 2.0 * swing(lo)
+    assert 0.5 < swing(hi) < 3.0  # volts at the battery: a few volts peak to peak
+
+
+# --- rotor dynamics -----------------------------------------------------------------------
+def test_spin_down_slower_without_active_braking() -> None:
+    coast = step(PWM_FULL, PWM_STOP, 3.0, 8.0, effects={"spin_down_asymmetry": 1.0})
+    brake = step(PWM_FULL, PWM_STOP, 3.0, 8.0, effects={"spin_down_asymmetry": 0.0})
+    assert fall_time(coast, 3.0) > 2.0 * fall_time(brake, 3.0)
+    assert coast.truth_current.min() >= 0.0  # no regeneration without braking
+    # spin-up is unaffected by the ESC's braking
+    up_c = step(PWM_STOP, PWM_FULL, 0.5, 3.0, effects={"spin_down_asymmetry": 1.0})
+    up_b = step(PWM_STOP, PWM_FULL, 0.5, 3.0, effects={"spin_down_asymmetry": 0.0})
+    np.testing.assert_allclose(up_c.truth_speed, up_b.truth_speed, rtol=1e-9)
+
+
+def test_rotor_lag_zero_is_instantaneous() -> None:
+    lag = step(PWM_STOP, 0.08, 1.0, 2.0, effects={"input_delay": 0.0})
+    inst = step(PWM_STOP, 0.08, 1.0, 2.0, effects={"input_delay": 0.0, "rotor_lag": 0.0})
+    final = inst.truth_speed[-1]
+    k = int(1.0 * 1000)
+    assert inst.truth_speed[k] > 0.98 * final
+    assert lag.truth_speed[k + 20] < 0.5 * final  # inertia: ~0.1 s time constant
+    assert lag.truth_speed[-1] == pytest.approx(final, rel=0.01)
+    half = step(PWM_STOP, 0.08, 1.0, 2.0, effects={"input_delay": 0.0, "rotor_lag": 0.5})
+    assert half.truth_speed[k + 20] > lag.truth_speed[k + 20]
+
+
+def test_input_delay_shifts_response_by_40_ms() -> None:
+    def onset(res: SimResult) -> float:
+        return float(res.truth_t[np.argmax(res.truth_speed > 0)])
+
+    off = step(PWM_STOP, 0.08, 1.0, 1.5, effects={"input_delay": 0.0})
+    on = step(PWM_STOP, 0.08, 1.0, 1.5)
+    double = step(PWM_STOP, 0.08, 1.0, 1.5, effects={"input_delay": 2.0})
+    assert onset(on) - onset(off) == pytest.approx(0.040, abs=0.0015)
+    assert onset(double) - onset(off) == pytest.approx(0.080, abs=0.0015)
+
+
+def test_esc_deadband_zero_is_linear_from_stop() -> None:
+    nominal = step(PWM_STOP, 0.053, 0.0, 2.0)
+    linear = step(PWM_STOP, 0.053, 0.0, 2.0, effects={"esc_deadband": 0.0})
+    assert nominal.truth_speed[-1] == 0.0
+    assert linear.truth_speed[-1] > 10.0
+    # full throttle is full duty either way
+    a = step(PWM_FULL, PWM_FULL, 0.0, 1.0)
+    b = step(PWM_FULL, PWM_FULL, 0.0, 1.0, effects={"esc_deadband": 0.0})
+    np.testing.assert_allclose(a.truth_speed, b.truth_speed)
+
+
+def test_battery_voltage_zero_is_a_stiff_supply() -> None:
+    stiff = simulate("constant", 20.0, 0, effects={"battery_voltage": 0.0})
+    real = simulate("constant", 20.0, 0)
+    assert np.ptp(stiff.truth_voltage) < 1e-9
+    assert stiff.truth_voltage[0] == pytest.approx(real.truth_voltage[0])  # open-circuit start
+    assert real.truth_voltage[-1] < stiff.truth_voltage[-1] - 0.3  # sag + polarisation + drain
+    assert stiff.truth_speed[-1] > real.truth_speed[-1]
+    half = simulate("constant", 20.0, 0, effects={"battery_voltage": 0.5})
+    assert real.truth_voltage[-1] < half.truth_voltage[-1] < stiff.truth_voltage[-1]
+
+
+def test_motor_heats_under_load_and_loses_speed() -> None:
+    hot = simulate("high_load", 90.0, 2)
+    cold = simulate("high_load", 90.0, 2, effects={"motor_heating": 0.0})
+    amb = hot.params.ambient_temperature_c
+    assert hot.truth_temperature[0] == pytest.approx(amb)
+    assert hot.truth_temperature[-1] > amb + 20.0
+    assert cold.truth_temperature[-1] > amb + 20.0  # still computed with heating off
+    assert hot.truth_speed[-1] < cold.truth_speed[-1] - 3.0
+    # thermal time constant of minutes: far from its steady state after 10 s
+    assert hot.truth_temperature[10_000] < amb + 15.0
+    idle = simulate("constant", 30.0, 2, pwm=(np.array([0.0]), np.array([PWM_STOP])))
+    assert np.ptp(idle.truth_temperature) < 1e-9
+
+
+# --- tachometer ---------------------------------------------------------------------------
+def test_tach_signal_has_four_edges_per_revolution() -> None:
+    res = simulate("constant", 3.0, 5)
+    assert res.tach.dtype == np.float32
+    assert len(res.tach) == 3 * 20000 and res.tach_rate_hz == 20000.0 and res.tach_t0 == 0.0
+    t0, t1 = 1.0, 3.0
+    seg = res.tach[int(t0 * res.tach_rate_hz):]
+    high = seg > 2.4
+    edges = int(np.count_nonzero(high[1:] != high[:-1]))
+    revs = res.truth_speed[window(res, t0, t1)].sum() * 1e-3 / (2 * math.pi)
+    assert abs(edges - 4 * revs) <= 3
+    # beam clear most of the time, two blades of ~10 % each
+    assert 0.15 < np.mean(~high) < 0.25
+    assert 4.3 < np.median(seg[high]) < 4.7 and np.median(seg[~high]) < 0.6
+    # 12-bit ADC over 0..5 V
+    lsb = 5.0 / 4096
+    np.testing.assert_allclose(seg / lsb, np.round(seg / lsb), atol=1e-3)
+
+
+def test_tach_steady_when_stopped() -> None:
+    res = simulate("stopped", 1.0, 0, pwm=(np.array([0.0]), np.array([PWM_STOP])))
+    high = res.tach > 2.4
+    assert np.all(high) or np.all(~high)
+
+
+# --- reproducibility ----------------------------------------------------------------------
+ARRAYS = ("pwm_t", "pwm", "battery_t", "battery_adc", "tach", "truth_t", "truth_speed",
+          "truth_thrust", "truth_current", "truth_voltage", "truth_temperature", "truth_soc")
+
+
+def test_same_seed_same_arrays_other_seed_other_noise() -> None:
+    a = simulate("random_steps", 4.0, 11)
+    b = simulate("random_steps", 4.0, 11)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    c = simulate("constant", 2.0, 11)
+    d = simulate("constant", 2.0, 12)
+    np.testing.assert_array_equal(c.truth_speed, d.truth_speed)  # same command, same physics
+    assert not np.array_equal(c.tach, d.tach)
+    assert not np.array_equal(c.battery_adc, d.battery_adc)
+    assert not np.array_equal(simulate("random_steps", 4.0, 12).pwm, a.pwm)
+
+
+def test_result_layout() -> None:
+    res = simulate("chirp", 2.5, 0)
+    assert res.truth_t[0] == 0.0 and res.battery_t[0] == 0.0 and res.pwm_t[0] == 0.0
+    assert len(res.truth_t) == 2500 and len(res.battery_t) == 2500
+    np.testing.assert_allclose(np.diff(res.pwm_t), 1 / PWM_FRAME_HZ)
+    assert len(res.pwm) == 125
+    assert set(res.effects) == set(EFFECTS) and all(v == 1.0 for v in res.effects.values())
+    assert res.profile == "chirp" and res.seed == 0 and isinstance(res.params, BenchParams)
+    for name in ARRAYS:
+        assert np.all(np.isfinite(getattr(res, name))), name
+    part = simulate("chirp", 1.0, 0, effects={"rotor_lag": 0.3})
+    assert part.effects["rotor_lag"] == 0.3 and part.effects["input_delay"] == 1.0
+
+
+# --- profiles -----------------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_profiles_in_range_and_reproducible(name: str) -> None:
+    t, lv = make_profile(name, 100.0, 7)
+    assert len(t) == len(lv) == 5000
+    assert t[0] == 0.0
+    assert np.all(lv >= PWM_STOP) and np.all(lv <= PWM_FULL)
+    np.testing.assert_array_equal(lv, make_profile(name, 100.0, np.random.default_rng(7))[1])
+
+
+def test_profile_shapes() -> None:
+    _, st = make_profile("staircase", 120.0, 0)
+    assert st.min() == pytest.approx(PWM_STOP) and st.max() == pytest.approx(PWM_FULL)
+    assert len(np.unique(np.round(st, 4))) == 11
+    t, tri = make_profile("triangle", 60.0, 0)
+    assert tri[0] == pytest.approx(PWM_STOP) and tri[len(tri) // 2] == pytest.approx(PWM_FULL)
+    _, const = make_profile("constant", 10.0, 0)
+    assert np.all(const == 0.085)
+    _, hl = make_profile("high_load", 300.0, 0)
+    assert np.mean(hl >= 0.095) > 0.9 and hl.min() < 0.085
+    t, ch = make_profile("chirp", 200.0, 0)
+    # slow at the start, fast at the end: count mean crossings in the first and last 20 s
+    mid = 0.5 * (PWM_STOP + PWM_FULL)
+    slow = np.convolve(ch[:1000] - mid, np.ones(25) / 25, mode="valid")  # 0.5 s average
+    fast = np.convolve(ch[-1000:] - mid, np.ones(3) / 3, mode="valid")
+    first = np.count_nonzero(np.diff(np.sign(slow)) != 0)
+    last = np.count_nonzero(np.diff(np.sign(fast)) != 0)
+    assert first <= 6 and last > 60
+
+
+# --- bad input ----------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("kwargs", "needle"),
+    [
+        ({"effects": {"propwash": 1.0}}, "propwash"),
+        ({"effects": {"rotor_lag": -0.1}}, "rotor_lag"),
+        ({"effects": {"input_delay": float("nan")}}, "input_delay"),
+        ({"effects": {"motor_heating": float("inf")}}, "motor_heating"),
+        ({"effects": {"spin_down_asymmetry": 1.5}}, "spin_down_asymmetry"),
+        ({"soc": 0.0}, "--soc"),
+        ({"soc": 1.01}, "--soc"),
+        ({"soc": float("nan")}, "--soc"),
+        ({"duration_s": 0.0}, "--duration"),
+        ({"duration_s": -3.0}, "--duration"),
+        ({"duration_s": float("inf")}, "--duration"),
+        ({"duration_s": float("nan")}, "--duration"),
+        ({"profile": "sawtooth"}, "sawtooth"),
+        ({"seed": -1}, "--seed"),
+        ({"pwm": (np.array([0.0, 1.0]), np.array([0.06]))}, "pwm"),
+        ({"pwm": (np.array([0.0, np.nan]), np.array([0.06, 0.07]))}, "pwm"),
+        ({"pwm": (np.array([1.0, 0.0]), np.array([0.06, 0.07]))}, "pwm"),
+    ],
+)
+def test_bad_inputs_raise_naming_the_item(kwargs: dict, needle: str) -> None:
+    args = {"profile": "constant", "duration_s": 1.0, "seed": 0} | kwargs
+    with pytest.raises(BadInputError, match=needle.replace("-", r"\-")):
+        simulate(**args)
+
+
+def test_unknown_profile_lists_known_ones() -> None:
+    with pytest.raises(BadInputError) as err:
+        make_profile("sawtooth", 10.0, 0)
+    assert "sawtooth" in str(err.value) and all(name in str(err.value) for name in PROFILES)
+
+
+def test_unknown_effect_lists_known_ones() -> None:
+    with pytest.raises(BadInputError) as err:
+        simulate("constant", 1.0, 0, effects={"propwash": 1.0})
+    assert all(name in str(err.value) for name in EFFECTS)
+
+
+def test_params_with_overrides() -> None:
+    base = BenchParams()
+    p = params_with_overrides(base, {"winding_resistance_ohm": 0.25, "battery_cells": 4})
+    assert p.winding_resistance_ohm == 0.25 and p.battery_cells == 4 and base.winding_resistance_ohm == 0.2
+    known = r"--param nonsense_ohm: unknown bench parameter \(known: .*motor_kv_rpm_per_v"
+    with pytest.raises(BadInputError, match=known):
+        params_with_overrides(base, {"nonsense_ohm": 1.0})
+    for name, value in [("winding_resistance_ohm", 0.0), ("motor_kv_rpm_per_v", -710.0),
+                        ("propeller_ct", float("nan")), ("battery_capacity_ah", float("inf")),
+                        ("battery_cells", 2.5), ("tach_noise_v", -0.01)]:
+        with pytest.raises(BadInputError, match=f"--param {name}"):
+            params_with_overrides(base, {name: value})
+    # zero where it makes sense: a noise-free tachometer
+    assert params_with_overrides(base, {"tach_noise_v": 0.0}).tach_noise_v == 0.0
+
+
+def test_param_override_changes_physics() -> None:
+    stronger = params_with_overrides(BenchParams(), {"motor_kv_rpm_per_v": 800.0})
+    base = step(0.08, 0.08, 0.0, 2.0)
+    fast = step(0.08, 0.08, 0.0, 2.0, params=stronger)
+    assert fast.truth_speed[-1] > base.truth_speed[-1]
+
+
+def test_effect_docs_cover_every_effect() -> None:
+    assert set(EFFECT_DOCS) == set(EFFECTS)
+    assert all(doc.strip() for doc in EFFECT_DOCS.values())
+
+
+def test_inertia_and_thrust_coefficient_plausible() -> None:
+    p = BenchParams()
+    assert 1.3e-4 < p.propeller_inertia_kg_m2 < 1.8e-4
+    assert p.thrust_coefficient == pytest.approx(
+        p.propeller_ct * p.air_density_kg_m3 * p.propeller_diameter_m**4 / (4 * math.pi**2))
+    assert 2.0e-5 < p.thrust_coefficient < 4.0e-5
