@@ -42,6 +42,15 @@ from bldc_propulsion.training.network import (
 )
 
 FRAME_HZ = 50.0
+
+
+def cpu_pressure() -> str:
+    """Linux PSI 'some avg10' (% of time runnable tasks waited for a CPU): other load skews timings."""
+    try:
+        with open("/proc/pressure/cpu") as fh:
+            return fh.readline().split()[1].split("=")[1] + " %"
+    except (OSError, IndexError):
+        return "n/a"
 TAU_S = 0.25
 
 
@@ -109,6 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"  val cost (2)     : {ours_v:.6g}  (MSE {res.val_mse:.3g}, "
           f"RMSE {np.sqrt(res.val_mse) * (yhi - ylo) / 2:.3g} rad/s)")
     print(f"  goal < 30 s      : {'met' if ours_t < 30.0 else 'NOT met'}")
+    print(f"  CPU pressure     : {cpu_pressure()} (10 s average after the run; > a few % = contended)")
 
     # --- MINPACK, same start -------------------------------------------------------------------
     cap = args.cap_factor * ours_t
@@ -155,6 +165,7 @@ def main(argv: list[str] | None = None) -> None:
         best_idx[k] = k if tr[k] < tr[best_idx[k - 1]] else best_idx[k - 1]
     it_val = va[best_idx]
     print(f"  {status}")
+    print(f"  CPU pressure     : {cpu_pressure()}")
     print(f"  evaluations      : {len(tr)} residuals, {state['njev']} Jacobians "
           f"({wall / max(state['njev'], 1):.2f} s per Jacobian/iteration)")
     print(f"  at the end       : train cost {tr[best_idx[-1]]:.6g}, val cost {it_val[-1]:.6g} "

@@ -59,13 +59,21 @@ class Recording:
             raise BagError(f"{self.path}: not a rosbag2 directory (metadata.yaml is missing)")
         if self.path.is_file() and self.path.suffix not in (".mcap", ".db3"):
             raise BagError(f"{self.path}: not a recording (expected a bag directory or .mcap file)")
+        #: set when a tolerant read stopped early on a damaged part of the recording
+        self.read_error: str | None = None
+        #: set when the recording could only be opened by scanning it (truncated MCAP)
+        self.salvaged: str | None = None
         try:
             self._reader = Reader(self.path)
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for corrupt input
-            raise BagError(f"{self.path}: cannot open recording ({_reason(exc)})") from None
-        #: set when a tolerant read stopped early on a damaged part of the recording
-        self.read_error: str | None = None
+            reason = _reason(exc)
+            salvage = _SalvageReader.open(self.path)
+            if salvage is None:
+                raise BagError(f"{self.path}: cannot open recording ({reason})") from None
+            self._reader = salvage
+            self.salvaged = (f"{self.path}: recording is damaged ({reason}); readable part "
+                             f"ends after {salvage.readable_s:.3f} s ({salvage.why})")
         conns = self._reader.connections
         self._conns: dict[str, list[Any]] = {}
         for conn in conns:
@@ -128,10 +136,16 @@ class Recording:
         if not conns:
             return
         it = self._reader.messages(connections=conns)
+        if self.salvaged is not None and not tolerant:
+            # a truncated recording is only good for tolerant readers (replay): a model
+            # trained or evaluated on part of a file must not pass for the whole file
+            raise BagError(self.salvaged)
         while True:
             try:
                 conn, ns, data = next(it)
             except StopIteration:
+                if self.salvaged is not None:
+                    self.read_error = self.salvaged
                 return
             except Exception as exc:
                 msg = f"{self.path}: recording is damaged after {self._done_s(conns)} ({_reason(exc)})"
@@ -182,6 +196,100 @@ class Recording:
         self.require(topic, c.FLOAT32_ARRAY)
         for _, ts, msg in self.messages([topic]):
             yield ts, np.asarray(msg.data, dtype=np.float32)
+
+
+@dataclass
+class _SalvageConn:
+    """The parts of a rosbags Connection that Recording uses."""
+
+    id: int
+    topic: str
+    msgtype: str
+    msgcount: int = 0
+
+
+class _SalvageReader:
+    """Sequential reader of an MCAP file whose summary/footer is missing (truncated).
+
+    rosbags needs the footer and summary; the records before the damage are still readable
+    in file order with the ``mcap`` stream reader. ``open`` scans the file once (channels,
+    counts, times, where the readable part ends) and returns None if it is not MCAP or
+    nothing is readable; ``messages`` scans it again, in file order, up to the damage.
+    """
+
+    def __init__(self, file: Path) -> None:
+        self.file = file
+        self.connections: list[_SalvageConn] = []
+        self.message_count = 0
+        self.start_time = 0
+        self.end_time = 0
+        self.why = "file ends"
+
+    @classmethod
+    def open(cls, path: Path) -> _SalvageReader | None:
+        if path.is_dir():
+            files = sorted(path.glob("*.mcap"))
+            if len(files) != 1:
+                return None
+            path = files[0]
+        if path.suffix != ".mcap" or not path.is_file():
+            return None
+        self = cls(path)
+        by_id: dict[int, _SalvageConn] = {}
+        try:
+            for rec, _ in self._scan(by_id):
+                conn = by_id.get(rec.channel_id)
+                if conn is None:
+                    continue
+                conn.msgcount += 1
+                t = int(rec.log_time)
+                self.start_time = t if self.message_count == 0 else min(self.start_time, t)
+                self.end_time = max(self.end_time, t)
+                self.message_count += 1
+        except Exception:
+            return None
+        if self.message_count == 0:
+            return None
+        self.connections = [c_ for c_ in by_id.values() if c_.msgcount]
+        return self
+
+    @property
+    def readable_s(self) -> float:
+        return (self.end_time - self.start_time) * 1e-9
+
+    def _scan(self, by_id: dict[int, _SalvageConn]) -> Iterator[tuple[Any, None]]:
+        from mcap.records import Channel, Message, Schema
+        from mcap.stream_reader import StreamReader
+
+        schemas: dict[int, str] = {}
+        with open(self.file, "rb") as fh:
+            records = StreamReader(fh, validate_crcs=True).records
+            while True:
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    return
+                except Exception as exc:  # the damage: stop here, remember why
+                    self.why = _reason(exc) if str(exc) else "file ends inside a record"
+                    return
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec.name
+                elif isinstance(rec, Channel):
+                    if rec.id not in by_id:
+                        by_id[rec.id] = _SalvageConn(rec.id, rec.topic, schemas.get(rec.schema_id, ""))
+                elif isinstance(rec, Message):
+                    yield rec, None
+
+    def messages(self, connections: Iterable[_SalvageConn]) -> Iterator[tuple[Any, int, bytes]]:
+        wanted = {conn.id: conn for conn in connections}
+        by_id = {conn.id: _SalvageConn(conn.id, conn.topic, conn.msgtype) for conn in self.connections}
+        for rec, _ in self._scan(by_id):
+            conn = wanted.get(rec.channel_id)
+            if conn is not None:
+                yield conn, int(rec.log_time), bytes(rec.data)
+
+    def close(self) -> None:
+        pass
 
 
 @dataclass

@@ -8,8 +8,8 @@ mkdir -p "$OUT"
 step() { printf '\n== %s\n' "$*"; }
 
 step "1. train the paper's 3-25-1 network (battery voltage, PWM, PWM through 0.25 s) with Levenberg-Marquardt"
-$BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/model.npz \
-    --report $OUT/report_train --force 2>$OUT/train.log
+$BP train bags/staircase bags/triangle bags/staircase_half bags/triangle_half \
+    --validation bags/validation -o $OUT/model.npz --report $OUT/report_train --force 2>$OUT/train.log
 tail -n 1 $OUT/train.log | sed 's/^/  last epoch: /'
 
 step "2. replay the chirp recording through the nodes' cores (what the ROS nodes would publish)"
@@ -18,7 +18,7 @@ $BP replay bags/chirp -o $OUT/chirp_replay --model $OUT/model.npz --force
 step "3. evaluate on recordings the model never saw (chirp: error per command frequency band)"
 $BP evaluate --model $OUT/model.npz bags/chirp bags/discharge_a --report $OUT/report_eval
 
-step "4. the paper's question: a model WITHOUT battery voltage, measured over a discharging battery"
+step "4. the paper's question: a model WITHOUT battery voltage, trained on full packs, measured on a half-empty one"
 $BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/model_no_voltage.npz \
     --inputs pwm,pwm_filtered --force 2>$OUT/train_no_voltage.log
 tail -n 1 $OUT/train_no_voltage.log | sed 's/^/  last epoch: /'

@@ -9,6 +9,7 @@ import pytest
 from scipy.signal import lfilter, lfilter_zi
 
 from bldc_propulsion.contract import EFFECTS, PWM_FRAME_HZ, PWM_FULL, PWM_STOP
+from bldc_propulsion.sim.profiles import ARMING_S
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import (
     EFFECT_DOCS,
@@ -257,14 +258,25 @@ def test_profiles_in_range_and_reproducible(name: str) -> None:
     np.testing.assert_array_equal(lv, make_profile(name, 100.0, np.random.default_rng(7))[1])
 
 
+@pytest.mark.parametrize("name", sorted(PROFILES))
+def test_every_profile_starts_by_arming_the_esc(name: str) -> None:
+    """A bench run begins with ~1 s of the stop pulse, rotor at rest (ESC arming)."""
+    t, lv = make_profile(name, 30.0, 1)
+    assert np.all(lv[t < ARMING_S] == PWM_STOP)
+    _, short = make_profile(name, 2.0, 1)  # too short to spend a second arming: profile only
+    assert len(short) == 100
+
+
 def test_profile_shapes() -> None:
     _, st = make_profile("staircase", 120.0, 0)
     assert st.min() == pytest.approx(PWM_STOP) and st.max() == pytest.approx(PWM_FULL)
     assert len(np.unique(np.round(st, 4))) == 11
-    t, tri = make_profile("triangle", 60.0, 0)
+    arm = int(ARMING_S * 50)
+    t, tri = make_profile("triangle", 60.0 + ARMING_S, 0)
+    tri = tri[arm:]
     assert tri[0] == pytest.approx(PWM_STOP) and tri[len(tri) // 2] == pytest.approx(PWM_FULL)
     _, const = make_profile("constant", 10.0, 0)
-    assert np.all(const == 0.085)
+    assert np.all(const[arm:] == 0.085)
     _, hl = make_profile("high_load", 300.0, 0)
     assert np.mean(hl >= 0.095) > 0.9 and hl.min() < 0.085
     t, ch = make_profile("chirp", 200.0, 0)

@@ -115,7 +115,7 @@ def lag_on_times(times: np.ndarray, u: np.ndarray, tau_s: float, y0: float) -> n
         us = u[start:stop]
         L = np.cumsum(xs)  # exponent from chunk start to the end of each interval
         # y_end[j] = e^{-L_j} y_start + sum_{i<=j} e^{-(L_j - L_i)} (1 - e^{-x_i}) u_i
-        w = np.exp(L - xs) * (-np.expm1(-xs)) * us  # e^{L_{i-1}} (1 - e^{-x_i}) u_i
+        w = np.exp(L) * (-np.expm1(-xs)) * us  # e^{L_i} (1 - e^{-x_i}) u_i
         acc = np.cumsum(w)
         y[start + 1: stop + 1] = np.exp(-L) * (y_start + acc)
         y_start = y[stop]
@@ -139,7 +139,7 @@ def pwm_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.nda
     """Command through a first-order lag of time constant ``tau_s`` (state starts at the first command)."""
     tau = _param(params, PWM_LAG, "tau_s")
     times, pos = _merged(grid, pwm_t)
-    u = _held(pwm_t, pwm, times)
+    u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))  # at rest before the first command
     return lag_on_times(times, u, tau, REST_PWM)[pos]
 
 
@@ -189,7 +189,7 @@ def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, vol
     up = _param(params, PWM_ASYMMETRIC_LAG, "tau_up_s")
     down = _param(params, PWM_ASYMMETRIC_LAG, "tau_down_s")
     times, pos = _merged(grid, pwm_t)
-    u = _held(pwm_t, pwm, times)
+    u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))
     return asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
 
 
@@ -198,8 +198,12 @@ def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: n
     """First-order thermal state (time constant ``tau_s``) driven by the I^2 R proxy; starts at 0."""
     tau = _param(params, THERMAL_LOAD, "tau_s")
     times, pos = _merged(grid, pwm_t, volt_t)
-    q = thermal_proxy(_held(pwm_t, pwm, times), _held(volt_t, volt, times))
-    return lag_on_times(times, np.asarray(q), tau, 0.0)[pos]
+    q = np.asarray(thermal_proxy(_held(pwm_t, pwm, times), _held(volt_t, volt, times)))
+    if len(volt_t):
+        q = np.where((times < pwm_t[0]) | (times < volt_t[0]), 0.0, q)  # no loss known yet
+    else:
+        q = np.zeros_like(q)
+    return lag_on_times(times, q, tau, 0.0)[pos]
 
 
 BATCH: dict[str, Callable[..., np.ndarray]] = {

@@ -15,9 +15,11 @@ Decoding, streamed over batches (state carried across batch boundaries, so the e
 speeds do not depend on how the samples are cut into batches):
 
 1. Levels: the clear and blocked levels are tracked by peak trackers (max/min with a slow
-   linear decay, ``level_decay_v_per_s``) over a 3-sample median of the signal, so a
-   one-sample spike does not move them. Before a blade has been seen, the blocked level is
-   guessed as ``initial_low_v``; the two levels are kept at least ``min_contrast_v`` apart.
+   linear decay, ``level_decay_v_per_s``) of the 2-sample minimum (clear) and maximum
+   (blocked) of the signal, so a one-sample spike does not move them. Before a blade has been
+   seen, the blocked level is guessed as ``initial_low_v``; the two levels are kept at least
+   ``min_contrast_v`` apart. A spike longer than one sample above the clear level raises the
+   clear level until it decays (``level_decay_v_per_s``); edges may be missed meanwhile.
 2. Hysteresis: the signal goes low below ``low_fraction`` and high above ``high_fraction`` of
    the way from the blocked to the clear level (noise cannot chatter between them).
 3. Edge time: linear interpolation between the two samples around the crossing of the

@@ -4,9 +4,11 @@ A candidate offers, for each value of its parameter grid, extra regression colum
 the recorded command and battery voltage only (never from the measured speed) for the
 residual-correction model of ``scoring.py``, and the model input (name + parameters) that the
 network gets when the effect is added. The grids are chosen so the dynamic candidates are
-specific: ``rotor_lag`` is a symmetric first-order lag, ``input_delay`` a pure dead time (no
-lag change), ``spin_down_asymmetry`` a lag whose falling time constant is at least twice
-its rising one.
+specific: ``rotor_lag`` is a first-order lag judged on the spin-UP (command above the lagged
+state), ``input_delay`` a pure dead time (no lag change), ``spin_down_asymmetry`` a lag whose
+falling time constant is at least twice its rising one, judged on the spin-DOWN only. Since an
+asymmetry of the spin-down only means something for a rotor that lags at all, ``workflow``
+names ``rotor_lag`` before ``spin_down_asymmetry`` when both are new.
 """
 
 from __future__ import annotations
@@ -67,8 +69,10 @@ class Candidate:
 
 
 def _lag_columns(ctx: Context, params: Params) -> np.ndarray:
+    # only while the command is above the lagged state (the rotor spinning UP): a rotor that is
+    # slow to spin up lacks inertia in the model; a slow spin-down alone is spin_down_asymmetry
     d = (_feature(ctx, ef.PWM_LAG, params) - ctx.sig.pwm) / 0.025
-    return _interacted(d, ctx)
+    return _interacted(np.minimum(d, 0.0), ctx)
 
 
 def _delay_columns(ctx: Context, params: Params) -> np.ndarray:
@@ -77,8 +81,9 @@ def _delay_columns(ctx: Context, params: Params) -> np.ndarray:
 
 
 def _asym_columns(ctx: Context, params: Params) -> np.ndarray:
+    # only while the state is above the command (the rotor slowing DOWN)
     d = (_feature(ctx, ef.PWM_ASYMMETRIC_LAG, params) - ctx.sig.pwm) / 0.025
-    return _interacted(d, ctx)
+    return _interacted(np.maximum(d, 0.0), ctx)
 
 
 def _deadband_columns(ctx: Context, params: Params) -> np.ndarray:
@@ -178,3 +183,97 @@ def candidates_for(model_inputs: Sequence[str], restrict: Sequence[str] | None =
 
 def summary(cand: Candidate, params: Params) -> dict[str, Any]:
     return {"input": cand.input_name, "parameters": cand.model_params(params), "feature": cand.describe(params)}
+
+
+# --- the dynamic family: which of lag, dead time, spin-down changed ---------------------------------
+#: Grids of the direct identification of the rotor's response (s).
+ID_DELAYS = (0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1)
+ID_TAU_UP = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3)
+ID_TAU_DOWN = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)
+DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
+
+
+@dataclass
+class Dynamics:
+    """The rotor's response identified from command to measured speed (not from a residual)."""
+
+    delay_s: float
+    tau_up_s: float
+    tau_down_s: float
+    rmse_rad_s: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {"dead_time_s": self.delay_s, "spin_up_time_constant_s": self.tau_up_s,
+                "spin_down_time_constant_s": self.tau_down_s, "fit_rmse_rad_s": self.rmse_rad_s}
+
+
+def identify_dynamics(signals: Sequence[Signals]) -> Dynamics:
+    """Dead time and spin-up/spin-down time constants that best explain the measured speed.
+
+    speed ~ cubic(x) + linear(V) + V * x, with x the command delayed by d and passed through a
+    first-order lag of tau_up while rising and tau_down while falling (state from rest). The
+    grid (d, tau_up, tau_down) is searched exhaustively; all lags are run at once, vectorised
+    over the grid, on the recordings' 100 Hz grid.
+    """
+    combos = [(tu, td) for tu in ID_TAU_UP for td in ID_TAU_DOWN]
+    tu = np.array([x[0] for x in combos])
+    td = np.array([x[1] for x in combos])
+    best: tuple[float, float, float, float] | None = None
+    sse = np.zeros((len(ID_DELAYS), len(combos)))
+    n_total = 0
+    for s in signals:
+        ok = np.isfinite(s.speed) & np.isfinite(s.voltage)
+        dt = float(np.median(np.diff(s.t)))
+        a_up = np.where(tu > 0, np.exp(-dt / np.maximum(tu, 1e-9)), 0.0)
+        a_dn = np.where(td > 0, np.exp(-dt / np.maximum(td, 1e-9)), 0.0)
+        v = (s.voltage - 11.5)
+        y = s.speed[ok]
+        n_total += len(y)
+        pwm_t, pwm = s.pwm_events
+        for i, d in enumerate(ID_DELAYS):
+            u = ef._held(pwm_t, pwm, s.t - d)
+            X = np.empty((len(s.t), len(combos)))
+            state = np.full(len(combos), c.PWM_STOP)
+            for k in range(len(s.t)):
+                uk = u[k]
+                a = np.where(uk > state, a_up, a_dn)
+                state = uk + (state - uk) * a
+                X[k] = state
+            X = (X[ok] - 0.075) / 0.025
+            vv = v[ok]
+            for j in range(len(combos)):
+                x = X[:, j]
+                A = np.column_stack([np.ones_like(x), x, x**2, x**3, vv, vv * x])
+                beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+                sse[i, j] += float(np.sum((y - A @ beta) ** 2))
+    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    return Dynamics(float(ID_DELAYS[i]), float(tu[j]), float(td[j]), float(np.sqrt(sse[i, j] / max(n_total, 1))))
+
+
+def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] = ()) -> tuple[str | None, str]:
+    """The dynamic effect whose parameter changed from reference to measured, and why.
+
+    Margins: spin-up time constant up by 50 % and at least 50 ms; dead time up by 15 ms;
+    spin-down time constant up by 0.1 s more than the spin-up one."""
+    if ref is None:
+        return None, "no reference data to compare the identified dynamics with"
+    changes = {
+        "rotor_lag": (meas.tau_up_s - max(1.5 * ref.tau_up_s, ref.tau_up_s + 0.05), 0.0,
+                      f"the spin-up time constant is {meas.tau_up_s:.2f} s on the measured data vs "
+                      f"{ref.tau_up_s:.2f} s on the reference"),
+        "spin_down_asymmetry": (meas.tau_down_s - ref.tau_down_s - max(meas.tau_up_s - ref.tau_up_s, 0.0), 0.1,
+                                f"the spin-down time constant is {meas.tau_down_s:.2f} s on the measured data "
+                                f"vs {ref.tau_down_s:.2f} s on the reference while the spin-up one is "
+                                f"{meas.tau_up_s:.2f} s vs {ref.tau_up_s:.2f} s"),
+        "input_delay": (meas.delay_s - ref.delay_s, 0.015,
+                        f"the dead time is {1000 * meas.delay_s:.0f} ms on the measured data vs "
+                        f"{1000 * ref.delay_s:.0f} ms on the reference"),
+    }
+    # in order of precedence: a rotor that lags at all comes before an asymmetry of its lag
+    for name in ("rotor_lag", "input_delay", "spin_down_asymmetry"):
+        if name in exclude:
+            continue
+        change, margin, why = changes[name]
+        if change >= margin:
+            return name, why
+    return None, "the identified dead time and time constants did not change beyond their margins"

@@ -10,7 +10,8 @@ fitted on all OTHER blocks:
 
 with the effect's parameter theta (a lag, a delay, a threshold ...) chosen on the training
 blocks only, then both are applied to the held-out block. The score is the fractional
-reduction of the held-out mean squared residual, candidate vs null, pooled over blocks; its
+reduction of the held-out mean squared residual, candidate vs null (geometric mean of the
+blocks' ratios); its
 significance a one-sided paired sign-flip randomisation test over the blocks' MSE reductions
 (H0: the feature does not help on unseen data, so each block's improvement is as likely
 negative as positive).
@@ -114,7 +115,7 @@ def _standardise(X: np.ndarray) -> np.ndarray:
 class Score:
     """A candidate's held-out performance on one data set (measured or reference)."""
 
-    fraction: float  #: 1 - sum SSE_candidate / sum SSE_null over held-out blocks
+    fraction: float  #: 1 - geometric mean over held-out blocks of SSE_candidate / SSE_null
     fraction_of_residual: float  #: 1 - sum SSE_candidate / sum r^2 (of the raw residual)
     null_fraction: float  #: 1 - sum SSE_null / sum r^2 (what re-weighting the model alone gives)
     p_value: float
@@ -185,9 +186,13 @@ def score_candidate(r: np.ndarray, labels: np.ndarray, null_X: np.ndarray,
         sse_cand[k] = stats[best[1]].sse(k, best[2])
     n = null.n
     used = n > 0
-    d = (sse_null - sse_cand)[used] / n[used]  # per-block MSE reduction
+    # per-block log ratio of held-out SSE: scale-free, so one block with a huge residual (a
+    # start-up transient) does not decide the test alone; ~0 where the feature is irrelevant
+    d = np.log(np.maximum(sse_null[used], 1e-300) / np.maximum(sse_cand[used], 1e-300))
     total_r2 = float(null.s.sum())
-    frac = 1.0 - sse_cand.sum() / sse_null.sum() if sse_null.sum() > 0 else 0.0
+    # effect size: geometric mean over blocks of the held-out MSE ratio (the same per-block log
+    # ratios the test uses), so one block with a huge transient does not decide it either
+    frac = float(1.0 - np.exp(-np.mean(d))) if len(d) else 0.0
     counts = np.bincount(chosen, minlength=len(grid)) if chosen else np.zeros(len(grid), int)
     return Score(
         fraction=float(frac),

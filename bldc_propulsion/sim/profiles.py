@@ -18,6 +18,11 @@ Profile = Callable[[float, np.random.Generator], np.ndarray]
 
 _MID = 0.5 * (PWM_STOP + PWM_FULL)
 
+#: A bench run starts with the ESC being armed at the stop level (ESCs refuse to start until
+#: they have seen ~1 s of a 1 ms pulse), so every recording begins with the rotor at rest and
+#: the command at 0.05 (kept only when the duration leaves room for the profile itself).
+ARMING_S = 1.0
+
 
 def _frames(duration_s: float) -> int:
     """Frames needed to cover [0, duration_s)."""
@@ -149,5 +154,8 @@ def make_profile(
         if isinstance(seed_or_rng, bool) or not isinstance(seed_or_rng, (int, np.integer)) or seed_or_rng < 0:
             raise BadInputError(f"--seed {seed_or_rng!r}: must be a whole number >= 0")
         rng = np.random.default_rng(int(seed_or_rng))
-    levels = np.asarray(PROFILES[name](d, rng), dtype=float)
+    n = _frames(d)
+    n_arm = _frames(ARMING_S) if d >= 4.0 * ARMING_S else 0
+    body = np.asarray(PROFILES[name](d - n_arm / PWM_FRAME_HZ, rng), dtype=float)
+    levels = np.concatenate([np.full(n_arm, PWM_STOP), body])[:n]
     return _frame_t(len(levels)), levels

@@ -159,7 +159,7 @@ def write_training_report(path: Path, outcome: Any) -> str:
     d = _report_dir(path)
     figs: list[tuple[str, str]] = []
     h = outcome.lm.history
-    report.fig_training(np.asarray(h["train_cost"]), np.asarray(h["val_cost"]), outcome.lm.best_epoch,
+    report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch,
                         d / "fig12_training.png")
     figs.append(("fig12_training.png", "Fig. 12: training and validation cost per epoch"))
     first = outcome.train[0]

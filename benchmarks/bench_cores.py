@@ -1,0 +1,84 @@
+"""Throughput of the cores (prints figures, asserts nothing).
+
+Run: PYTHONPATH=. python benchmarks/bench_cores.py
+Goals: tachometer >= 5e6 samples/s on one core; one estimator update + predict < 20 us.
+Times are CPU time of this process (best of several runs), so other load on the machine
+disturbs them little.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from _tachsignal import make_signal  # noqa: E402
+
+from bldc_propulsion.core.battery_filter import BatteryFilter  # noqa: E402
+from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
+from bldc_propulsion.core.tachometer import TachometerDecoder  # noqa: E402
+from bldc_propulsion.model import NetworkModel  # noqa: E402
+
+
+def best(fn, repeat: int = 5) -> float:
+    """Least CPU seconds of ``repeat`` runs of fn()."""
+    out = float("inf")
+    for _ in range(repeat):
+        t0 = time.process_time()
+        fn()
+        out = min(out, time.process_time() - t0)
+    return out
+
+
+def bench_tachometer() -> None:
+    for speed in (300.0, 650.0, 1500.0):
+        x = make_signal(speed, 5.0, seed=1).x
+        for bs in (200, 1000, None):
+            s = best(lambda: TachometerDecoder().process(0.0, x, batch_size=bs))
+            label = "one array" if bs is None else f"batches of {bs}"
+            print(f"tachometer  {speed:6.0f} rad/s, {label:15s}: {len(x) / s / 1e6:6.2f} M samples/s (goal >= 5)")
+
+
+def bench_battery() -> None:
+    n = 1_000_000
+    t = np.arange(n) / 1000.0
+    adc = 5.6 + 0.5 * np.random.default_rng(0).normal(size=n)
+    s = best(lambda: BatteryFilter().process(t, adc), repeat=3)
+    print(f"battery filter, process(): {n / s / 1e6:6.2f} M samples/s")
+    tl, al = t[:50000].tolist(), adc[:50000].tolist()
+
+    def stream():
+        f = BatteryFilter()
+        for ti, ai in zip(tl, al):
+            f.update(ti, ai)
+
+    s = best(stream, repeat=3)
+    print(f"battery filter, update():  {len(tl) / s / 1e6:6.2f} M samples/s ({s / len(tl) * 1e6:.2f} us/sample)")
+
+
+def bench_estimator() -> None:
+    rng = np.random.default_rng(0)
+    net = NetworkModel(("battery_voltage", "pwm", "pwm_filtered"), [9.5, 0, 0], [12.6, 1, 1], 0.0, 650.0,
+                       rng.normal(size=(25, 3)), rng.normal(size=25), rng.normal(size=25) / 25, 0.0)
+    for label, model in (("3-25-1 network", net), ("physics fallback", fallback_model())):
+        n = 20000
+
+        def run():
+            est = ThrustEstimator(model)
+            est.update_voltage(0.0, 11.0)
+            for i in range(n):
+                t = i * 1e-3
+                est.update_pwm(t, 0.07)
+                est.predict(t)
+
+        s = best(run, repeat=3)
+        print(f"estimator ({label}): update_pwm + predict {s / n * 1e6:6.2f} us (goal < 20)")
+
+
+if __name__ == "__main__":
+    bench_tachometer()
+    bench_battery()
+    bench_estimator()

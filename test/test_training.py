@@ -1,0 +1,214 @@
+"""Training and evaluation from recordings, against simulator truth and hand-checked behaviour."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bldc_propulsion import contract as c
+from bldc_propulsion.bagio import BagWriter
+from bldc_propulsion.core.estimator import ThrustEstimator
+from bldc_propulsion.errors import BadInputError, BagError, OutputExistsError
+from bldc_propulsion.model import load_model, save_model
+from bldc_propulsion.sim import simulate
+from bldc_propulsion.sim.record import write_sim_bag
+from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.training.evaluate import evaluate, predict_speed
+from bldc_propulsion.training.train import fit_thrust_coefficient, load_all, train_model
+
+ROOT = Path(__file__).resolve().parents[1]
+BRAKING = {"spin_down_asymmetry": 0.0}  # an actively braking ESC, as in the sample bags
+
+
+def _bag(d: Path, name: str, profile: str, duration: float, seed: int, soc: float) -> Path:
+    write_sim_bag(simulate(profile, duration, seed, effects=BRAKING, soc=soc), d / name)
+    return d / name
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    """Small recordings spanning the pack's charge, like separate bench sessions."""
+    d = tmp_path_factory.mktemp("training")
+    return {
+        "s_full": _bag(d, "s_full", "staircase", 24, 1, 1.0),
+        "t_full": _bag(d, "t_full", "triangle", 24, 2, 0.9),
+        "s_half": _bag(d, "s_half", "staircase", 24, 3, 0.55),
+        "t_half": _bag(d, "t_half", "triangle", 24, 4, 0.45),
+        "val": _bag(d, "val", "triangle", 20, 5, 0.7),
+        "test_low": _bag(d, "test_low", "staircase", 24, 6, 0.6),
+    }
+
+
+def _train(bags, inputs=c.DEFAULT_INPUTS, hidden=10, seed=0):
+    train = load_all([bags[k] for k in ("s_full", "t_full", "s_half", "t_half")], "training")
+    return train_model(train, load_all([bags["val"]], "validation"), inputs=inputs, hidden=hidden,
+                       seed=seed, thrust_coefficient=2.8e-5, max_epochs=200)
+
+
+@pytest.fixture(scope="module")
+def trained(bags):
+    return _train(bags)
+
+
+def test_decoded_speed_and_filtered_voltage_match_truth(bags):
+    res = simulate("staircase", 24, 1, effects=BRAKING, soc=1.0)
+    sig = load_signals(bags["s_full"])
+    truth = np.interp(sig.t, res.truth_t, res.truth_speed)
+    steady = truth > 100
+    rel = (sig.speed[steady] - truth[steady]) / truth[steady]
+    assert np.sqrt(np.mean(rel**2)) < 0.02
+    settled = sig.t > 3.0
+    v_truth = np.interp(sig.t, res.truth_t, res.truth_voltage)
+    assert np.sqrt(np.mean((sig.voltage[settled] - v_truth[settled]) ** 2)) < 0.15
+    assert np.allclose(np.diff(sig.t), 0.01)
+
+
+def test_training_fits_and_stops_on_validation(trained):
+    h = trained.lm.history
+    best = trained.lm.best_epoch
+    assert h.val_cost[best] == np.nanmin(h.val_cost[: trained.lm.epochs + 1])
+    assert h.train_cost[best] < 0.05 * h.train_cost[0]
+    assert trained.validation_rmse_rad_s < 25.0  # of a ~550 rad/s range, on another pack charge
+    meta = trained.model.metadata
+    assert len(meta["sources"]["train"]) == 4 and all(len(s["sha256"]) == 64 for s in meta["sources"]["train"])
+
+
+def test_thrust_coefficient_is_fitted_from_the_load_cell(trained):
+    b_true = simulate("constant", 2, 0).params.thrust_coefficient
+    assert trained.thrust.coefficient == pytest.approx(b_true, rel=0.01)
+    assert trained.thrust.residual_rms_n < 0.05  # the load cell's 0.02 N noise
+
+
+def test_thrust_fit_by_hand():
+    class S:
+        speed = np.linspace(100.0, 600.0, 20)
+        thrust = 3e-5 * speed**2 + 0.01 * (-1.0) ** np.arange(20)
+
+    fit = fit_thrust_coefficient([S()], default=1.0)
+    x, y = S.speed**2, S.thrust
+    assert fit.coefficient == pytest.approx(np.dot(x, y) / np.dot(x, x), rel=1e-12)
+    none = fit_thrust_coefficient([], default=2.5e-5)
+    assert none.coefficient == 2.5e-5 and "configured" in none.source
+
+
+def test_model_file_round_trips_into_the_estimator_core(trained, bags, tmp_path):
+    """The node's streaming estimator reproduces the trainer's batch predictions."""
+    path = tmp_path / "m.npz"
+    save_model(trained.model, path)
+    model = load_model(path)
+    sig = load_signals(bags["test_low"])
+    batch = predict_speed(model, sig)
+    est = ThrustEstimator(model)
+    events = sorted(
+        [(t, 0, v) for t, v in zip(*sig.pwm_events)] + [(t, 1, v) for t, v in zip(*sig.voltage_events)]
+    )
+    stream = np.full(len(sig.t), np.nan)
+    k = 0
+    for i, tg in enumerate(sig.t):
+        while k < len(events) and events[k][0] <= tg:
+            t, kind, v = events[k]
+            (est.update_pwm if kind == 0 else est.update_voltage)(t, v)
+            k += 1
+        p = est.predict(tg)
+        if p.ready:
+            stream[i] = p.speed_rad_s
+    ok = np.isfinite(stream)
+    assert ok.mean() > 0.95
+    np.testing.assert_allclose(stream[ok], batch[ok], rtol=1e-9, atol=1e-9)
+
+
+def test_battery_voltage_input_wins_at_a_lower_charge(bags, trained):
+    """The paper's thesis: with the filtered battery voltage the model beats one without."""
+    without = _train(bags, inputs=(c.INPUT_PWM, c.INPUT_PWM_FILTERED))
+    sig = [load_signals(bags["test_low"])]
+    rmse_with, _, _ = evaluate(trained.model, sig)
+    rmse_without, _, _ = evaluate(without.model, sig)
+    assert rmse_with < 0.6 * rmse_without, (rmse_with, rmse_without)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 4 goal not met yet: on a 50 s noisy chirp (0.05-3 Hz) the slow part (< 0.5 Hz) "
+    "has RMSE ~5 % of the speed range (27 rad/s) with a model trained on staircase and "
+    "triangle recordings; the 2 s-filtered voltage tracks load sag with a lag the static "
+    "network cannot separate from the state of charge"))
+def test_chirp_slow_part_within_two_percent(trained, tmp_path):
+    write_sim_bag(simulate("chirp", 50, 7, effects=BRAKING, soc=0.85), tmp_path / "chirp")
+    _, scores, _ = evaluate(trained.model, [load_signals(tmp_path / "chirp")])
+    slow = next(b for b in scores[0].bands if b["high_hz"] <= 0.5)
+    assert slow["rmse_percent_of_range"] < 2.0
+
+
+def test_training_is_deterministic_for_a_seed(bags):
+    a = _train(bags, hidden=4, seed=3)
+    b = _train(bags, hidden=4, seed=3)
+    np.testing.assert_array_equal(a.model.W1, b.model.W1)
+
+
+# --- the command line ---------------------------------------------------------------------
+def run(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    return subprocess.run([sys.executable, "-m", "bldc_propulsion.cli", *args],
+                          capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
+
+
+def test_train_and_evaluate_commands(bags, tmp_path):
+    model = tmp_path / "m.npz"
+    proc = run("train", str(bags["s_full"]), str(bags["t_half"]), "--validation", str(bags["val"]),
+               "-o", str(model), "--hidden", "6", "--json", "--report", str(tmp_path / "rep"))
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    assert {"model", "epochs", "train_cost", "validation_cost"} <= set(info)
+    assert "epoch" in proc.stderr and "mu" in proc.stderr  # one progress line per epoch
+    assert (tmp_path / "rep" / "index.html").is_file()
+    assert len(list((tmp_path / "rep").glob("*.png"))) >= 3
+    proc = run("evaluate", "--model", str(model), str(bags["test_low"]), "--json")
+    assert proc.returncode == 0, proc.stderr
+    ev = json.loads(proc.stdout)
+    rec = ev["recordings"][0]
+    assert rec["path"] == str(bags["test_low"]) and rec["rmse_rad_s"] <= rec["max_error_rad_s"]
+    assert ev["rmse_rad_s"] == pytest.approx(rec["rmse_rad_s"])
+    # an existing model is never replaced without --force
+    before = model.read_bytes()
+    proc = run("train", str(bags["s_full"]), "--validation", str(bags["val"]), "-o", str(model))
+    assert proc.returncode == 2 and "already exists" in proc.stderr
+    assert model.read_bytes() == before
+
+
+def test_bad_recordings_give_one_line_errors(bags, tmp_path):
+    with pytest.raises(BagError, match="no such recording"):
+        load_signals(tmp_path / "missing")
+    with BagWriter(tmp_path / "no_tach") as bag:  # pwm and voltage but no speed source
+        for k in range(200):
+            bag.write_float64(c.TOPIC_PWM, k * 0.02, 0.07)
+            bag.write_float64(c.TOPIC_BATTERY_ADC, k * 0.02, 6.0)
+    with pytest.raises(BagError, match="neither /rotor/speed nor /tachometer/adc"):
+        load_signals(tmp_path / "no_tach")
+    write_sim_bag(simulate("staircase", 0.3, 1), tmp_path / "short")
+    with pytest.raises(BadInputError, match="too short"):
+        load_signals(tmp_path / "short")
+    proc = run("train", str(bags["s_full"]), "--validation", str(bags["s_full"]), "-o", str(tmp_path / "m.npz"))
+    assert proc.returncode == 2 and "both training and validation" in proc.stderr
+    proc = run("train", str(tmp_path / "no_tach"), "--validation", str(bags["val"]), "-o", str(tmp_path / "m.npz"))
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert len(errors) == 1 and "no_tach" in errors[0]
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_too_little_data_is_refused(bags):
+    train = load_all([bags["s_full"]], "training")
+    with pytest.raises(BadInputError, match="too little training data"):
+        train_model(train, load_all([bags["val"]], "validation"), hidden=2000, thrust_coefficient=2.8e-5)
+
+
+def test_existing_model_file_is_not_overwritten(trained, tmp_path):
+    path = tmp_path / "m.npz"
+    save_model(trained.model, path)
+    with pytest.raises(OutputExistsError):
+        save_model(trained.model, path)
