@@ -8,10 +8,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir))
 from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
 
 
 def main() -> None:
@@ -28,6 +31,15 @@ def main() -> None:
             f"{name:>12}: {args.duration:.0f} s simulated in {elapsed:.2f} s "
             f"({args.duration / elapsed:.0f}x real time; {len(res.tach)} tach samples, "
             f"{len(res.truth_t)} steps)"
+        )
+        with tempfile.TemporaryDirectory() as d:
+            t0 = time.perf_counter()
+            n = write_sim_bag(res, os.path.join(d, "bag"))
+            written = time.perf_counter() - t0
+            size = sum(f.stat().st_size for f in Path(d, "bag").iterdir())
+        print(
+            f"{'':>12}  + writing the MCAP bag: {written:.2f} s ({n} messages, {size / 1e6:.1f} MB); "
+            f"simulate command total {elapsed + written:.1f} s for {args.duration:.0f} s of recording"
         )
 
 

@@ -39,8 +39,8 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False) -> Iterator
         raise BadInputError(f"{final}: directory {parent} is not writable")
     stage = parent / f".{final.name}.partial-{os.getpid()}"
     _remove(stage)
-    stage.mkdir()
-    try:
+    try:  # mkdir inside: a Ctrl-C right after it must still remove the staging directory
+        stage.mkdir()
         tmp = stage / final.name
         yield tmp
         if not tmp.exists():

@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -167,6 +165,22 @@ def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> di
         fail("pwm_tau_s must be > 0")
     if not float(a["thrust_coefficient"]) >= 0:
         fail("thrust_coefficient must be >= 0")
+    # finite arrays can still overflow in use (a float128 beyond float64, 1e308 weights):
+    # bound every intermediate of forward() for inputs inside the scaling range
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = {k: np.asarray(a[k], dtype=np.float64) for k in shapes}
+        huge = [k for k in shapes if not np.all(np.isfinite(f[k]))]
+        if huge:
+            fail(f"{huge[0]} does not fit a 64-bit float")
+        span_in = f["input_max"] - f["input_min"]
+        pre = np.sum(np.abs(f["W1"]), axis=1) + np.abs(f["b1"])  # |hidden pre-activation|
+        reach = float(np.sum(np.abs(f["W2"])) + abs(float(f["b2"])))  # |scaled output|
+        span_out = float(f["output_max"]) - float(f["output_min"])
+        worst = (reach + 1.0) * 0.5 * span_out + abs(float(f["output_min"]))
+        ok = (np.all(np.isfinite(span_in)) and np.all(span_in > 0) and np.all(np.isfinite(pre))
+              and np.isfinite(worst))
+    if not ok:
+        fail("weights or scaling too large: the speed would overflow (not finite)")
     mj = a["metadata_json"]
     if mj.shape != () or mj.dtype.kind != "U":
         fail(f"metadata_json must be a scalar unicode string, got {mj.dtype} shape {mj.shape}")
@@ -198,7 +212,7 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
         raise ModelError(f"{p}: is a directory, not a model file")
     try:
         npz = np.load(p, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    except Exception as exc:  # a damaged zip raises many types (struct.error, NotImplementedError, ...)
         raise ModelError(f"{p}: not a model .npz file ({_short(exc)})") from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise ModelError(f"{p}: not a model .npz archive (a single array)")
@@ -214,7 +228,8 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
                 if "pickle" in str(exc).lower() or "object" in str(exc).lower():
                     raise ModelError(f"{p}: array '{k}' holds pickled Python objects (refused)") from None
                 raise ModelError(f"{p}: array '{k}' cannot be read ({_short(exc)})") from None
-            except (OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+            except Exception as exc:  # any other failure to read is damage: zlib.error,
+                # BadZipFile, EOFError, NotImplementedError (compression), RuntimeError (encrypted)
                 raise ModelError(f"{p}: array '{k}' is damaged ({_short(exc)})") from None
     for k, arr in arrays.items():
         if arr.dtype.kind == "O":  # pragma: no cover - np.load refuses these already

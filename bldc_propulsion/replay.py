@@ -13,7 +13,6 @@ the estimator from it instead of filtering ``battery/adc``.
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any
 
@@ -103,6 +102,7 @@ def replay_bag(
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             timers_until(end)
             counts["messages_out"] = bag.messages_written
+        tach.check_timeout(end)  # a tachometer silent until the end is lost, as the node's timer says
         statuses = [*filt.status(), *tach.status(), *est.status()]
         return {
             "path": str(out_path),
@@ -128,12 +128,19 @@ def summary_text(info: dict[str, Any]) -> str:
     ]
     for s in info["status"]:
         level = ("OK", "WARN", "ERROR")[min(int(s["level"]), 2)]
-        vals = ", ".join(f"{k}={v}" for k, v in s["values"].items())
+        vals = ", ".join(f"{k}={v}" for k, v in s["values"].items() if _worth_saying(k, v))
         lines.append(f"  [{level}] {s['name']}: {s['message']}" + (f" ({vals})" if vals else ""))
     if info.get("read_error"):
         lines.append(f"  recording damaged: kept the readable part; {info['read_error']}")
     return "\n".join(lines)
 
 
-def _isfinite(x: float) -> bool:
-    return math.isfinite(x)
+#: Counters a replay summary shows when they are not zero: what went wrong, not what went well.
+_PROBLEM_WORDS = ("reject", "loss", "glitch", "gap", "clipped", "mismatch", "reset", "missing",
+                  "nonfinite", "suppressed", "unverified", "not_ready", "resync")
+
+
+def _worth_saying(key: str, value: str) -> bool:
+    if key in ("accepted", "edges", "speeds", "predictions", "batches", "samples"):
+        return True
+    return any(w in key for w in _PROBLEM_WORDS) and value not in ("0", "False", "nan", "")

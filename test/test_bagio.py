@@ -152,3 +152,15 @@ def test_sigint_during_a_bag_write_leaves_no_partial_bag(tmp_path):
     proc.wait(timeout=30)
     assert proc.returncode != 0
     assert list(tmp_path.iterdir()) == []
+
+
+def test_battery_state_template_writes_the_typestore_bytes(tmp_path):
+    from bldc_propulsion.bagio import battery_state
+
+    with BagWriter(tmp_path / "bs", t0_ns=1_700_000_000_123_456_789) as bag:
+        for t, v in ((0.0, 11.1), (1.234567891, 12.6), (100.5, 0.0)):
+            bag.write_battery_state(c.TOPIC_BATTERY_VOLTAGE, t, v)
+    with open_recording(tmp_path / "bs") as rec:
+        for (_, ns, _, raw), v in zip(rec.raw([c.TOPIC_BATTERY_VOLTAGE]), (11.1, 12.6, 0.0)):
+            ref = bytes(TYPESTORE.serialize_cdr(battery_state(ns, v), c.BATTERY_STATE))
+            assert bytes(raw) == ref

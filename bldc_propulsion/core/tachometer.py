@@ -27,11 +27,26 @@ speeds do not depend on how the samples are cut into batches):
 4. Glitches: two switches closer than the shortest physically possible edge interval
    (``min_edge_fraction`` of a revolution at ``max_speed_rad_s``) are a spike, not a blade:
    both are dropped and counted. A speed above ``max_speed_rad_s`` is rejected too.
+   Noise can also make switches far enough apart to pass as edges. Evidence of noise is a
+   glitch, an overspeed, or a speed that jumped more than a rotor can accelerate
+   (``MAX_ACCEL_RAD_S2`` plus ``VERIFY_TOLERANCE``) from the last reported one. After such
+   evidence a speed is only reported once two consecutive one-revolution speeds agree
+   within ``VERIFY_TOLERANCE`` and are reachable from the last reported speed (counted as
+   ``speeds_unverified`` until then), so a noise burst does not yield a made-up speed.
 5. Time: sample times come from a clock anchored on the batch stamps (the stamp is the time of
    the batch's last sample). A batch starting later than expected by more than
    ``gap_tolerance_s`` means samples are missing: the edge history is reset (no speed across
-   the gap). Batches that do not move forward are rejected. NaN/inf samples are dropped and
-   treated as a gap.
+   the gap). Batches that do not move forward are rejected. NaN/inf samples, and samples
+   beyond ``max_abs_v`` (not an ADC reading), are dropped and treated as a gap.
+   Sample rate check: each batch's sample count over the time since the previous batch's
+   stamp is the rate the data really has. When the median over the last
+   ``RATE_CHECK_BATCHES`` batches differs from ``sample_rate_hz`` by more than
+   ``RATE_TOLERANCE`` (relative), the parameter is wrong for this data: every edge time and
+   speed would be scaled by the ratio, so no speed is produced (speed 0, ``signal_ok``
+   False, status ERROR naming both rates) until the batches agree with the parameter again.
+   It is checked from the second batch on (the first has nothing to compare with); once a
+   few batches have arrived, one late or missing batch is an outlier of the median, not a
+   mismatch.
 6. Silence: no edge for ``timeout_s`` gives speed 0 and ``signal_ok`` False (one signal loss
    counted). A rotor standing still also gives no edges: the signal level then tells what can
    be known: ``stopped`` (steady at the clear level: speed 0 is true), ``blocked`` (steady at the
@@ -48,7 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import BadInputError
-from .status import OK, WARN, CoreStatus, counters
+from .status import ERROR, OK, WARN, CoreStatus, counters
 
 TWO_PI = 2.0 * math.pi
 
@@ -86,10 +101,13 @@ class TachometerConfig:
     level_decay_v_per_s: float = 1.0  #: how fast a level tracker forgets a peak
     initial_low_v: float = 0.0  #: guess of the blocked level before a blade has been seen
     gap_tolerance_s: float = 0.005  #: batch-time slack before a gap (missing samples) is declared
+    #: samples beyond +-max_abs_v are not ADC readings (corrupt data): dropped like NaN, so
+    #: one absurd value cannot drive the level trackers out of range for hours
+    max_abs_v: float = 100.0
 
     def __post_init__(self) -> None:
         for name in ("sample_rate_hz", "max_speed_rad_s", "timeout_s", "min_edge_fraction",
-                     "min_contrast_v", "level_decay_v_per_s", "gap_tolerance_s"):
+                     "min_contrast_v", "level_decay_v_per_s", "gap_tolerance_s", "max_abs_v"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise BadInputError(f"tachometer: {name} must be > 0, got {v!r}")
@@ -138,6 +156,10 @@ class TachometerDecoder:
     """Streaming decoder of phototransistor batches into edge times and speeds."""
 
     _CHUNK = 16384  #: long inputs are processed in slices of this size (cache, precision)
+    RATE_CHECK_BATCHES = 5  #: batches whose median sample rate is compared with the parameter
+    RATE_TOLERANCE = 0.2  #: relative difference of that rate from sample_rate_hz that is a mismatch
+    VERIFY_TOLERANCE = 0.05  #: relative agreement of consecutive speeds that ends a noise check
+    MAX_ACCEL_RAD_S2 = 20000.0  #: faster speed changes than this are noise (a 12" prop: ~5000)
 
     def __init__(self, config: TachometerConfig | None = None) -> None:
         self.config = config or TachometerConfig()
@@ -154,7 +176,7 @@ class TachometerDecoder:
         self.gaps = 0  #: batches that started later than expected (missing samples)
         self.missing_samples = 0
         self.time_resyncs = 0  #: batches that overlapped the previous ones beyond tolerance
-        self.nonfinite_samples = 0
+        self.nonfinite_samples = 0  #: NaN/inf samples, and samples beyond max_abs_v
         self.nonfinite_gaps = 0
         self.edges = 0
         self.glitches = 0  #: edge pairs closer than physically possible, dropped
@@ -162,6 +184,9 @@ class TachometerDecoder:
         self.speeds = 0
         self.signal_losses = 0
         self.history_resets = 0
+        self.rate_mismatch_batches = 0  #: batches decoded while the sample rate disagreed
+        self.speeds_suppressed = 0  #: speeds not reported because of a sample-rate mismatch
+        self.speeds_unverified = 0  #: speeds withheld after noise until two consecutive agree
         self.reset()
 
     def reset(self) -> None:
@@ -181,6 +206,12 @@ class TachometerDecoder:
         self._edges_since_loss = 0
         self._have_speed = False
         self._speed_now = 0.0
+        self._rates: deque[float] = deque(maxlen=self.RATE_CHECK_BATCHES)  # implied rate / parameter
+        self._rate_bad = False
+        self._rate_measured = math.nan
+        self._verify = False  # noise seen: check speeds against each other before reporting
+        self._candidate: float | None = None
+        self._t_speed: float | None = None  # time of the last reported speed
         self._break_continuity()
 
     def _break_continuity(self) -> None:
@@ -211,6 +242,7 @@ class TachometerDecoder:
         speed: list[float] = []
         all_t: list[float] = []
         out = (edge_t, speed, all_t)
+        self._check_rate(t_last, n)
         t_first = t_last - (n - 1) * dt
         if self._anchor is None:
             self._anchor, self._next_idx = t_first, 0
@@ -231,6 +263,9 @@ class TachometerDecoder:
         self._last_batch_t = t_last
         i0 = self._next_idx
         self._next_idx += n
+        lim = self.config.max_abs_v
+        if not (x.max() <= lim and x.min() >= -lim):  # NaN/inf or absurd values: all as NaN
+            x = np.where(np.abs(x) <= lim, x, np.nan)
         if math.isfinite(x.sum()):  # no NaN/inf (the sum of volts cannot overflow)
             if n <= self._CHUNK:
                 self._segment(x, i0, out)
@@ -281,6 +316,30 @@ class TachometerDecoder:
             state=parts[-1].state,
         )
 
+    @property
+    def rate_mismatch(self) -> bool:
+        """True while the batches' timing says the data is not at ``sample_rate_hz``."""
+        return self._rate_bad
+
+    def _check_rate(self, t_last: float, n: int) -> None:
+        """Compare the samples per second the batch stamps imply with the parameter."""
+        if self._last_batch_t is not None:
+            self._rates.append(n / (t_last - self._last_batch_t) / self.config.sample_rate_hz)
+        if not self._rates:  # the first batch: no timing to compare yet
+            return
+        ratio = float(np.median(self._rates))
+        bad = abs(ratio - 1.0) > self.RATE_TOLERANCE
+        if bad:
+            self._rate_measured = ratio * self.config.sample_rate_hz
+            self.rate_mismatch_batches += 1
+            if not self._rate_bad:  # whatever was measured at the wrong rate is void
+                self._speed_now = 0.0
+                self._have_speed = False
+                if self._hist:
+                    self.history_resets += 1
+                self._hist.clear()
+        self._rate_bad = bad
+
     def check_timeout(self, t_now: float) -> bool:
         """Apply the timeout at ``t_now`` (s) when no batch arrives; True if the signal is lost just now."""
         t_now = float(t_now)
@@ -316,7 +375,11 @@ class TachometerDecoder:
         state = self.state
         level = OK if state in (SPINNING, STARTING, STOPPED) else WARN
         msg = _STATE_TEXT[state]
-        if self._now is not None and self._last_batch_t is not None \
+        if self._rate_bad:
+            level, msg = ERROR, (
+                f"sample rate mismatch: batches carry {self._rate_measured:.0f} samples/s, "
+                f"sample_rate_hz is {self.config.sample_rate_hz:g}; no speed reported")
+        elif self._now is not None and self._last_batch_t is not None \
                 and self._now - self._last_batch_t > self.config.timeout_s:
             level, msg = WARN, f"no tachometer/adc batch for {self._now - self._last_batch_t:.2f} s"
         elif self._last_batch_t is None:
@@ -342,6 +405,11 @@ class TachometerDecoder:
             missing_samples=self.missing_samples,
             time_resyncs=self.time_resyncs,
             nonfinite_samples=self.nonfinite_samples,
+            rate_mismatch=self._rate_bad,
+            measured_sample_rate_hz=self._rate_measured,
+            rate_mismatch_batches=self.rate_mismatch_batches,
+            speeds_suppressed=self.speeds_suppressed,
+            speeds_unverified=self.speeds_unverified,
         ))]
 
     # --- internals ---------------------------------------------------------------------------
@@ -500,6 +568,7 @@ class TachometerDecoder:
         if self._pending is not None:
             if g - self._pending[1] < self._min_trig:  # a spike: drop it and its partner
                 self.glitches += 1
+                self._verify, self._candidate = True, None
                 self._pending = None
                 return
             self._confirm(self._pending[0], out)
@@ -529,10 +598,30 @@ class TachometerDecoder:
             if w > self.config.max_speed_rad_s:
                 self.overspeed += 1
                 self.history_resets += 1
+                self._verify, self._candidate = True, None
                 hist.clear()
                 hist.append(p)
                 return
+            if self._rate_bad:  # edge times scaled by the wrong rate: not a speed
+                self.speeds_suppressed += 1
+                return
+            tol = self.VERIFY_TOLERANCE
+            reachable = True
+            if self._t_speed is not None and self._speed_now > 0.0:
+                jump = abs(w - self._speed_now)
+                reachable = jump <= self.MAX_ACCEL_RAD_S2 * (t - self._t_speed) + tol * self._speed_now
+            if not reachable and not self._verify:
+                self._verify, self._candidate = True, None
+            if self._verify:  # after noise: only a plausible speed that its predecessor confirms
+                prev, self._candidate = self._candidate, w
+                agree = (self._t_speed is not None and self._speed_now > 0.0 and reachable
+                         and abs(w / self._speed_now - 1.0) <= tol)
+                if not agree and (prev is None or abs(w / prev - 1.0) > tol or not reachable):
+                    self.speeds_unverified += 1
+                    return
+                self._verify, self._candidate = False, None
             self.speeds += 1
+            self._t_speed = t
             self._speed_now = w
             self._have_speed = True
             if out is not None:

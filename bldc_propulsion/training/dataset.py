@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -87,12 +88,36 @@ def decode_speed(rec, config: TachometerConfig | None = None) -> tuple[np.ndarra
         elif out.speed_now == 0.0 and not out.signal_ok:
             times.append(np.array([t_batch]))
             values.append(np.array([0.0]))
+    _check_clock(rec.path, c.TOPIC_TACH_ADC, dec.time_resyncs + dec.rejected_batches, dec.batches)
     if not times:
         return np.zeros(0), np.zeros(0)
     t = np.concatenate(times)
     v = np.concatenate(values)
     order = np.argsort(t, kind="stable")
     return t[order], v[order]
+
+
+#: share of messages out of time order above which a recording's clock is not trusted
+MAX_CLOCK_FAULT_FRACTION = 0.01
+
+
+def _check_clock(path: Any, topic: str, faults: int, total: int) -> None:
+    """BagError when a topic's times repeat or overlap: the recording's clock went backwards.
+
+    The reader delivers messages in time order, so a clock that jumped back shows up as
+    repeated times (scalars) or overlapping batches (tachometer). A few are tolerated (a
+    glitch the cores reject and count); more would train or score on interleaved data.
+    """
+    if faults > max(1, MAX_CLOCK_FAULT_FRACTION * total):
+        raise BagError(
+            f"{path}: topic /{c.bare(topic)}: {faults} of {total} messages repeat or overlap "
+            "earlier times (the recording's clock went backwards or jumped)"
+        )
+
+
+def _repeats(t: np.ndarray, v: np.ndarray) -> int:
+    """Messages at the same time as the previous one with a different value."""
+    return int(np.count_nonzero((np.diff(t) <= 0) & (np.diff(v) != 0))) if len(t) > 1 else 0
 
 
 def _hold(t_events: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -114,6 +139,7 @@ def load_signals(
         if rec.message_count == 0:
             raise BagError(f"{path}: recording is empty")
         pwm_t, pwm = rec.scalars(c.TOPIC_PWM)
+        _check_clock(path, c.TOPIC_PWM, _repeats(pwm_t, pwm), len(pwm_t))
         if len(pwm_t) < 2:
             raise BagError(f"{path}: topic /pwm has {len(pwm_t)} messages, need at least 2")
         if rec.has(c.TOPIC_BATTERY_VOLTAGE):
@@ -121,6 +147,7 @@ def load_signals(
             voltage_source = "battery/voltage (recorded)"
         elif rec.has(c.TOPIC_BATTERY_ADC):
             adc_t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
+            _check_clock(path, c.TOPIC_BATTERY_ADC, _repeats(adc_t, adc), len(adc_t))
             filt = BatteryFilter(battery or BatteryFilterConfig())
             v = filt.process(adc_t, adc)
             ok = np.isfinite(v)
