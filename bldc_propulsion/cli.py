@@ -232,11 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for add in _SUBCOMMANDS.values():
-        try:
-            add(sub)
-        except ImportError as exc:  # a subcommand whose module is not there yet
-            if exc.name is None or not exc.name.startswith("bldc_propulsion"):
-                raise
+        add(sub)
     for action in sub.choices.values():
         action.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     return parser

@@ -10,7 +10,12 @@ if [ ! -x .venv/bin/python ]; then
   fi
 fi
 if [ ! -f .venv/.installed ] || [ setup.py -nt .venv/.installed ]; then
-  .venv/bin/python -m pip install -q --upgrade pip >&2
-  .venv/bin/python -m pip install -q -e '.[test]' >&2
+  echo "installing bldc_propulsion and its dependencies into .venv (log: .venv/install.log)" >&2
+  if ! { .venv/bin/python -m pip install --upgrade pip && .venv/bin/python -m pip install -e '.[test]'; } \
+      > .venv/install.log 2>&1; then
+    tail -n 20 .venv/install.log >&2
+    echo "error: installing into .venv failed (full log: .venv/install.log)" >&2
+    exit 2
+  fi
   touch .venv/.installed
 fi
