@@ -1,13 +1,13 @@
 """Confusion table of the discrepancy workflow: every hidden effect and the no-effect control.
 
-For each effect of the contract (and "control": no hidden effect) and each seed: simulate
-reference recordings with the effect OFF (staircase, triangle, random steps) and a validation
-recording, train a baseline network on them, simulate measured and holdout recordings with the
-effect ON (other seeds, profiles that excite it), run the workflow, and record which effect it
-names first and how much the holdout RMSE fell. Prints the table (true effect x first named
-effect) and the median RMSE reduction per effect.
+For each effect of the contract (and "control": no hidden effect) and each seed: the scenario of
+test/test_discrepancy.py (reference recordings with the effect OFF and a validation recording, a
+baseline network trained on them, measured and holdout recordings with the effect ON under
+commands that excite it), all recordings and the baseline's initial weights drawn from the seed;
+run the workflow, and record which effect it names first and how much the holdout RMSE fell.
+Prints the table (true effect x first named effect) and the median RMSE reduction per effect.
 
-    PYTHONPATH=. python experiments/confusion_table.py --seeds 5 --jobs 2
+    PYTHONPATH=. python experiments/confusion_table.py --seeds 5 --jobs 1
 """
 
 from __future__ import annotations
@@ -18,49 +18,28 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
 from bldc_propulsion import contract as c
 
-SCENARIOS = {
-    "battery_voltage": (("pwm", "pwm_filtered"), [("random_steps", 0.95), ("random_steps", 0.4)],
-                        [("random_steps", 0.7)]),
-    "rotor_lag": (c.DEFAULT_INPUTS, [("random_steps", 1.0)] * 2, [("random_steps", 1.0)]),
-    "input_delay": (c.DEFAULT_INPUTS, [("random_steps", 1.0)] * 2, [("random_steps", 1.0)]),
-    "esc_deadband": (c.DEFAULT_INPUTS, [("triangle", 1.0), ("random_steps", 1.0)], [("triangle", 1.0)]),
-    "spin_down_asymmetry": (c.DEFAULT_INPUTS, [("random_steps", 1.0)] * 2, [("random_steps", 1.0)]),
-    "motor_heating": (c.DEFAULT_INPUTS, [("high_load", 1.0)] * 2, [("high_load", 1.0)]),
-    "control": (c.DEFAULT_INPUTS, [("random_steps", 1.0), ("staircase", 1.0)], [("random_steps", 1.0)]),
-}
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def one_run(effect: str, seed: int, duration: float, hidden: int, epochs: int) -> dict:
+    """One scenario of test/test_discrepancy.py (same commands, states of charge and sizes) at
+    another seed: every recording and the baseline's initial weights change with the seed."""
+    sys.path.insert(0, str(ROOT / "test"))
+    import test_discrepancy as T
     from bldc_propulsion.discrepancy.workflow import Options, run_workflow
-    from bldc_propulsion.sim import simulate
-    from bldc_propulsion.sim.record import write_sim_bag
-    from bldc_propulsion.training.dataset import load_signals
-    from bldc_propulsion.training.train import train_model
 
-    inputs, meas_spec, hold_spec = SCENARIOS[effect]
-    off = {} if effect == "control" else {effect: 0.0}
+    T.HIDDEN, T.EPOCHS = hidden, epochs  # recording lengths are the test's (SCENARIOS)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
-        def bag(name, profile, s, effects, soc=1.0, dur=duration):
-            p = os.path.join(d, name)
-            write_sim_bag(simulate(profile, dur, s, effects=effects, soc=soc), p)
-            return load_signals(p)
-
-        base = 1000 * seed
-        ref = [bag("r1", "staircase", base + 1, off), bag("r2", "triangle", base + 2, off),
-               bag("r3", "random_steps", base + 3, off)]
-        val = [bag("v", "random_steps", base + 4, off, dur=duration / 2)]
-        meas = [bag(f"m{k}", p, base + 10 + k, {}, soc) for k, (p, soc) in enumerate(meas_spec)]
-        hold = [bag(f"h{k}", p, base + 20 + k, {}, soc) for k, (p, soc) in enumerate(hold_spec)]
-        model = train_model(ref, val, inputs=inputs, hidden=hidden, seed=seed, thrust_coefficient=2.8e-5,
-                            max_epochs=epochs).model
-        data = run_workflow(model, meas, ref, hold, Options(max_effects=2, max_epochs=epochs, seed=seed),
-                            lambda m: None).data
+        s = T.scenario(effect, Path(d), seed)
+        data = run_workflow(s.model, s.measured, s.reference, s.holdout,
+                            Options(max_effects=2, max_epochs=epochs, seed=seed), lambda m: None).data
     return {
         "effect": effect, "seed": seed, "named": data["named"],
         "first": data["named"][0] if data["named"] else "(nothing)",
@@ -72,14 +51,13 @@ def one_run(effect: str, seed: int, duration: float, hidden: int, epochs: int) -
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--duration", type=float, default=30.0, help="seconds per recording")
     ap.add_argument("--hidden", type=int, default=8)
-    ap.add_argument("--epochs", type=int, default=60)
+    ap.add_argument("--epochs", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--effects", default=",".join(SCENARIOS))
+    ap.add_argument("--effects", default=",".join([*c.EFFECTS, "control"]))
     args = ap.parse_args(argv)
     effects = [e for e in args.effects.split(",") if e]
-    jobs = [(e, s, args.duration, args.hidden, args.epochs) for e in effects for s in range(args.seeds)]
+    jobs = [(e, s, 0.0, args.hidden, args.epochs) for e in effects for s in range(args.seeds)]
     results = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for r in pool.map(one_run, *zip(*jobs)):

@@ -23,6 +23,6 @@ $BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/mode
     --inputs pwm,pwm_filtered --force 2>$OUT/train_no_voltage.log
 tail -n 1 $OUT/train_no_voltage.log | sed 's/^/  last epoch: /'
 $BP discrepancy --model $OUT/model_no_voltage.npz --measured bags/discharge_a \
-    --holdout bags/discharge_b -o $OUT/model_found.npz --report $OUT/report_discrepancy --force
+    --holdout bags/discharge_b --max-effects 1 -o $OUT/model_found.npz --report $OUT/report_discrepancy --force
 
 step "figures: $OUT/report_train/index.html $OUT/report_eval/index.html $OUT/report_discrepancy/index.html"

@@ -218,7 +218,6 @@ def identify_dynamics(signals: Sequence[Signals]) -> Dynamics:
     combos = [(tu, td) for tu in ID_TAU_UP for td in ID_TAU_DOWN]
     tu = np.array([x[0] for x in combos])
     td = np.array([x[1] for x in combos])
-    best: tuple[float, float, float, float] | None = None
     sse = np.zeros((len(ID_DELAYS), len(combos)))
     n_total = 0
     for s in signals:

@@ -159,6 +159,20 @@ def sign_flip_p(d: np.ndarray, n_flips: int = N_FLIPS, seed: int = 0) -> float:
 def score_candidate(r: np.ndarray, labels: np.ndarray, null_X: np.ndarray,
                     extra_per_param: Sequence[np.ndarray], grid: Sequence[dict[str, float]]) -> Score:
     """Held-out score of a candidate given its columns for every parameter value of its grid."""
+    K = int(labels.max()) + 1 if len(labels) else 0
+    return score_candidate_groups(r, labels, null_X, extra_per_param, grid, [np.arange(K)])[0]
+
+
+def score_candidate_groups(r: np.ndarray, labels: np.ndarray, null_X: np.ndarray,
+                           extra_per_param: Sequence[np.ndarray], grid: Sequence[dict[str, float]],
+                           groups: Sequence[np.ndarray]) -> list[Score]:
+    """Held-out scores of a candidate on each group of blocks (e.g. measured, reference).
+
+    The corrections are fitted on all blocks but the held-out one, whatever its group: with the
+    measured and the reference recordings pooled, a correction that only re-weights the model
+    cannot explain a residual that differs between them, while an effect whose feature differs
+    between them (the battery voltage of a discharged pack) can.
+    """
     ok = (labels >= 0) & np.isfinite(r) & np.all(np.isfinite(null_X), axis=1)
     for E in extra_per_param:
         ok &= np.all(np.isfinite(E), axis=1)
@@ -170,7 +184,7 @@ def score_candidate(r: np.ndarray, labels: np.ndarray, null_X: np.ndarray,
     stats = [BlockStats.of(np.column_stack([B0, _standardise(E[ok])]), r, labels, K) for E in extra_per_param]
     sse_null = np.zeros(K)
     sse_cand = np.zeros(K)
-    chosen: list[int] = []
+    chosen = np.full(K, -1)
     for k in range(K):
         if null.n[k] == 0:
             continue
@@ -182,30 +196,35 @@ def score_candidate(r: np.ndarray, labels: np.ndarray, null_X: np.ndarray,
             if best is None or train_sse < best[0]:
                 best = (train_sse, j, beta)
         assert best is not None
-        chosen.append(best[1])
+        chosen[k] = best[1]
         sse_cand[k] = stats[best[1]].sse(k, best[2])
-    n = null.n
-    used = n > 0
-    # per-block log ratio of held-out SSE: scale-free, so one block with a huge residual (a
-    # start-up transient) does not decide the test alone; ~0 where the feature is irrelevant
-    d = np.log(np.maximum(sse_null[used], 1e-300) / np.maximum(sse_cand[used], 1e-300))
-    total_r2 = float(null.s.sum())
-    # effect size: geometric mean over blocks of the held-out MSE ratio (the same per-block log
-    # ratios the test uses), so one block with a huge transient does not decide it either
-    frac = float(1.0 - np.exp(-np.mean(d))) if len(d) else 0.0
-    counts = np.bincount(chosen, minlength=len(grid)) if chosen else np.zeros(len(grid), int)
-    return Score(
-        fraction=float(frac),
-        fraction_of_residual=float(1.0 - sse_cand.sum() / total_r2) if total_r2 > 0 else 0.0,
-        null_fraction=float(1.0 - sse_null.sum() / total_r2) if total_r2 > 0 else 0.0,
-        p_value=sign_flip_p(d),
-        blocks=int(used.sum()),
-        blocks_improved=int(np.sum(d > 0)),
-        params=dict(grid[int(np.argmax(counts))]),
-        params_per_fold=[dict(grid[j]) for j in chosen],
-        rmse_null=float(np.sqrt(sse_null.sum() / n.sum())) if n.sum() else float("nan"),
-        rmse_candidate=float(np.sqrt(sse_cand.sum() / n.sum())) if n.sum() else float("nan"),
-    )
+    out = []
+    for grp in groups:
+        grp = np.asarray([k for k in grp if 0 <= k < K and null.n[k] > 0], dtype=int)
+        n = null.n[grp]
+        # per-block log ratio of held-out SSE: scale-free, so one block with a huge residual (a
+        # start-up transient) does not decide the test alone; ~0 where the feature is irrelevant
+        d = np.log(np.maximum(sse_null[grp], 1e-300) / np.maximum(sse_cand[grp], 1e-300))
+        total_r2 = float(null.s[grp].sum())
+        # effect size: geometric mean over blocks of the held-out MSE ratio (the same per-block
+        # log ratios the test uses), so one block with a huge transient does not decide it either
+        frac = float(1.0 - np.exp(-np.mean(d))) if len(d) else 0.0
+        ch = chosen[grp]
+        ch = ch[ch >= 0]
+        counts = np.bincount(ch, minlength=len(grid)) if len(ch) else np.zeros(len(grid), int)
+        out.append(Score(
+            fraction=float(frac),
+            fraction_of_residual=float(1.0 - sse_cand[grp].sum() / total_r2) if total_r2 > 0 else 0.0,
+            null_fraction=float(1.0 - sse_null[grp].sum() / total_r2) if total_r2 > 0 else 0.0,
+            p_value=sign_flip_p(d),
+            blocks=int(len(grp)),
+            blocks_improved=int(np.sum(d > 0)),
+            params=dict(grid[int(np.argmax(counts))]),
+            params_per_fold=[dict(grid[j]) for j in ch],
+            rmse_null=float(np.sqrt(sse_null[grp].sum() / n.sum())) if n.sum() else float("nan"),
+            rmse_candidate=float(np.sqrt(sse_cand[grp].sum() / n.sum())) if n.sum() else float("nan"),
+        ))
+    return out
 
 
 def fit_params(r: np.ndarray, null_X: np.ndarray, extra_per_param: Sequence[np.ndarray],

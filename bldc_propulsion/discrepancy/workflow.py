@@ -4,12 +4,17 @@
 2. Disagree: windows where the smoothed |r| exceeds 3 x the reference residual's robust sigma,
    with their operating conditions; whiteness and input cross-correlation tests; residual per
    operating condition (the disagreement map).
-3. Name: every candidate effect (``effects.py``) is scored on held-out time blocks of the
-   measured data and of the reference data (``scoring.py``). NEW: significant (p < alpha) with a
-   clear effect size on the measured data, and not (or much less) on the reference. STRUCTURAL:
-   the reference improves about as much. The best new effect is named.
+3. Name: every candidate effect (``effects.py``) is scored on held-out time blocks
+   (``scoring.py``) three ways: on the measured blocks with the corrections fitted on measured +
+   reference pooled (what differs between them: a residual offset that only the battery voltage
+   lines up with), on the measured data alone (structure within them), and on the reference
+   alone. NEW: significant (p < alpha, >= min_effect) both pooled and alone, and the mean squared
+   residual (rad/s)^2 it removes on the reference is less than STRUCTURAL_RATIO of what it
+   removes on the measured data. STRUCTURAL otherwise if it helps the reference. The best new
+   effect (pooled score) is named; the dynamic family is decided by identifying the response.
 4. Add: the network is retrained with the effect's input (fitted parameters) on reference +
-   measured recordings, early-stopped on the measured recordings' last part.
+   measured recordings, early-stopped on the measured recordings' last part, starting from the
+   base model's own weights (the new input's at 0).
 5. Show: holdout RMSE before and after, overall and inside the holdout's disagreement windows.
    Repeat from 2 with the new model until nothing new is significant or ``max_effects``.
 """
@@ -55,6 +60,7 @@ class Options:
     alpha: float = ALPHA
     min_effect: float = MIN_EFFECT
     report_dir: str | None = None
+    warm_start: bool = True  #: retrain from the base model's weights (see warm_start_weights)
 
 
 @dataclass
@@ -120,6 +126,39 @@ def score_dataset(ds: DataSet, cands: Sequence[fx.Candidate], speed_scale: float
     return out
 
 
+def score_pooled(meas: DataSet, ref: DataSet | None, cands: Sequence[fx.Candidate],
+                 speed_scale: float) -> tuple[dict[str, sc.Score], dict[str, sc.Score]]:
+    """Scores on held-out blocks of the measured and of the reference data, the corrections
+    fitted on both pooled (see ``scoring.score_candidate_groups``)."""
+    if ref is None:
+        return score_dataset(meas, cands, speed_scale, "measured"), {}
+    sets = [meas, ref]
+    labels, groups, first = [], [], 0
+    for ds, what in zip(sets, ("measured", "reference")):
+        blocks = sc.make_blocks([s.duration_s for s in ds.signals], what)
+        lab = sc.block_labels([len(s.t) for s in ds.signals], blocks)
+        labels.append(np.where(lab >= 0, lab + first, -1))
+        groups.append(np.arange(first, first + int(sum(blocks))))
+        first += int(sum(blocks))
+    lab = np.concatenate(labels)
+    ctxs = [fx.Context(s, p, speed_scale) for ds in sets for s, p in zip(ds.signals, ds.predictions)]
+    r = np.concatenate([np.concatenate(ds.residuals) for ds in sets])
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, [z for ds in sets for z in ds.inputs])])
+    out_m: dict[str, sc.Score] = {}
+    out_r: dict[str, sc.Score] = {}
+    for cand in cands:
+        extras = [np.vstack([cand.columns(cx, prm) for cx in ctxs]) for prm in cand.grid]
+        out_m[cand.effect], out_r[cand.effect] = sc.score_candidate_groups(r, lab, null_X, extras, cand.grid, groups)
+    return out_m, out_r
+
+
+def explained_mse(score: sc.Score | None) -> float:
+    """Held-out mean squared residual (rad/s)^2 that the effect removes beyond the null."""
+    if score is None or not np.isfinite(score.rmse_null):
+        return 0.0
+    return max(score.fraction, 0.0) * score.rmse_null**2
+
+
 def fitted_params(ds: DataSet, cand: fx.Candidate, speed_scale: float) -> dict[str, float]:
     ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions)]
     r = np.concatenate(ds.residuals)
@@ -131,14 +170,17 @@ def fitted_params(ds: DataSet, cand: fx.Candidate, speed_scale: float) -> dict[s
 def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: float) -> str:
     """'new', 'structural' or 'not significant'.
 
-    New: significant with a clear effect size on the measured data, and the reference improves
-    by less than STRUCTURAL_RATIO of that (significant or not: a reference too short or noisy
+    New: significant with a clear effect size on the measured data, and the mean squared residual
+    it removes on the reference is less than STRUCTURAL_RATIO of what it removes on the measured (significant or not: a reference too short or noisy
     to reach significance must not turn a structural effect into a new one).
     """
     sig_meas = meas.p_value < alpha and meas.fraction >= min_effect
     sig_ref = ref is not None and ref.p_value < alpha and ref.fraction >= min_effect
     if sig_meas:
-        if ref is not None and ref.fraction >= STRUCTURAL_RATIO * meas.fraction:
+        # compared in absolute terms (rad/s)^2: an effect that removes a 35 rad/s offset on the
+        # measured data and 3 rad/s of scatter on the reference is what changed, even though both
+        # are a similar fraction of their own residual
+        if ref is not None and explained_mse(ref) >= STRUCTURAL_RATIO * explained_mse(meas):
             return "structural"
         return "new"
     if sig_ref:
@@ -148,7 +190,9 @@ def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: flo
 
 def sentence(effect: str, cand: fx.Candidate, params: dict[str, float], meas: sc.Score,
              ref: sc.Score | None, verdict: str) -> str:
-    ref_txt = (f"{100 * max(ref.fraction, 0):.0f} % on the reference data (p = {ref.p_value:.2g})"
+    ref_txt = (f"{100 * max(ref.fraction, 0):.0f} % on the reference data (p = {ref.p_value:.2g}), "
+               f"{explained_mse(ref) / max(explained_mse(meas), 1e-12):.2g} times the mean squared residual "
+               f"(rad/s)^2 it removes on the measured data"
                if ref is not None else "the reference data were not available")
     if verdict == "new":
         return (f"{effect}: {cand.describe(params)} removes {100 * meas.fraction:.0f} % of the model's "
@@ -195,14 +239,55 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
         train.append(slice_signals(s, s.t[0], cut, "train"))
         val.append(slice_signals(s, cut, s.t[-1], "validation"))
     hidden = opts.hidden or int(np.asarray(model.W1).shape[0])
+    base_hidden = int(np.asarray(model.W1).shape[0])
+    warm = opts.warm_start and hidden == base_hidden
     progress(f"retraining {len(inputs)}-{hidden}-1 on {', '.join(inputs)} "
-             f"({len(train)} training parts, {len(val)} validation parts)")
-    outcome = train_model(
-        train, val, inputs=inputs, hidden=hidden, seed=opts.seed, pwm_tau_s=float(model.pwm_tau_s),
-        feature_params=feature_params, thrust_coefficient=float(model.thrust_coefficient),
-        max_epochs=opts.max_epochs, patience=opts.patience,
-    )
-    return outcome.model
+             f"({len(train)} training parts, {len(val)} validation parts"
+             + (", starting from the model's own weights with the new input's weights at 0)" if warm else ")"))
+    kw: dict[str, Any] = {
+        "inputs": inputs, "hidden": hidden, "seed": opts.seed, "pwm_tau_s": float(model.pwm_tau_s),
+        "feature_params": feature_params, "thrust_coefficient": float(model.thrust_coefficient),
+        "max_epochs": opts.max_epochs, "patience": opts.patience,
+    }
+    if not warm:
+        return train_model(train, val, **kw).model
+    phi0 = warm_start_weights(model, inputs, train, {c.INPUT_PWM_FILTERED: {"tau_s": float(model.pwm_tau_s)},
+                                                     **feature_params})
+    return train_model(train, val, phi0=phi0, **kw).model
+
+
+def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signals],
+                       params: dict[str, dict[str, float]]) -> np.ndarray:
+    """The base network's weights re-expressed in the scaling train_model will use for ``train``,
+    with zero weights for the added input(s): the retraining starts from the model as it was.
+
+    Starting there (not from random weights) keeps what the model knew where the new data say
+    nothing: a network retrained from scratch on a discharge recorded at one command level
+    extrapolates the voltage dependence to the other levels arbitrarily."""
+    from ..training.network import minmax_fit, pack
+    from ..training.train import stack
+
+    X, y = stack(train, inputs, params)
+    lo_new, hi_new = minmax_fit(X)
+    span_new = hi_new - lo_new
+    ymin, ymax = float(np.min(y)), float(np.max(y))
+    W1o, b1o = np.asarray(model.W1, float), np.asarray(model.b1, float)
+    lo_o, hi_o = np.asarray(model.input_min, float), np.asarray(model.input_max, float)
+    span_o = hi_o - lo_o
+    H = W1o.shape[0]
+    W1 = np.zeros((H, len(inputs)))
+    b1 = b1o.copy()
+    for jo, name in enumerate(model.input_names):
+        j = list(inputs).index(name)
+        a = span_new[j] / span_o[jo]
+        cst = (2.0 * (lo_new[j] - lo_o[jo]) + span_new[j]) / span_o[jo] - 1.0
+        W1[:, j] = W1o[:, jo] * a
+        b1 += W1o[:, jo] * cst
+    sy_o = float(model.output_max) - float(model.output_min)
+    sy_n = ymax - ymin
+    W2 = np.asarray(model.W2, float).reshape(-1) * sy_o / sy_n
+    b2 = (float(model.b2) + 1.0) * sy_o / sy_n + 2.0 * (float(model.output_min) - ymin) / sy_n - 1.0
+    return pack(W1, b1, W2, b2)
 
 
 # --- the loop ------------------------------------------------------------------------------------
@@ -277,24 +362,36 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
         if not cands:
             break
         progress(f"step 3: scoring {len(cands)} candidate effect(s) on held-out time blocks")
-        s_meas = score_dataset(cur_meas, cands, speed_scale, "measured")
+        # measured: corrections fitted on measured + reference pooled (a re-weighting of the model
+        # cannot then absorb what differs between them); reference: fitted on the reference
+        # alone (what the effect would do for the model on its own training data)
+        s_meas, _ = score_pooled(cur_meas, cur_ref, cands, speed_scale)
         s_ref = score_dataset(cur_ref, cands, speed_scale, "reference") if cur_ref else {}
+        # and the measured data alone: a new effect must also explain structure WITHIN the
+        # measured data (the reference residual is in-sample for the network, so the pooled
+        # score alone would take any out-of-sample error for a difference)
+        s_own = score_dataset(cur_meas, cands, speed_scale, "measured") if cur_ref else s_meas
         round_ev: dict[str, Any] = {}
         best: tuple[float, fx.Candidate] | None = None
         for cand in cands:
             m, r = s_meas[cand.effect], s_ref.get(cand.effect)
             verdict = classify(m, r, opts.alpha, opts.min_effect)
+            own = s_own[cand.effect]
+            if verdict == "new" and not (own.p_value < opts.alpha and own.fraction >= opts.min_effect):
+                verdict = "not significant"
             params = m.params
             text = sentence(cand.effect, cand, params, m, r, verdict)
             round_ev[cand.effect] = {
                 "verdict": verdict,
                 "measured": m.as_dict(),
+                "measured_alone": own.as_dict(),
                 "reference": r.as_dict() if r is not None else None,
                 "p_value": m.p_value,
                 "feature": cand.describe(params),
                 "sentence": text,
             }
             progress(f"  {cand.effect:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
+                     + (f" alone {100 * own.fraction:6.1f} % (p {own.p_value:.2g})" if cur_ref else "")
                      + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
                      + f"  -> {verdict}")
             if verdict == "new" and (best is None or m.fraction > best[0]):
@@ -310,14 +407,15 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
         dyn_params: dict[str, float] | None = None
         if best is not None and best[1].effect not in fx.DYNAMIC_EFFECTS and cur_ref is not None:
             pass
-        elif any(v["verdict"] in ("new", "structural") for k, v in round_ev.items() if k in fx.DYNAMIC_EFFECTS
-                 and s_meas[k].p_value < opts.alpha and s_meas[k].fraction >= opts.min_effect) \
-                and cur_ref is not None:
+        elif any(s_own[k].p_value < opts.alpha and s_own[k].fraction >= opts.min_effect
+                 for k in round_ev if k in fx.DYNAMIC_EFFECTS) and cur_ref is not None:
+            # (judged on the measured data alone: which dynamic effect changed is decided by
+            # identifying the response directly, not by the pooled residual correction)
             # the measured residual has significant dynamic structure; whether it is NEW is
             # decided below by comparing the identified response with the reference's
             if best is None or best[1].effect not in fx.DYNAMIC_EFFECTS:
-                best = max(((s_meas[k].fraction, cd) for cd in cands for k in [cd.effect]
-                            if k in fx.DYNAMIC_EFFECTS and s_meas[k].p_value < opts.alpha),
+                best = max(((s_own[k].fraction, cd) for cd in cands for k in [cd.effect]
+                            if k in fx.DYNAMIC_EFFECTS and s_own[k].p_value < opts.alpha),
                            key=lambda x: x[0])
             # lag, dead time and spin-down all change the response to a command change, and a
             # residual explained by one is partly explained by the others: which one CHANGED is
@@ -349,8 +447,8 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
                     ev["sentence"] = (f"{choice}: {why}; the model's residual on held-out blocks of the measured "
                                       f"data follows the command's changes "
                                       f"({best[1].effect}'s feature removes {100 * best[0]:.0f} % of it, "
-                                      f"p = {s_meas[best[1].effect].p_value:.2g})")
-                    best = (s_meas[choice].fraction, cand_c)
+                                      f"p = {s_own[best[1].effect].p_value:.2g})")
+                    best = (s_own[choice].fraction, cand_c)
             if best is not None and choice == best[1].effect:
                 m = dyn[0]
                 dyn_params = {"rotor_lag": {"tau_s": max(m.tau_up_s, 0.02)},

@@ -84,8 +84,13 @@ def train_model(
     max_epochs: int = 1000,
     patience: int = 6,
     progress: Callable[[int, float, float, float], None] | None = None,
+    phi0: np.ndarray | None = None,
 ) -> TrainOutcome:
-    """Fit an n-H-1 network on ``train``, early-stopped on ``validation`` (separate recordings)."""
+    """Fit an n-H-1 network on ``train``, early-stopped on ``validation`` (separate recordings).
+
+    ``phi0``: initial weights (in the scaling this training derives), e.g. to continue from a
+    model; default Nguyen-Widrow from ``seed``.
+    """
     if not train or not validation:
         raise BadInputError("training needs at least one training and one validation recording")
     if hidden < 1:
@@ -112,7 +117,7 @@ def train_model(
     Xs, Xvs = minmax_apply(X, xmin, xmax), minmax_apply(Xv, xmin, xmax)
     ys = 2.0 * (y - ymin) / (ymax - ymin) - 1.0
     yvs = 2.0 * (yv - ymin) / (ymax - ymin) - 1.0
-    result = train_lm(Xs, ys, Xvs, yvs, hidden, seed=seed, max_epochs=max_epochs,
+    result = train_lm(Xs, ys, Xvs, yvs, hidden, seed=seed, phi0=phi0, max_epochs=max_epochs,
                       patience=patience, progress=progress)
     W1, b1, W2, b2 = unpack(result.phi, len(inputs), hidden)
     fit = fit_thrust_coefficient(train, thrust_coefficient)
