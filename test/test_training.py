@@ -212,3 +212,17 @@ def test_existing_model_file_is_not_overwritten(trained, tmp_path):
     save_model(trained.model, path)
     with pytest.raises(OutputExistsError):
         save_model(trained.model, path)
+
+
+def test_reference_recordings_are_found_from_another_directory(bags, tmp_path, monkeypatch):
+    """A model trained on relative paths still finds its training recordings elsewhere."""
+    from bldc_propulsion.discrepancy.command import reference_paths
+
+    monkeypatch.chdir(bags["s_full"].parent)
+    train = load_all(["s_full"], "training")
+    outcome = train_model(train, load_all(["val"], "validation"), hidden=3, max_epochs=3,
+                          thrust_coefficient=2.8e-5)
+    monkeypatch.chdir(tmp_path)
+    found, missing = reference_paths(outcome.model, str(tmp_path / "m.npz"))
+    assert missing == [] and [os.path.realpath(p) for p in found] == [os.path.realpath(bags["s_full"])]
+    assert outcome.model.metadata["sources"]["train"][0]["path"] == "s_full"

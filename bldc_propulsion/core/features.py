@@ -118,7 +118,7 @@ class Feature:
         return out
 
 
-def _hold(t_events: np.ndarray, values: np.ndarray, grid_t: np.ndarray) -> np.ndarray:
+def zero_order_hold(t_events: np.ndarray, values: np.ndarray, grid_t: np.ndarray) -> np.ndarray:
     """Latest event value at or before each grid time; NaN before the first event."""
     idx = np.searchsorted(t_events, grid_t, side="right") - 1
     out = np.full(len(grid_t), np.nan)
@@ -143,7 +143,7 @@ class BatteryVoltage(Feature):
         return self._v
 
     def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
-        return _hold(volt_t, volt, grid_t)
+        return zero_order_hold(volt_t, volt, grid_t)
 
 
 class Pwm(Feature):
@@ -161,7 +161,7 @@ class Pwm(Feature):
         return self._u
 
     def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
-        return _hold(pwm_t, scale_pwm(pwm), grid_t)
+        return zero_order_hold(pwm_t, scale_pwm(pwm), grid_t)
 
 
 def _lag_gain(dt: float, tau: float) -> float:

@@ -50,7 +50,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
     """The model's training recordings from its metadata: (found, missing). A relative path is
-    tried as written (relative to the working directory) and relative to the model file."""
+    tried as written (relative to the working directory), relative to the model file, and
+    where it was when the model was trained."""
     sources = (model.metadata or {}).get("sources", {}).get("train", [])
     found, missing = [], []
     for src in sources:
@@ -59,6 +60,8 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
             continue
         path = path.split("#", 1)[0]  # a part of a recording (discrepancy retraining)
         candidates = [path, os.path.join(os.path.dirname(os.path.abspath(model_path)), path)]
+        if isinstance(src, dict) and src.get("abs_path"):
+            candidates.append(str(src["abs_path"]))  # where it was at training time
         hit = next((p for p in candidates if os.path.exists(p)), None)
         if hit is None:
             missing.append(path)

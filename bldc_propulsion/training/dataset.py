@@ -18,6 +18,7 @@ import numpy as np
 from .. import contract as c
 from ..bagio import open_recording
 from ..core.battery_filter import BatteryFilter, BatteryFilterConfig
+from ..core.features import zero_order_hold
 from ..core.tachometer import TachometerConfig, TachometerDecoder
 from ..errors import BadInputError, BagError
 
@@ -120,12 +121,6 @@ def _repeats(t: np.ndarray, v: np.ndarray) -> int:
     return int(np.count_nonzero((np.diff(t) <= 0) & (np.diff(v) != 0))) if len(t) > 1 else 0
 
 
-def _hold(t_events: np.ndarray, values: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    """Zero-order hold of an event stream at grid times (value of the last event <= t)."""
-    idx = np.searchsorted(t_events, grid, side="right") - 1
-    return values[np.clip(idx, 0, len(values) - 1)]
-
-
 def load_signals(
     path: str | os.PathLike[str],
     *,
@@ -188,7 +183,7 @@ def load_signals(
         path=str(path),
         sha256=recording_sha256(path),
         t=grid,
-        pwm=_hold(pwm_t, pwm, grid),
+        pwm=zero_order_hold(pwm_t, pwm, grid),
         voltage=np.interp(grid, volt_t, volt),
         speed=np.interp(grid, speed_t, speed) if speed_t is not None else np.full(len(grid), np.nan),
         thrust=np.interp(grid, thrust_t, thrust) if thrust_t is not None and len(thrust_t) > 1 else None,

@@ -124,8 +124,8 @@ def train_model(
     metadata: dict[str, Any] = {
         "package_version": __version__,
         "sources": {
-            "train": [{"path": s.path, "sha256": s.sha256} for s in train],
-            "validation": [{"path": s.path, "sha256": s.sha256} for s in validation],
+            "train": [_source(s) for s in train],
+            "validation": [_source(s) for s in validation],
         },
         "epochs": int(result.epochs),
         "best_epoch": int(result.best_epoch),
@@ -161,6 +161,11 @@ def train_model(
     rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
     rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
     return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
+
+
+def _source(sig: Signals) -> dict[str, str]:
+    """Provenance of one recording: the path as given, where it was, and its content hash."""
+    return {"path": sig.path, "abs_path": os.path.abspath(sig.path.split("#", 1)[0]), "sha256": sig.sha256}
 
 
 def load_all(paths: Sequence[str | os.PathLike[str]], what: str) -> list[Signals]:
