@@ -25,7 +25,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from . import contract as c
 from .atomic import atomic_output
-from .errors import BagError
+from .errors import BagError, one_line
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
@@ -67,7 +67,7 @@ class Recording:
             self._reader = Reader(self.path)
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for corrupt input
-            reason = _reason(exc)
+            reason = one_line(exc)
             salvage = _SalvageReader.open(self.path)
             if salvage is None:
                 raise BagError(f"{self.path}: cannot open recording ({reason})") from None
@@ -148,7 +148,7 @@ class Recording:
                     self.read_error = self.salvaged
                 return
             except Exception as exc:
-                msg = f"{self.path}: recording is damaged after {self._done_s(conns)} ({_reason(exc)})"
+                msg = f"{self.path}: recording is damaged after {self._done_s(conns)} ({one_line(exc)})"
                 if tolerant:
                     self.read_error = msg
                     return
@@ -171,7 +171,7 @@ class Recording:
         try:
             return TYPESTORE.deserialize_cdr(data, conn.msgtype)
         except Exception as exc:
-            raise BagError(f"{self.path}: topic /{name}: cannot decode {conn.msgtype} ({_reason(exc)})") from None
+            raise BagError(f"{self.path}: topic /{name}: cannot decode {conn.msgtype} ({one_line(exc)})") from None
 
     def scalars(self, topic: str) -> tuple[np.ndarray, np.ndarray]:
         """Whole Float64 topic as (t [s], value) arrays."""
@@ -271,7 +271,7 @@ class _SalvageReader:
                     return
                 except Exception as exc:  # the damage: stop here, remember why
                     cut = isinstance(exc, (EOFError, struct.error)) or type(exc).__name__ == "EndOfFile"
-                    self.why = "the file is cut short" if cut else _reason(exc)
+                    self.why = "the file is cut short" if cut else one_line(exc)
                     return
                 if isinstance(rec, Schema):
                     schemas[rec.id] = rec.name
@@ -298,11 +298,6 @@ class _Float64:
     """What the fast path decodes a std_msgs/Float64 into (same attribute as the real one)."""
 
     data: float
-
-
-def _reason(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text if len(text) < 200 else text[:197] + "..."
 
 
 def open_recording(path: str | os.PathLike[str]) -> Recording:
@@ -366,7 +361,7 @@ class BagWriter:
         result = self._stage.__exit__(exc_type, exc, tb)
         if exc is not None and exc_type is not None and not result:
             if exc_type.__module__.startswith("rosbags"):
-                raise BagError(f"{self.path}: cannot write recording ({_reason(exc)})") from None
+                raise BagError(f"{self.path}: cannot write recording ({one_line(exc)})") from None
         return result
 
     def _conn(self, topic: str, msgtype: str) -> Any:

@@ -7,6 +7,12 @@ class BldcError(Exception):
     """Base of every error this package raises on purpose."""
 
 
+def one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception's text on one line, cut to ``limit`` characters: for one-line errors."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) < limit else text[: limit - 3] + "..."
+
+
 class BadInputError(BldcError):
     """The user's input is wrong (file, topic, parameter): exit status 2, one line on stderr."""
 

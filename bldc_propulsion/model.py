@@ -29,7 +29,7 @@ import numpy as np
 
 from . import contract as c
 from .atomic import atomic_output
-from .errors import ModelError
+from .errors import ModelError, one_line
 
 FORMAT_VERSION = 1
 #: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough, for when nothing is fitted
@@ -213,7 +213,7 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
     try:
         npz = np.load(p, allow_pickle=False)
     except Exception as exc:  # a damaged zip raises many types (struct.error, NotImplementedError, ...)
-        raise ModelError(f"{p}: not a model .npz file ({_short(exc)})") from None
+        raise ModelError(f"{p}: not a model .npz file ({one_line(exc)})") from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise ModelError(f"{p}: not a model .npz archive (a single array)")
     with npz:
@@ -227,10 +227,10 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
             except ValueError as exc:
                 if "pickle" in str(exc).lower() or "object" in str(exc).lower():
                     raise ModelError(f"{p}: array '{k}' holds pickled Python objects (refused)") from None
-                raise ModelError(f"{p}: array '{k}' cannot be read ({_short(exc)})") from None
+                raise ModelError(f"{p}: array '{k}' cannot be read ({one_line(exc)})") from None
             except Exception as exc:  # any other failure to read is damage: zlib.error,
                 # BadZipFile, EOFError, NotImplementedError (compression), RuntimeError (encrypted)
-                raise ModelError(f"{p}: array '{k}' is damaged ({_short(exc)})") from None
+                raise ModelError(f"{p}: array '{k}' is damaged ({one_line(exc)})") from None
     for k, arr in arrays.items():
         if arr.dtype.kind == "O":  # pragma: no cover - np.load refuses these already
             raise ModelError(f"{p}: array '{k}' holds Python objects (refused)")
@@ -262,8 +262,3 @@ def save_model(model: NetworkModel, path: str | os.PathLike[str], force: bool = 
         # a file object: np.savez would append ".npz" to a bare temporary name
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
-
-
-def _short(exc: BaseException) -> str:
-    s = str(exc).strip().splitlines()
-    return s[0][:200] if s else type(exc).__name__

@@ -71,7 +71,7 @@ def replay_bag(
                         bag.write_float64(c.TOPIC_PREDICTED_THRUST, next_pred, p.thrust_n)
                     next_pred += 1.0 / ESTIMATOR_RATE_HZ
                 while next_diag is not None and next_diag <= t:
-                    tach.check_timeout(next_diag) if hasattr(tach, "check_timeout") else None
+                    tach.check_timeout(next_diag)
                     statuses = [*filt.status(), *tach.status(), *est.status()]
                     bag.write_diagnostics(c.TOPIC_DIAGNOSTICS, next_diag, statuses)
                     next_diag += 1.0 / DIAGNOSTICS_RATE_HZ

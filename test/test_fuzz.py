@@ -22,10 +22,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from bldc_propulsion import contract as c
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.errors import BadInputError, ModelError
-from bldc_propulsion.model import NetworkModel, load_model, save_model
+from bldc_propulsion.model import load_model, save_model
+from _models import good_model  # noqa: E402
 from bldc_propulsion.training import import_csv as ic
 
 BUDGET = settings(max_examples=int(os.environ.get("BLDC_FUZZ_EXAMPLES", "120")), deadline=None, derandomize=True,
@@ -92,16 +92,10 @@ def test_fuzz_csv_bytes(data):
 
 
 # --- model loader -----------------------------------------------------------------------------
-def _good_model() -> NetworkModel:
-    rng = np.random.default_rng(0)
-    return NetworkModel(
-        input_names=tuple(c.DEFAULT_INPUTS), input_min=np.array([9.0, 0.05, 0.05]),
-        input_max=np.array([13.0, 0.10, 0.10]), output_min=0.0, output_max=900.0,
-        W1=rng.normal(0, 0.5, (4, 3)), b1=np.zeros(4), W2=rng.normal(0, 0.5, 4), b2=0.0)
 
 
 _GOOD = _fresh(".npz")
-save_model(_good_model(), _GOOD)
+save_model(good_model(), _GOOD)
 GOOD_BYTES = _GOOD.read_bytes()
 with np.load(_GOOD) as _z:
     GOOD_ARRAYS = {k: _z[k] for k in _z.files}

@@ -20,20 +20,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bldc_propulsion import contract as c
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.errors import ModelError
-from bldc_propulsion.model import NetworkModel, load_model, save_model
+from bldc_propulsion.model import load_model, save_model
+from _models import good_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def good_model() -> NetworkModel:
-    rng = np.random.default_rng(0)
-    return NetworkModel(
-        input_names=tuple(c.DEFAULT_INPUTS), input_min=np.array([9.0, 0.05, 0.05]),
-        input_max=np.array([13.0, 0.10, 0.10]), output_min=0.0, output_max=900.0,
-        W1=rng.normal(0, 0.5, (4, 3)), b1=np.zeros(4), W2=rng.normal(0, 0.5, 4), b2=0.0)
 
 
 @pytest.fixture()

@@ -73,14 +73,10 @@ def decode_speed(rec, config: TachometerConfig | None = None) -> tuple[np.ndarra
     core reports no signal (rotor stopped), zeros are placed at the batch times.
     """
     dec = TachometerDecoder(config or TachometerConfig())
-    edges_per_rev = 2 * dec.config.blades
     times: list[np.ndarray] = []
     values: list[np.ndarray] = []
-    edge_hist = np.zeros(0)
     for t_batch, samples in rec.tachometer():
         out = dec.process_batch(t_batch, samples)
-        if len(out.edge_t):
-            edge_hist = np.concatenate([edge_hist, out.edge_t])[-(edges_per_rev + 64):]
         if len(out.speed):
             # speed k spans one revolution ending at its edge: centre = end - pi/speed
             mid = out.edge_t[-len(out.speed):] - np.pi / np.maximum(out.speed, 1e-9)
