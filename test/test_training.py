@@ -132,16 +132,47 @@ def test_battery_voltage_input_wins_at_a_lower_charge(bags, trained):
     assert rmse_with < 0.6 * rmse_without, (rmse_with, rmse_without)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 4 goal not met yet: on a 50 s noisy chirp (0.05-3 Hz) the slow part (< 0.5 Hz) "
-    "has RMSE ~5 % of the speed range (27 rad/s) with a model trained on staircase and "
-    "triangle recordings; the 2 s-filtered voltage tracks load sag with a lag the static "
-    "network cannot separate from the state of charge"))
-def test_chirp_slow_part_within_two_percent(trained, tmp_path):
-    write_sim_bag(simulate("chirp", 50, 7, effects=BRAKING, soc=0.85), tmp_path / "chirp")
-    _, scores, _ = evaluate(trained.model, [load_signals(tmp_path / "chirp")])
+#: The chirp test's bench sessions: staircase and triangle recordings on packs at six states of
+#: charge (the voltage input can only be learned from recordings that span it), validated on
+#: random steps at another charge (a recording unlike the training ones, so early stopping and
+#: the choice among restarts favour the network that generalises to other commands).
+CHIRP_TRAINING = [("staircase", 1.0), ("triangle", 0.9), ("staircase", 0.75), ("triangle", 0.6),
+                  ("staircase", 0.45), ("triangle", 0.3)]
+
+
+def test_chirp_slow_part_within_two_percent(tmp_path_factory):
+    """Issue 4's accuracy goal: trained on staircase and triangle, the chirp's slow part
+    (< 0.5 Hz) within 2 % of the speed range (small size; benchmarks/bench_accuracy.py runs it
+    at the paper's size). Measured when written: 1.73 % (best of 3 restarts by validation)."""
+    d = tmp_path_factory.mktemp("chirp")
+    train = [load_signals(_bag(d, f"{kind}_{soc}", kind, 24, 1 + k, soc))
+             for k, (kind, soc) in enumerate(CHIRP_TRAINING)]
+    val = [load_signals(_bag(d, "val", "random_steps", 20, 5, 0.7))]
+    out = train_model(train, val, hidden=10, seed=0, restarts=3, thrust_coefficient=2.8e-5, max_epochs=200)
+    chirp = load_signals(_bag(d, "chirp", "chirp", 50, 7, 0.85))
+    _, scores, _ = evaluate(out.model, [chirp])
     slow = next(b for b in scores[0].bands if b["high_hz"] <= 0.5)
-    assert slow["rmse_percent_of_range"] < 2.0
+    assert slow["samples"] > 1000  # about half the recording (the chirp's first octaves)
+    assert slow["rmse_percent_of_range"] < 2.0, scores[0].bands
+    # the paper's observation, quantified: the error grows with the command's frequency
+    fast = scores[0].bands[-1]
+    assert fast["rmse_percent_of_range"] > 2.0 * slow["rmse_percent_of_range"]
+
+
+def test_restarts_keep_the_run_with_the_least_validation_cost(bags):
+    train = load_all([bags[k] for k in ("s_full", "t_half")], "training")
+    val = load_all([bags["val"]], "validation")
+    kw = {"hidden": 4, "thrust_coefficient": 2.8e-5, "max_epochs": 30}
+    singles = [train_model(train, val, seed=s, **kw) for s in (3, 4, 5)]
+    best = train_model(train, val, seed=3, restarts=3, **kw)
+    costs = [o.lm.val_cost for o in singles]
+    k = int(np.argmin(costs))
+    assert best.model.metadata["best_seed"] == 3 + k
+    assert best.lm.val_cost == costs[k]
+    np.testing.assert_array_equal(best.model.W1, singles[k].model.W1)
+    assert [r["validation_cost"] for r in best.model.metadata["restarts"]] == costs
+    with pytest.raises(BadInputError, match="--restarts 0"):
+        train_model(train, val, restarts=0, **kw)
 
 
 def test_training_is_deterministic_for_a_seed(bags):

@@ -43,7 +43,12 @@ def _hold(levels: list[float], holds_s: list[float], n: int) -> np.ndarray:
 
 
 def staircase(duration_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Steps of 0.005 up from 0.05 to 0.10 and back down, 4-6 s each (the paper's training data)."""
+    """Steps of 0.005 up from 0.05 to 0.10 and back down, 2-3 s each (the paper's training data).
+
+    The rotor settles within ~0.7 s (time constant ~0.15 s), so 2-3 s holds show each level's
+    steady state and its step response, and one cycle up and down takes ~50 s: a 30 s
+    recording still reaches full throttle (with 4-6 s holds it stopped at PWM 0.075).
+    """
     n = _frames(duration_s)
     up = list(np.round(np.arange(PWM_STOP, PWM_FULL + 1e-9, 0.005), 6))
     cycle = up + up[-2:0:-1]  # 0.05 .. 0.10 .. 0.055, then repeats from 0.05
@@ -52,7 +57,7 @@ def staircase(duration_s: float, rng: np.random.Generator) -> np.ndarray:
     total = 0.0
     while total < duration_s:
         for lvl in cycle:
-            h = float(rng.uniform(4.0, 6.0))
+            h = float(rng.uniform(2.0, 3.0))
             levels.append(float(lvl))
             holds.append(h)
             total += h
@@ -62,10 +67,14 @@ def staircase(duration_s: float, rng: np.random.Generator) -> np.ndarray:
 
 
 def triangle(duration_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Linear sweep 0.05 -> 0.10 -> 0.05 over 60 s, repeated (paper Fig. 5)."""
+    """Linear sweep 0.05 -> 0.10 -> 0.05 over 20 s, repeated (paper Fig. 5).
+
+    10 s per ramp is quasi-static for the rotor (~0.15 s) and lets a 30 s recording sweep up
+    and down, with the battery sagging and recovering along the way.
+    """
     del rng  # deterministic: the paper's sweep
     t = _frame_t(_frames(duration_s))
-    period = 60.0
+    period = 20.0
     phase = (t % period) / period
     tri = 1.0 - np.abs(2.0 * phase - 1.0)  # 0 -> 1 -> 0
     return PWM_STOP + (PWM_FULL - PWM_STOP) * tri
