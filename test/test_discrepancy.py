@@ -274,12 +274,6 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
         run_workflow(bad, s.measured, s.reference, s.holdout, Options(), lambda m: None)
 
 
-def test_physics_path_says_it_is_not_available(bags_dir):
-    s = scenario("control", bags_dir)
-    proc = cli("discrepancy", "--physics", "--measured", s.paths["measured"][0])
-    assert proc.returncode == 2 and "not available" in proc.stderr
-
-
 # --- pieces ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name, params", [
     (ef.PWM_LAG, {"tau_s": 0.1}), (ef.PWM_DELAYED, {"delay_s": 0.04}), (ef.PWM_ABOVE_START, {}),

@@ -25,7 +25,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--model", metavar="MODEL.npz", help="trained network model (.npz from `train`)")
     src.add_argument("--physics", nargs="?", const="", metavar="CONFIG",
-                     help="the bench physics as the model (not available yet)")
+                     help="the bench physics as the model: without CONFIG the package's nominal bench "
+                          "with every effect OFF; CONFIG is a JSON file {\"params\": {BenchParams field: "
+                          "value}, \"effects\": {name: strength}, \"supply_v\": V} in which effects not listed are "
+                          "OFF and supply_v (the stiff supply when battery_voltage is off) defaults to the "
+                          "measured median (what -o writes). Kv and CP are calibrated on the measured data first")
     p.add_argument("--measured", nargs="+", required=True, metavar="BAG",
                    help="recordings the model is to be checked against")
     p.add_argument("--reference", nargs="+", metavar="BAG",
@@ -39,11 +43,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--alpha", type=float, default=ALPHA, help=f"significance level (default {ALPHA})")
     p.add_argument("--min-reduction", type=float, default=MIN_EFFECT,
                    help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
-    p.add_argument("--hidden", type=int, help="hidden neurons of the retrained model (default: as the model)")
-    p.add_argument("--max-epochs", type=int, default=300, help="epoch limit of the retraining (default 300)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the retraining")
+    p.add_argument("--hidden", type=int, help="hidden neurons of the retrained model (--model only; default: as the model)")
+    p.add_argument("--max-epochs", type=int, help="epoch limit of the retraining (--model only; default 300)")
+    p.add_argument("--seed", type=int, help="seed of the retraining (--model only; default 0)")
     p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
-    p.add_argument("-o", "--output", metavar="NEW.npz", help="save the model with the effect(s) added")
+    p.add_argument("-o", "--output", metavar="NEW",
+                   help="save the model with the effect(s) added (.npz; with --physics a CONFIG .json)")
     p.add_argument("--force", action="store_true", help="replace an existing output model")
     p.set_defaults(run=run)
 
@@ -73,8 +78,6 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
 def run(args: argparse.Namespace) -> CommandResult:
     from ..model import load_model, save_model
 
-    if args.physics is not None:
-        raise BadInputError("--physics: the physics-model path is not available yet; use --model MODEL.npz")
     for name in args.effects or []:
         if name not in c.EFFECTS:
             raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
@@ -84,6 +87,8 @@ def run(args: argparse.Namespace) -> CommandResult:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
     if args.output and Path(args.output).exists() and not args.force:
         raise OutputExistsError(f"{args.output}: already exists (use --force to replace it)")
+    if args.physics is not None:
+        return run_physics(args)
     model = load_model(args.model)
     warnings: list[str] = []
     if args.reference:
@@ -99,7 +104,8 @@ def run(args: argparse.Namespace) -> CommandResult:
     reference = load_all(ref_paths, "reference") if ref_paths else []
     holdout = load_all(args.holdout, "holdout") if args.holdout else []
     opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
-                   max_epochs=args.max_epochs, seed=args.seed, alpha=args.alpha,
+                   max_epochs=300 if args.max_epochs is None else args.max_epochs,
+                   seed=0 if args.seed is None else args.seed, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report)
     result = run_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
@@ -119,5 +125,39 @@ def run(args: argparse.Namespace) -> CommandResult:
         else:
             lines.append(f"nothing added: {args.output} not written")
     warnings += data.pop("warnings", [])
+    data["warnings"] = warnings
+    return CommandResult(data, "\n".join(lines), warnings=warnings)
+
+
+def run_physics(args: argparse.Namespace) -> CommandResult:
+    """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
+    from .physics import load_config, save_config
+    from .physics_workflow import run_physics_workflow
+
+    for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
+        if value is not None:
+            raise BadInputError(f"{flag}: retrains a network, so it goes with --model, not --physics")
+    model = load_config(args.physics)
+    progress(f"reading {len(args.measured)} measured, {len(args.reference or [])} reference and "
+             f"{len(args.holdout or [])} holdout recording(s)")
+    measured = load_all(args.measured, "measured")
+    reference = load_all(args.reference, "reference") if args.reference else []
+    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
+                   min_effect=args.min_reduction, report_dir=args.report)
+    result = run_physics_workflow(model, measured, reference, holdout, opts, progress)
+    data = result.data
+    lines = list(result.lines)
+    if args.output:
+        if data["named"]:
+            save_config(result.model, args.output, args.force, {
+                "base": args.physics or None,
+                "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
+                "measured": [str(p) for p in args.measured]})
+            data["model"] = str(args.output)
+            lines.append(f"saved the physics config with {', '.join(data['named'])} added to {args.output}")
+        else:
+            lines.append(f"nothing added: {args.output} not written")
+    warnings = data.pop("warnings", [])
     data["warnings"] = warnings
     return CommandResult(data, "\n".join(lines), warnings=warnings)

@@ -142,11 +142,30 @@ def _duty(level: np.ndarray, threshold: float) -> np.ndarray:
     return np.clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
 
 
-def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float) -> dict[str, np.ndarray]:
+def _esc_duty(p: BenchParams, eff: dict[str, float], cmd_t: np.ndarray, cmd: np.ndarray,
+              t: np.ndarray) -> np.ndarray:
+    """Duty cycle at the step times ``t``: the command held from each frame, after the dead time
+    (1e-9: frame times that coincide with a step count as arrived), through the throttle map."""
+    delay = eff["input_delay"] * p.esc_input_delay_s
+    idx = np.searchsorted(cmd_t, t - delay + 1e-9, side="right") - 1
+    level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
+    threshold = PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
+    return _duty(level, threshold)
+
+
+def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float,
+               supply_v: np.ndarray | None = None, v_ref: float = 0.0, supply_tau_s: float = 0.0,
+               ) -> dict[str, np.ndarray]:
     """March the rotor, battery and thermal states at the fixed step; returns truth arrays.
 
     A plain Python loop over scalars (locals only, no per-step allocation): the states are
     coupled nonlinearly, each step is a handful of flops, and vectorising is not possible.
+    With ``supply_v`` (terminal volts per step) the battery model is bypassed: the motor sees
+    v_ref + s_bv (supply_v - v_ref), a given terminal voltage already carrying its own
+    series-resistance drop (the battery states are then irrelevant). If ``supply_v`` is the
+    terminal voltage through a first-order low-pass of time constant ``supply_tau_s`` > 0 (the
+    battery filter), the part of the series-resistance drop the filter has not yet passed,
+    Rs (i_batt - lowpass(i_batt)), is taken off again.
     """
     n = len(duty)
     dt = p.sim_step_s
@@ -161,7 +180,10 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     resc = p.esc_resistance_ohm
     sbv = eff["battery_voltage"]
     rs = p.battery_series_resistance_ohm
-    rs_eff = sbv * rs
+    rs_eff = sbv * rs if supply_v is None or supply_tau_s > 0.0 else 0.0
+    a_lp = 1.0 - math.exp(-dt / supply_tau_s) if supply_tau_s > 0.0 else 0.0
+    ib_lp = 0.0
+    sup = None if supply_v is None else (v_ref + sbv * (np.asarray(supply_v, dtype=float) - v_ref)).tolist()
     r1 = p.battery_polarisation_resistance_ohm
     e1 = math.exp(-dt / p.battery_polarisation_time_constant_s)
     q_c = p.battery_capacity_c
@@ -190,15 +212,18 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     out_soc = [0.0] * n
     sqrt = math.sqrt
     for k, d in enumerate(duty.tolist()):
-        x = soc * steps
-        if x <= 0.0:
-            voc = ocv[0]
+        if sup is None:
+            x = soc * steps
+            if x <= 0.0:
+                voc = ocv[0]
+            else:
+                j = int(x)
+                voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
+            veff = v0 + sbv * (voc - vp - v0)
         else:
-            j = int(x)
-            voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
+            veff = sup[k] + rs_eff * ib_lp
         rw = rw0 * (1.0 + alpha * (temp - t_ref))
         rd = rw + resc + rs_eff * d * d
-        veff = v0 + sbv * (voc - vp - v0)
         if lag:
             i = (d * veff - ke * w) / rd
             didw = -ke / rd
@@ -224,7 +249,8 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
         ib = d * i
         out_w[k] = w
         out_ib[k] = ib
-        out_v[k] = v0 + sbv * (voc - vp - rs * ib - v0)
+        out_v[k] = v0 + sbv * (voc - vp - rs * ib - v0) if sup is None else veff - rs_eff * ib
+        ib_lp += a_lp * (ib - ib_lp)
         out_temp[k] = temp
         out_soc[k] = soc
         # advance the slow states
@@ -372,13 +398,7 @@ def simulate(
     dt = p.sim_step_s
     n = max(1, int(math.ceil(d / dt - 1e-9)))
     truth_t = np.arange(n) * dt
-    # ESC sees the command held from each frame, after the dead time (1e-9: frame times that
-    # coincide with a step count as arrived)
-    delay = eff["input_delay"] * p.esc_input_delay_s
-    idx = np.searchsorted(cmd_t, truth_t - delay + 1e-9, side="right") - 1
-    level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
-    threshold = PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
-    duty = _duty(level, threshold)
+    duty = _esc_duty(p, eff, cmd_t, cmd, truth_t)
 
     truth = _integrate(p, duty, eff, soc0)
     speed = truth["speed"]
@@ -407,3 +427,38 @@ def simulate(
         profile=str(profile),
         seed=seed,
     )
+
+
+def motor_response(
+    params: BenchParams,
+    effects: dict[str, float],
+    pwm_events: tuple[np.ndarray, np.ndarray],
+    supply: tuple[np.ndarray, np.ndarray],
+    t_out: np.ndarray,
+    v_ref: float,
+    supply_tau_s: float = 0.0,
+) -> np.ndarray:
+    """Rotor speed (rad/s) at the times ``t_out``, driven by a recording's command events
+    (t, level) and a measured supply voltage (t, V) instead of the battery model.
+
+    The same ESC, motor, rotor and thermal physics as ``simulate`` (so a physics model fitted
+    to measurements is the simulator's own): the rotor starts at rest at the first command (or
+    ``t_out[0]`` if earlier), steps of ``params.sim_step_s``; the supply is linearly
+    interpolated onto the steps. ``battery_voltage`` strength s makes the motor see
+    v_ref + s (V - v_ref): 0 is a stiff supply at ``v_ref``, 1 the measured voltage.
+    ``supply_tau_s``: the time constant of the low-pass the voltage was measured through (the
+    battery filter's), 0 for the terminal voltage itself (see ``_integrate``).
+    """
+    eff = resolve_effects(effects)
+    p = check_params(params)
+    cmd_t, cmd = _check_command(pwm_events)
+    t_out = np.asarray(t_out, dtype=float)
+    t0 = min(float(cmd_t[0]), float(t_out[0]))
+    dt = p.sim_step_s
+    n = int(math.ceil((float(t_out[-1]) - t0) / dt - 1e-9)) + 1
+    step_t = t0 + np.arange(n) * dt
+    sup_t, sup_v = (np.asarray(a, dtype=float) for a in supply)
+    volts = np.interp(step_t, sup_t, sup_v)
+    speed = _integrate(p, _esc_duty(p, eff, cmd_t, cmd, step_t), eff, 1.0, volts, float(v_ref),
+                       float(supply_tau_s))["speed"]
+    return np.interp(t_out, step_t, speed)

@@ -1,0 +1,330 @@
+"""The bench physics as the model of the discrepancy workflow: config, calibration, effect scores.
+
+The model is the simulator's own ESC/motor/rotor/thermal physics (``sim.bench.motor_response``)
+driven by a recording's command events and its measured (filtered) battery voltage: a
+``BenchParams`` (constants) plus a strength per effect (0 = off, 1 = nominal; see
+``sim.bench.EFFECT_DOCS``). Before anything is compared, the constants a different motor or
+propeller changes most (motor constant Kv, power coefficient CP) are calibrated on the measured
+speed, so that a mere parameter mismatch is not taken for a missing effect.
+
+An effect that is off is a candidate: switched on at each strength of a small grid, the
+constants recalibrated with it (warm start), it is scored like ``scoring.py`` scores network
+candidates: blocked K-fold over time, per held-out block the constants refitted on all other
+blocks, held-out SSE with the effect vs without (the null: the current model, recalibrated the
+same way), one-sided sign-flip test over the blocks' log SSE ratios. The per-fold refit is the
+Gauss-Newton step from the all-data calibration with its Jacobian (``scoring.BlockStats`` on
+the Jacobian columns), which to first order is the calibration on the training blocks alone
+and costs no extra simulation; the strength is chosen per fold by training SSE. A named
+effect's strength is refitted along with the constants from then on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .. import contract as c
+from ..atomic import atomic_output
+from ..core.battery_filter import BatteryFilterConfig
+from ..errors import BadInputError
+from ..sim.bench import motor_response, resolve_effects
+from ..sim.params import BenchParams, params_with_overrides
+from ..training.dataset import Signals
+from . import scoring as sc
+
+#: Constants calibrated on the measured data, log-parameterised: first within a factor
+#: 10^LOG_RANGE_BASE of the CONFIG's (another motor and propeller: a 5 in propeller has
+#: (5/12)^5 = 1/80 of the 12 in one's CP D^5), then, with effects switched on, within a factor
+#: 10^LOG_RANGE_EFFECT of that calibration: an effect may shift the constants, not replace the
+#: propeller law (with CP -> 0 the speed becomes linear in duty and stands in for missing effects).
+CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp")
+LOG_RANGE_BASE = math.log(1000.0)
+LOG_RANGE_EFFECT = math.log(3.0)
+#: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
+#: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
+#: the error is ~0.5 rad/s RMS, 2.5 rad/s at most, below the tachometer's ~5 rad/s noise).
+PHYSICS_STEP_S = 0.005
+#: Strengths tried for each effect (nominal 1 in the middle), and the range a fit may reach.
+STRENGTH_GRID: dict[str, tuple[float, ...]] = {
+    "battery_voltage": (0.5, 1.0, 1.5),
+    "rotor_lag": (0.1, 0.3, 1.0, 2.0),  # another motor and propeller may have far less inertia
+    "input_delay": (0.5, 1.0, 1.5, 2.0),
+    "esc_deadband": (0.5, 1.0, 2.0),
+    "spin_down_asymmetry": (0.5, 1.0),
+    "motor_heating": (0.5, 1.0, 2.0),
+}
+STRENGTH_MAX = {name: (1.0 if name == "spin_down_asymmetry" else 4.0) for name in c.EFFECTS}
+#: Least held-out SSE per sample ((rad/s)^2) in the score's log ratios.
+SSE_FLOOR = 1e-6
+#: Top-level keys of a physics CONFIG file (``discrepancy``: provenance, written by -o, ignored).
+CONFIG_KEYS = ("params", "effects", "supply_v", "discrepancy")
+
+
+def supply_tau_s(s: Signals) -> float:
+    """Time constant of the low-pass between the battery terminal and ``s.voltage``: the battery
+    filter's when the voltage was filtered from the ADC here; 0 for a recorded voltage (an
+    imported thrust-stand log measures the supply directly)."""
+    return BatteryFilterConfig().tau_s if s.voltage_source.startswith(c.bare(c.TOPIC_BATTERY_ADC)) else 0.0
+
+
+@dataclass(frozen=True)
+class PhysicsModel:
+    """Bench constants and effect strengths: what ``--physics CONFIG`` describes."""
+
+    params: BenchParams
+    effects: dict[str, float]
+    #: the stiff supply's voltage (V) that battery_voltage strength 0 gives; None: not yet set
+    #: (``with_supply`` sets the measured recordings' median)
+    supply_v: float | None = None
+
+    def predict(self, s: Signals) -> np.ndarray:
+        """Speed (rad/s) on the recording's grid."""
+        ok = np.isfinite(s.voltage)
+        if not ok.any():
+            raise BadInputError(f"{s.path}: no valid battery voltage for the physics model")
+        assert self.supply_v is not None, "with_supply first"
+        return motor_response(self.params, self.effects, s.pwm_events, (s.t[ok], s.voltage[ok]), s.t,
+                              self.supply_v, supply_tau_s(s))
+
+    def with_supply(self, signals: Sequence[Signals]) -> "PhysicsModel":
+        """The model with its stiff-supply voltage set to the median battery voltage of
+        ``signals`` if the CONFIG did not set it. One voltage for every recording: a supply that
+        knew each recording's own voltage would already hold most of the battery_voltage effect."""
+        if self.supply_v is not None:
+            return self
+        v = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in signals])
+        if not len(v):
+            raise BadInputError(f"{signals[0].path}: no valid battery voltage for the physics model")
+        return dataclasses.replace(self, supply_v=float(np.median(v)))
+
+    def with_effect(self, name: str, strength: float) -> "PhysicsModel":
+        return dataclasses.replace(self, effects={**self.effects, name: float(strength)})
+
+    def with_constants(self, values: Sequence[float]) -> "PhysicsModel":
+        return dataclasses.replace(
+            self, params=dataclasses.replace(self.params, **dict(zip(CALIBRATED, map(float, values)))))
+
+    def constants(self) -> dict[str, float]:
+        return {n: float(getattr(self.params, n)) for n in CALIBRATED}
+
+    def config(self) -> dict[str, Any]:
+        """JSON-able CONFIG: the constants that differ from the package's bench, all strengths."""
+        base = BenchParams()
+        params = {f.name: getattr(self.params, f.name) for f in dataclasses.fields(base)
+                  if getattr(self.params, f.name) != getattr(base, f.name)}
+        return {"params": params, "effects": dict(self.effects), "supply_v": self.supply_v}
+
+
+def describe(name: str, strength: float, p: BenchParams) -> str:
+    """The physical meaning of an effect's strength, for people."""
+    what = {
+        "battery_voltage": f"the motor sees {strength:.2f} x the measured battery voltage's deviation from a stiff supply",
+        "rotor_lag": f"rotor inertia {strength * p.rotor_inertia_kg_m2:.3g} kg m^2",
+        "input_delay": f"dead time {1000 * strength * p.esc_input_delay_s:.0f} ms",
+        "esc_deadband": f"ESC start threshold PWM {c.PWM_STOP + strength * p.esc_deadband_pwm:.4f}",
+        "spin_down_asymmetry": f"{100 * strength:.0f} % of the ESC's active braking removed",
+        "motor_heating": f"winding resistance +{100 * strength * p.copper_temperature_coefficient_per_k:.2f} %/K",
+    }[name]
+    return f"{name} at strength {strength:.2f} ({what})"
+
+
+# --- CONFIG files -----------------------------------------------------------------------------------
+def load_config(path: str | None) -> PhysicsModel:
+    """The package's nominal bench with every effect OFF (``path`` None or empty), or a CONFIG
+    file {"params": {field: value}, "effects": {name: strength}, "supply_v": volts}: effects it
+    does not list are OFF, ``sim_step_s`` defaults to PHYSICS_STEP_S, ``supply_v`` (the stiff
+    supply of battery_voltage strength 0) to the measured recordings' median battery voltage.
+    BadInputError naming the file and the key."""
+    if not path:
+        return PhysicsModel(dataclasses.replace(BenchParams(), sim_step_s=PHYSICS_STEP_S),
+                            {name: 0.0 for name in c.EFFECTS})
+    try:
+        with open(path, encoding="utf-8") as fh:
+            cfg = json.load(fh)
+    except OSError as exc:
+        raise BadInputError(f"--physics {path}: cannot read: {exc.strerror or exc}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise BadInputError(f"--physics {path}: not valid JSON: {exc}") from None
+    if not isinstance(cfg, dict):
+        raise BadInputError(f"--physics {path}: expected a JSON object with keys {', '.join(CONFIG_KEYS)}")
+    for key in cfg:
+        if key not in CONFIG_KEYS:
+            raise BadInputError(f"--physics {path}: unknown key '{key}' (known: {', '.join(CONFIG_KEYS)})")
+    params, effects = cfg.get("params", {}), cfg.get("effects", {})
+    for key, value in (("params", params), ("effects", effects)):
+        if not isinstance(value, dict):
+            raise BadInputError(f"--physics {path}: '{key}' must be an object of name: number")
+    try:
+        p = params_with_overrides(BenchParams(), {"sim_step_s": PHYSICS_STEP_S, **params})
+        eff = resolve_effects({**{name: 0.0 for name in c.EFFECTS}, **effects})
+    except BadInputError as exc:
+        raise BadInputError(f"--physics {path}: {exc}") from None
+    supply = cfg.get("supply_v")
+    if supply is not None and (isinstance(supply, bool) or not isinstance(supply, (int, float))
+                               or not math.isfinite(supply) or supply <= 0):
+        raise BadInputError(f"--physics {path}: supply_v {supply!r} must be a voltage > 0 (or null)")
+    return PhysicsModel(p, eff, None if supply is None else float(supply))
+
+
+def save_config(model: PhysicsModel, path: str, force: bool, provenance: dict[str, Any]) -> None:
+    """Write the model as a CONFIG that ``load_config`` reads back (atomically)."""
+    with atomic_output(path, force=force) as tmp:
+        tmp.write_text(json.dumps({**model.config(), "discrepancy": provenance}, indent=2) + "\n",
+                       encoding="utf-8")
+
+
+# --- data, calibration -----------------------------------------------------------------------------
+@dataclass
+class Data:
+    """Recordings, the rows (finite speed) the residual uses, and each row's time block."""
+
+    signals: list[Signals]
+    rows: list[np.ndarray]
+    labels: np.ndarray  #: block of each used row (concatenated), -1 outside every block
+    blocks: int
+
+    @classmethod
+    def of(cls, signals: Sequence[Signals], what: str) -> "Data":
+        blocks = sc.make_blocks([s.duration_s for s in signals], what)
+        lab = sc.block_labels([len(s.t) for s in signals], blocks)
+        rows, labels, first = [], [], 0
+        for s in signals:
+            ok = np.flatnonzero(np.isfinite(s.speed))
+            rows.append(ok)
+            labels.append(lab[first + ok])
+            first += len(s.t)
+        return cls(list(signals), rows, np.concatenate(labels), int(sum(blocks)))
+
+    def residual(self, model: PhysicsModel) -> np.ndarray:
+        return np.concatenate([s.speed[r] - model.predict(s)[r] for s, r in zip(self.signals, self.rows)])
+
+
+@dataclass
+class Fit:
+    """A model with its constants calibrated on a data set: residual and its Jacobian there."""
+
+    model: PhysicsModel
+    r: np.ndarray  #: measured - predicted on the data's rows
+    J: np.ndarray  #: d r / d (log constant, free strength): one column per CALIBRATED, then free
+    sse: float
+    anchor: np.ndarray  #: constants the calibration stays within a factor exp(log_range) of
+    log_range: float
+    free: tuple[str, ...] = ()  #: effects whose strengths were fitted along (those added so far)
+
+
+def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: float,
+              free: Sequence[str] = (), max_nfev: int = 40) -> Fit:
+    """Kv and CP (log scale, within a factor exp(log_range) of ``anchor``) and the strengths of
+    the effects ``free`` fitted by least squares from ``model``'s values: an effect added earlier
+    gets its strength refitted with each later one, so it cannot keep standing in for a missing one."""
+    nc = len(CALIBRATED)
+
+    def unpack(x: np.ndarray) -> PhysicsModel:
+        m = model.with_constants(anchor * np.exp(x[:nc]))
+        for name, v in zip(free, x[nc:]):
+            m = m.with_effect(name, v)
+        return m
+
+    lo = np.concatenate([np.full(nc, -log_range), np.zeros(len(free))])
+    hi = np.concatenate([np.full(nc, log_range), [STRENGTH_MAX[n] for n in free]])
+    x0 = np.concatenate([np.log([getattr(model.params, n) for n in CALIBRATED] / anchor),
+                         [model.effects[n] for n in free]])
+    res = least_squares(lambda x: data.residual(unpack(x)), np.clip(x0, lo, hi), bounds=(lo, hi),
+                        diff_step=1e-3, max_nfev=max_nfev)
+    # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds)
+    J = np.where(np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
+    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, log_range, tuple(free))
+
+
+def calibrate_base(model: PhysicsModel, data: Data) -> Fit:
+    """The CONFIG's constants calibrated (wide range); later fits stay near the result."""
+    fit = calibrate(model, data, np.array(list(model.constants().values())), LOG_RANGE_BASE)
+    return dataclasses.replace(fit, anchor=np.array(list(fit.model.constants().values())),
+                               log_range=LOG_RANGE_EFFECT)
+
+
+def recalibrate(fit: Fit, model: PhysicsModel, data: Data, free: Sequence[str] | None = None) -> Fit:
+    """``calibrate`` with ``fit``'s anchor and range (and free strengths unless given)."""
+    return calibrate(model, data, fit.anchor, fit.log_range, fit.free if free is None else free)
+
+
+# --- scores ----------------------------------------------------------------------------------------
+def score(null: Fit, cands: Sequence[Fit], grid: Sequence[float], data: Data) -> sc.Score:
+    """Held-out score of an effect (see the module docstring); same fields as scoring.Score."""
+    K = data.blocks
+    null_st = sc.BlockStats.of(null.J, null.r, data.labels, K)
+    cand_st = [sc.BlockStats.of(f.J, f.r, data.labels, K) for f in cands]
+    sse_null, sse_cand, chosen = np.zeros(K), np.zeros(K), np.full(K, -1)
+    for k in range(K):
+        if null_st.n[k] == 0:
+            continue
+        beta0, _ = null_st.fit_without(k)
+        sse_null[k] = null_st.sse(k, beta0)
+        fits = [st.fit_without(k) for st in cand_st]
+        j = int(np.argmin([f[1] for f in fits]))
+        chosen[k] = j
+        sse_cand[k] = cand_st[j].sse(k, fits[j][0])
+    used = null_st.n > 0
+    # the statistics of scoring.score_candidate_groups (per-block log ratio, sign-flip test), the
+    # SSEs floored at (1 mrad/s)^2 per sample: a stopped rotor that both predict exactly is a tie
+    floor = SSE_FLOOR * null_st.n[used]
+    d = np.log(np.maximum(sse_null[used], floor) / np.maximum(sse_cand[used], floor))
+    total_r2, n = float(null_st.s[used].sum()), float(null_st.n[used].sum())
+    counts = np.bincount(chosen[used], minlength=len(grid))
+    return sc.Score(
+        fraction=float(1.0 - np.exp(-np.mean(d))) if len(d) else 0.0,
+        fraction_of_residual=float(1.0 - sse_cand[used].sum() / total_r2) if total_r2 > 0 else 0.0,
+        null_fraction=float(1.0 - sse_null[used].sum() / total_r2) if total_r2 > 0 else 0.0,
+        p_value=sc.sign_flip_p(d),
+        blocks=int(used.sum()),
+        blocks_improved=int(np.sum(d > 0)),
+        params={"strength": float(grid[int(np.argmax(counts))])},
+        params_per_fold=[{"strength": float(grid[j])} for j in chosen[used]],
+        rmse_null=math.sqrt(sse_null[used].sum() / n) if n else float("nan"),
+        rmse_candidate=math.sqrt(sse_cand[used].sum() / n) if n else float("nan"),
+    )
+
+
+def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
+    """The effect switched on at each grid strength, constants recalibrated from ``base``'s."""
+    return [recalibrate(base, base.model.with_effect(name, g), data) for g in STRENGTH_GRID[name]]
+
+
+def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
+    """The strength with the least SSE on all of ``data`` (jointly with the constants): the best
+    grid point, the grid extended past its end when the best is there, then the vertex of the
+    parabola through the best point and its neighbours."""
+    pts = dict(zip(STRENGTH_GRID[name], fits))
+    lo, hi = 0.0, STRENGTH_MAX[name]
+    for _ in range(3):
+        xs = sorted(pts)
+        best = min(xs, key=lambda x: pts[x].sse)
+        if best == xs[-1] and best < hi:
+            nxt = min(hi, 2.0 * best)
+        elif best == xs[0] and best > lo:
+            nxt = best / 2.0
+        else:
+            break
+        pts[nxt] = recalibrate(base, base.model.with_effect(name, nxt), data)
+    xs = sorted(pts)
+    j = min(range(len(xs)), key=lambda i: pts[xs[i]].sse)
+    if 0 < j < len(xs) - 1:
+        x = np.array(xs[j - 1:j + 2])
+        y = np.array([pts[v].sse for v in x])
+        a, b, _ = np.polyfit(x, y, 2)
+        if a > 0:
+            s = float(np.clip(-b / (2 * a), x[0], x[2]))
+            cand = recalibrate(base, pts[xs[j]].model.with_effect(name, s), data)
+            if cand.sse < pts[xs[j]].sse:
+                pts[s] = cand
+                xs[j] = s
+    # polished jointly with its strength free, as it will be refitted with every later effect
+    # (see calibrate): the next round's null then has the same free parameters as its candidates
+    return recalibrate(base, pts[xs[j]].model, data, (*base.free, name))

@@ -1,0 +1,198 @@
+"""The discrepancy workflow with the bench physics as the model (``discrepancy --physics``).
+
+Same steps, data and summary as the network path (``workflow.py``), the model being a
+``physics.PhysicsModel``:
+
+1. Calibrate Kv and CP on the measured recordings; residual r = measured - predicted.
+2. Disagreement windows, whiteness and input cross-correlation tests, the condition map.
+3. Name: every effect that is off in the model is switched on (strength grid, constants
+   recalibrated) and scored on held-out time blocks of the measured data and, separately
+   calibrated, of the reference data; new / structural by ``workflow.classify``.
+4. Add: the best new effect at the strength fitted on all measured data (constants with it).
+5. Show: holdout RMSE before (the calibrated base) and after. Repeat from 3.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import contract as c
+from ..errors import BadInputError
+from ..training.dataset import Signals
+from . import physics as ph
+from . import residuals as rs
+from .workflow import (STRUCTURAL_RATIO, DataSet, Options, Progress, WorkflowResult, _rmse, classify,
+                       explained_mse, summary_lines, windows_of, write_report)
+
+
+def predictions(model: ph.PhysicsModel, signals: Sequence[Signals]) -> DataSet:
+    return DataSet(list(signals), [model.predict(s) for s in signals])
+
+
+def sentence(name: str, strength: float, p: Any, m: Any, r: Any, verdict: str) -> str:
+    what = ph.describe(name, strength, p)
+    ref = (f"{100 * max(r.fraction, 0):.0f} % on the reference data (p = {r.p_value:.2g}), "
+           f"{explained_mse(r) / max(explained_mse(m), 1e-12):.2g} times the mean squared residual it "
+           f"removes on the measured data" if r is not None else "the reference data were not available")
+    core = (f"{what} removes {100 * m.fraction:.0f} % of the calibrated physics model's residual on "
+            f"held-out time blocks of the measured data ({m.blocks_improved} of {m.blocks} blocks better, "
+            f"p = {m.p_value:.2g})")
+    if verdict == "new":
+        return f"{core}; {ref}"
+    if verdict == "structural":
+        return f"{core} and {ref}: the model lacks it on the reference data too (structural)"
+    return f"{core}: not significant"
+
+
+def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], reference: Sequence[Signals],
+                         holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+    restrict = list(opts.restrict) if opts.restrict else list(c.EFFECTS)
+    for name in restrict:
+        if name not in c.EFFECTS:
+            raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    warnings: list[str] = []
+    if not reference:
+        warnings.append("no --reference recordings: new and structural findings cannot be told apart")
+    in_sample = not holdout
+    if in_sample:
+        warnings.append("no --holdout recordings: before/after RMSE is on the measured recordings, "
+                        "which the constants and strengths were fitted on (optimistic)")
+    hold = list(holdout) if holdout else list(measured)
+    meas_data = ph.Data.of(measured, "measured")
+    ref_data = ph.Data.of(reference, "reference") if reference else None
+
+    # step 1
+    model = model.with_supply(measured)
+    progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
+    uncal_rmse = _rmse(predictions(model, hold).residuals)
+    cur = ph.calibrate_base(model, meas_data)
+    cur_ref = ph.calibrate_base(model, ref_data) if ref_data else None
+    base = cur.model
+    progress("  calibrated: " + ", ".join(f"{k} {v:.4g}" for k, v in base.constants().items())
+             + f" (holdout RMSE {uncal_rmse:.2f} rad/s uncalibrated)")
+    meas = predictions(base, measured)
+    ref = predictions(cur_ref.model, reference) if cur_ref else None
+    hold_base = predictions(base, hold)
+
+    # step 2
+    noise = rs.robust_sigma(np.concatenate(ref.residuals if ref else meas.residuals))
+    if not np.isfinite(noise) or noise <= 0:
+        noise = rs.robust_sigma(np.concatenate(meas.residuals))
+    threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
+    windows, _ = windows_of(meas, threshold)
+
+    def tests(ds: DataSet) -> rs.ResidualTests:
+        return rs.residual_tests(ds.residuals, [{"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)}
+                                                for s in ds.signals])
+
+    tests_meas, tests_ref = tests(meas), (tests(ref) if ref else None)
+    conditions = rs.condition_bins([s.t for s in measured], meas.residuals, [s.pwm for s in measured],
+                                   [s.voltage for s in measured])
+    progress(f"step 2: {len(windows)} disagreement window(s) above {threshold:.1f} rad/s; measured "
+             f"residual RMSE {_rmse(meas.residuals):.2f} rad/s" + (f", reference {_rmse(ref.residuals):.2f} rad/s"
+                                                                 if ref else ""))
+
+    named: list[str] = []
+    structural: list[dict[str, Any]] = []
+    evidence: dict[str, Any] = {}
+    iterations: list[dict[str, Any]] = []
+    while len(named) < opts.max_effects:
+        cands = [n for n in restrict if cur.model.effects[n] == 0.0]
+        if not cands:
+            progress("  every effect considered is already on in the model")
+            break
+        progress(f"step 3: switching on {len(cands)} effect(s) one at a time, scored on held-out time blocks")
+        round_ev: dict[str, Any] = {}
+        fits: dict[str, list[ph.Fit]] = {}
+        best: tuple[float, str] | None = None
+        for name in cands:
+            grid = ph.STRENGTH_GRID[name]
+            fits[name] = ph.effect_fits(cur, name, meas_data)
+            m = ph.score(cur, fits[name], grid, meas_data)
+            r = ph.score(cur_ref, ph.effect_fits(cur_ref, name, ref_data), grid, ref_data) if cur_ref else None
+            verdict = classify(m, r, opts.alpha, opts.min_effect)
+            strength = m.params["strength"]
+            round_ev[name] = {
+                "verdict": verdict,
+                "measured": m.as_dict(),
+                "reference": r.as_dict() if r is not None else None,
+                "p_value": m.p_value,
+                "feature": ph.describe(name, strength, cur.model.params),
+                "sentence": sentence(name, strength, cur.model.params, m, r, verdict),
+            }
+            progress(f"  {name:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
+                     + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
+                     + f"  -> {verdict}")
+            if verdict == "new" and (best is None or m.fraction > best[0]):
+                best = (m.fraction, name)
+            if verdict == "structural" and name not in [x["effect"] for x in structural]:
+                structural.append({"effect": name, "sentence": round_ev[name]["sentence"],
+                                   "measured_mse_reduction": m.fraction,
+                                   "reference_mse_reduction": r.fraction if r else None})
+        for k, v in round_ev.items():
+            if k not in named:
+                evidence[k] = v
+        iterations.append({"evidence": round_ev})
+        if best is None:
+            progress("  no new effect is significant")
+            break
+        name = best[1]
+        cur = ph.fit_strength(cur, name, meas_data, fits[name])
+        if cur_ref is not None:
+            cur_ref = ph.recalibrate(cur_ref, cur_ref.model.with_effect(name, cur.model.effects[name]), ref_data,
+                                     cur.free)
+        strength = cur.model.effects[name]
+        named.append(name)
+        evidence[name].update(named=True, feature=ph.describe(name, strength, cur.model.params),
+                              fitted_parameters={"strength": strength, **cur.model.constants()})
+        hold_new = predictions(cur.model, hold)
+        iterations[-1].update(named=name, parameters=evidence[name]["fitted_parameters"],
+                              holdout_rmse_rad_s=_rmse(hold_new.residuals))
+        progress(f"  named: {evidence[name]['sentence']}")
+        progress(f"step 4: added {ph.describe(name, strength, cur.model.params)}; constants now "
+                 + ", ".join(f"{k} {v:.4g}" for k, v in cur.model.constants().items()))
+        progress(f"step 5: holdout RMSE {_rmse(hold_base.residuals):.2f} -> {_rmse(hold_new.residuals):.2f} rad/s")
+
+    # step 5: the gap
+    hold_final = predictions(cur.model, hold) if named else hold_base
+    hold_windows, hold_masks = windows_of(hold_base, threshold)
+    any_win = any(m.any() for m in hold_masks)
+    structural = [x for x in structural if x["effect"] not in named]
+    data: dict[str, Any] = {
+        "named": named,
+        "structural": structural,
+        "holdout_rmse_before": _rmse(hold_base.residuals),
+        "holdout_rmse_after": _rmse(hold_final.residuals),
+        "holdout_rmse_uncalibrated": uncal_rmse,
+        "holdout_rmse_in_windows_before": _rmse(hold_base.residuals, hold_masks) if any_win else None,
+        "holdout_rmse_in_windows_after": _rmse(hold_final.residuals, hold_masks) if any_win else None,
+        "holdout_in_sample": in_sample,
+        "holdout_recordings": [s.path for s in hold],
+        "windows": [w.as_dict() for w in windows],
+        "holdout_windows": [w.as_dict() for w in hold_windows],
+        "window_threshold_rad_s": threshold,
+        "evidence": evidence,
+        "residual_tests": {"measured": tests_meas.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
+        "conditions": conditions,
+        "iterations": iterations,
+        "calibrated_base": base.config(),
+        "physics": cur.model.config(),
+        "reference_recordings": [s.path for s in reference],
+        "measured_recordings": [s.path for s in measured],
+        "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
+                     "structural_ratio": STRUCTURAL_RATIO,
+                     "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
+        "warnings": warnings,
+        "model": None,
+    }
+    if opts.report_dir:
+        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, windows,
+                                      hold_windows, data)
+    lines = ["physics model calibrated on the measured data: "
+             + ", ".join(f"{k} {v:.4g}" for k, v in base.constants().items())
+             + f" (holdout RMSE {uncal_rmse:.2f} rad/s before calibration)", *summary_lines(data)]
+    return WorkflowResult(data, cur.model, lines)
