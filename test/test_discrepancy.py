@@ -161,22 +161,29 @@ def scenario(effect: str, d: Path, seed: int = 0) -> Scenario:
     return s
 
 
+_RUNS: dict[int, dict] = {}
+
+
 def run(s: Scenario, **kw) -> dict:
+    """The workflow on a scenario (with the default options, once per session)."""
+    if not kw and id(s) in _RUNS:
+        return _RUNS[id(s)]
     opts = Options(max_effects=kw.pop("max_effects", 1), max_epochs=EPOCHS, **kw)
-    return run_workflow(s.model, s.measured, s.reference, s.holdout, opts, lambda m: None).data
+    data = run_workflow(s.model, s.measured, s.reference, s.holdout, opts, lambda m: None).data
+    if not kw:
+        _RUNS[id(s)] = data
+    return data
 
 
 # --- hidden effects --------------------------------------------------------------------------------
 #: Effects that do not meet the bar yet, with what was measured (seed 0 of the scenarios above).
 #: strict: the day one of them passes, the mark must go.
 KNOWN_FAILURES = {
-    "input_delay": "named first, but the holdout RMSE falls only 16 % (20.6 -> 17.3 rad/s): the retrained "
-                   "network gets the delayed command but not a delayed filtered command",
-    "esc_deadband": "the esc_deadband feature itself removes nothing on held-out blocks (-21 %, p = 0.97); "
-                    "the coast-down below the start level is taken for spin_down_asymmetry (named; holdout "
-                    "RMSE 53.0 -> 31.1 rad/s)",
-    "motor_heating": "nothing named: the thermal feature worsens held-out blocks of the measured data (-34 %) "
-                     "while the reference improves 20 %; holdout RMSE 15.5 rad/s unchanged",
+    "input_delay": "named first, delay fitted as the identified dead-time change (60 - 20 ms = 40 ms), and the "
+                   "delay's share of the holdout error is gone, but the 30 % bar lies below the base model's "
+                   "own floor: holdout RMSE 20.5 -> 16.3 rad/s (-21 %) while the base model's RMSE on the same "
+                   "holdout simulated WITHOUT the delay is 16.4 rad/s (its lag structure, not the delay); a "
+                   "delayed pwm_filtered, or pwm/pwm_filtered replaced by delayed inputs: 16.5-17.0 rad/s",
 }
 
 
@@ -192,6 +199,24 @@ def test_hidden_effect_is_named_first_and_the_gap_shrinks(effect, bags_dir):
         data["holdout_rmse_before"], data["holdout_rmse_after"])
     ev = data["evidence"][effect]
     assert ev["verdict"] == "new" and effect in ev["sentence"]
+
+
+def test_input_delay_removes_the_delays_share_of_the_holdout_error(bags_dir):
+    """What adding the dead time can do: close the gap between the base model's holdout error
+    and its error on the same holdout command simulated without the delay (its own floor, which
+    lies above the 30 % bar: see KNOWN_FAILURES)."""
+    from bldc_propulsion.discrepancy.workflow import _rmse, run_model
+
+    s = scenario("input_delay", bags_dir)
+    data = run(s)
+    assert data["named"][:1] == ["input_delay"], data["evidence"]
+    kind, soc, dur = SCENARIOS["input_delay"][3][0]
+    no_delay = load_signals(_bag(bags_dir / "input_delay", "holdout0_without_delay", kind, 600, {"input_delay": 0.0},
+                                 soc, dur))
+    floor = _rmse(run_model(s.model, [no_delay]).residuals)
+    before, after = data["holdout_rmse_before"], data["holdout_rmse_after"]
+    assert before > floor
+    assert after <= floor + 0.3 * (before - floor), (before, floor, after)
 
 
 def test_control_names_nothing_new(bags_dir):
@@ -278,6 +303,8 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
 @pytest.mark.parametrize("name, params", [
     (ef.PWM_LAG, {"tau_s": 0.1}), (ef.PWM_DELAYED, {"delay_s": 0.04}), (ef.PWM_ABOVE_START, {}),
     (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4}), (ef.THERMAL_LOAD, {"tau_s": 30.0}),
+    (ef.PWM_DELAYED_FILTERED, {"delay_s": 0.04, "tau_s": 0.25}),
+    (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25}),
 ])
 def test_effect_features_stream_as_they_batch(name, params):
     rng = np.random.default_rng(3)

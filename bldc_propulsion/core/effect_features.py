@@ -13,6 +13,14 @@ recording predicts on replay what it predicted in training.
 | ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level) |
 | ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag with one time constant rising, another falling |
 | ``thermal_load`` | motor_heating | ``tau_s`` | first-order thermal state driven by an I^2 R proxy |
+| ``pwm_delayed_filtered`` | input_delay | ``delay_s``, ``tau_s`` | the delayed command through the model's own low-pass |
+| ``pwm_above_start_filtered`` | esc_deadband | ``threshold``, ``tau_s`` | max(pwm - threshold, 0) through the model's own low-pass |
+
+The two ``*_filtered`` inputs exist because a dead time or a start level acts on the command
+before everything the model derives from it: the model's ``pwm_filtered`` input (a 0.25 s
+low-pass that stands for the rotor's inertia) must see the delayed / deadband-mapped command too,
+or the network has to rebuild that lag from the undelayed one. Like ``pwm_filtered`` they start in
+steady state at the first (mapped) command.
 
 The I^2 R proxy of ``thermal_load`` is ``(duty * V / 12 V)^4`` with ``duty = (pwm - 0.05) / 0.05``
 clipped to [0, 1]: with a propeller load the motor current grows as the square of the speed and
@@ -35,6 +43,10 @@ PWM_DELAYED = "pwm_delayed"
 PWM_ABOVE_START = "pwm_above_start"
 PWM_ASYMMETRIC_LAG = "pwm_asymmetric_lag"
 THERMAL_LOAD = "thermal_load"
+PWM_DELAYED_FILTERED = "pwm_delayed_filtered"
+PWM_ABOVE_START_FILTERED = "pwm_above_start_filtered"
+#: Inputs that are the command mapped (dead time, start level) and then low-passed.
+MAPPED_LAGS = (PWM_DELAYED_FILTERED, PWM_ABOVE_START_FILTERED)
 
 #: State of the command lags when a recording starts: the rotor at rest (PWM_STOP), as a bench
 #: run starts; after a start mid-run the lag's state converges within a few time constants.
@@ -49,6 +61,8 @@ DEFAULT_PARAMS: dict[str, dict[str, float]] = {
     PWM_ABOVE_START: {"threshold": 0.055},
     PWM_ASYMMETRIC_LAG: {"tau_up_s": 0.1, "tau_down_s": 0.3},
     THERMAL_LOAD: {"tau_s": 120.0},
+    PWM_DELAYED_FILTERED: {"delay_s": 0.04, "tau_s": c.PAPER_PWM_TAU_S},
+    PWM_ABOVE_START_FILTERED: {"threshold": 0.055, "tau_s": c.PAPER_PWM_TAU_S},
 }
 
 #: Which recorded streams each input needs ("pwm", "voltage").
@@ -58,6 +72,8 @@ NEEDS: dict[str, tuple[str, ...]] = {
     PWM_ABOVE_START: ("pwm",),
     PWM_ASYMMETRIC_LAG: ("pwm",),
     THERMAL_LOAD: ("pwm", "voltage"),
+    PWM_DELAYED_FILTERED: ("pwm",),
+    PWM_ABOVE_START_FILTERED: ("pwm",),
 }
 
 
@@ -206,12 +222,48 @@ def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: n
     return lag_on_times(times, q, tau, 0.0)[pos]
 
 
+def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | None, float]:
+    """(dead time s, start level or None, low-pass time constant s) of a MAPPED_LAGS input."""
+    if name == PWM_DELAYED_FILTERED:
+        return _param(params, name, "delay_s"), None, _param(params, name, "tau_s")
+    return 0.0, _param(params, name, "threshold"), _param(params, name, "tau_s")
+
+
+def _map_level(level: np.ndarray | float, threshold: float | None) -> np.ndarray | float:
+    return level if threshold is None else np.maximum(level - threshold, 0.0)
+
+
+def _mapped_lag(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+                params: Mapping[str, float] | None) -> np.ndarray:
+    """The command delayed and/or deadband-mapped, through a first-order low-pass; the low-pass
+    starts in steady state at the first mapped command (as the model's ``pwm_filtered``)."""
+    d, thr, tau = _mapping(name, params or {})
+    et = pwm_t + d  # when each command reaches the ESC
+    times, pos = _merged(grid, et)
+    u = np.asarray(_map_level(_held(et, pwm, times), thr), dtype=float)
+    return lag_on_times(times, u, tau, float(u[0]) if len(u) else 0.0)[pos]
+
+
+def pwm_delayed_filtered(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+                         volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """Command delayed by ``delay_s`` through a low-pass of ``tau_s`` (a delayed ``pwm_filtered``)."""
+    return _mapped_lag(PWM_DELAYED_FILTERED, grid, pwm_t, pwm, params)
+
+
+def pwm_above_start_filtered(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
+                             volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
+    """max(pwm - threshold, 0) through a low-pass of ``tau_s`` (the drive the ESC gives, lagged)."""
+    return _mapped_lag(PWM_ABOVE_START_FILTERED, grid, pwm_t, pwm, params)
+
+
 BATCH: dict[str, Callable[..., np.ndarray]] = {
     PWM_LAG: pwm_lag,
     PWM_DELAYED: pwm_delayed,
     PWM_ABOVE_START: pwm_above_start,
     PWM_ASYMMETRIC_LAG: pwm_asymmetric_lag,
     THERMAL_LOAD: thermal_load,
+    PWM_DELAYED_FILTERED: pwm_delayed_filtered,
+    PWM_ABOVE_START_FILTERED: pwm_above_start_filtered,
 }
 
 
@@ -235,6 +287,11 @@ class StreamingFeature:
         self.pwm: float | None = None
         self.volts: float | None = None
         self._history: deque[tuple[float, float]] = deque()  # (t, pwm) for the delay
+        # MAPPED_LAGS: commands not yet at the ESC (arrival time, mapped level), the low-pass state
+        # at time self._ts and the mapped level held since then
+        self._pending: deque[tuple[float, float]] = deque()
+        self._ts = -math.inf
+        self._u_mapped = 0.0
 
     # input held since self.t
     def _u(self) -> float:
@@ -269,8 +326,36 @@ class StreamingFeature:
             if self.name in (PWM_LAG, PWM_ASYMMETRIC_LAG):
                 self.y = REST_PWM
 
+    def _update_mapped(self, t: float, pwm: float) -> None:
+        d, thr, _ = _mapping(self.name, self.params)
+        level = float(_map_level(float(pwm), thr))
+        if self.pwm is None:  # steady state at the first mapped command
+            self.y = level
+            self._u_mapped = level
+        self.pwm = float(pwm)
+        self.t = t
+        self._pending.append((t + d, level))
+
+    def _mapped_value(self, t: float) -> float:
+        tau = _mapping(self.name, self.params)[2]
+        while self._pending and self._pending[0][0] <= t:
+            te, level = self._pending.popleft()
+            if te > self._ts:
+                a = math.exp(-(te - self._ts) / tau) if tau > 0 and math.isfinite(self._ts) else 0.0
+                if math.isfinite(self._ts):
+                    self.y = self._u_mapped + (self.y - self._u_mapped) * a
+                self._ts = te
+            self._u_mapped = level
+        if t <= self._ts or not math.isfinite(self._ts):
+            return float(self.y)
+        a = math.exp(-(t - self._ts) / tau) if tau > 0 else 0.0
+        return float(self._u_mapped + (self.y - self._u_mapped) * a)
+
     def update_pwm(self, t: float, pwm: float) -> None:
         if self.t is not None and t < self.t:
+            return
+        if self.name in MAPPED_LAGS:
+            self._update_mapped(t, pwm)
             return
         if self.t is None:
             self.pwm = float(pwm)
@@ -307,6 +392,8 @@ class StreamingFeature:
     def value(self, t: float) -> float:
         if self.pwm is None:
             return float("nan")
+        if self.name in MAPPED_LAGS:
+            return self._mapped_value(t)
         if self.name == PWM_ABOVE_START:
             return max(float(self.pwm) - self.params["threshold"], 0.0)
         if self.name == PWM_DELAYED:

@@ -12,9 +12,15 @@
    residual (rad/s)^2 it removes on the reference is less than STRUCTURAL_RATIO of what it
    removes on the measured data. STRUCTURAL otherwise if it helps the reference. The best new
    effect (pooled score) is named; the dynamic family is decided by identifying the response.
+   Effects that change the RESPONSE to a feature both sets share (the same commands, the same
+   thermal state) cannot show in the pooled residual score: the ESC start level is identified
+   with the dynamics (a coast to zero below it is not a slower spin-down), and motor heating by
+   fitting the speed's response to the thermal state on both sets together
+   (``effects.identify_heating``), each named when it changed beyond its margin.
 4. Add: the network is retrained with the effect's input (fitted parameters) on reference +
    measured recordings, early-stopped on the measured recordings' last part, starting from the
-   base model's own weights (the new input's at 0).
+   base model's own weights (the new input's at 0). An effect that maps the command before the
+   ESC (the start level) replaces the model's command inputs by the mapped ones, weights carried over.
 5. Show: holdout RMSE before and after, overall and inside the holdout's disagreement windows.
    Repeat from 2 with the new model until nothing new is significant or ``max_effects``.
 """
@@ -30,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
+from ..core import effect_features as ef
 from ..errors import BadInputError
 from ..training.dataset import Signals
 from ..training.evaluate import predict_speed
@@ -47,6 +54,9 @@ STRUCTURAL_RATIO = 0.5  #: reference reduction >= this x measured reduction -> s
 #: An effect must beat every other candidate of the same family (dynamics) by this fraction of
 #: the held-out MSE to be preferred over a simpler one: lag < delay < asymmetric lag.
 VALIDATION_FRACTION = 0.2
+#: Measured residual RMSE >= this x the reference's, with no residual feature significant: the
+#: response (dynamics, start level) is identified directly all the same.
+GAP_RATIO = 1.5
 
 
 @dataclass
@@ -225,15 +235,33 @@ def slice_signals(s: Signals, t0: float, t1: float, tag: str) -> Signals:
 
 
 def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference: Sequence[Signals],
-            measured: Sequence[Signals], opts: Options, progress: Progress) -> Any:
-    """The network with the effect's input added, trained on reference + measured recordings."""
+            measured: Sequence[Signals], opts: Options, progress: Progress,
+            reference_params: dict[str, float] | None = None) -> Any:
+    """The network with the effect's input added, trained on reference + measured recordings.
+
+    ``reference_params``: the effect's parameters identified on the reference itself; with a
+    candidate that can (``on_reference``), the reference recordings get the added input at their
+    own parameter, so the two sets do not pull the network towards a compromise."""
     inputs = list(model.input_names)
     feature_params = {k: dict(v) for k, v in (model.feature_params() or {}).items()}
+    rename = {old: new for old, new in cand.replaces.items() if old in inputs}
+    if rename:
+        inputs = [rename.get(x, x) for x in inputs]
+        for new in rename.values():
+            p = {k: v for k, v in (params or {}).items() if k in ef.DEFAULT_PARAMS.get(new, {})}
+            if "tau_s" in ef.DEFAULT_PARAMS.get(new, {}):
+                p["tau_s"] = float(model.pwm_tau_s)  # the model's own low-pass, on the mapped command
+            feature_params[new] = p
     if cand.input_name not in inputs:
         inputs.append(cand.input_name)
     if params:
         feature_params[cand.input_name] = cand.model_params(params)
     train, val = list(reference), []
+    pwm_free = set(inputs) <= {c.INPUT_BATTERY_VOLTAGE, *rename.values(), cand.input_name}
+    if cand.on_reference is not None and reference_params and params and pwm_free:
+        # only when every command-derived input is the effect's own: the mapping would distort others
+        train = [cand.on_reference(s, params, reference_params) for s in reference]
+        progress(f"the reference recordings get {cand.input_name} at their own identified {reference_params}")
     for s in measured:
         cut = s.t[0] + (1.0 - VALIDATION_FRACTION) * (s.t[-1] - s.t[0])
         train.append(slice_signals(s, s.t[0], cut, "train"))
@@ -243,7 +271,9 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
     warm = opts.warm_start and hidden == base_hidden
     progress(f"retraining {len(inputs)}-{hidden}-1 on {', '.join(inputs)} "
              f"({len(train)} training parts, {len(val)} validation parts"
-             + (", starting from the model's own weights with the new input's weights at 0)" if warm else ")"))
+             + (", starting from the model's own weights with the new input's weights at 0"
+                + (", " + ", ".join(f"{k}'s carried over to {v}" for k, v in rename.items()) if rename else "")
+                + ")" if warm else ")"))
     kw: dict[str, Any] = {
         "inputs": inputs, "hidden": hidden, "seed": opts.seed, "pwm_tau_s": float(model.pwm_tau_s),
         "feature_params": feature_params, "thrust_coefficient": float(model.thrust_coefficient),
@@ -252,14 +282,15 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
     if not warm:
         return train_model(train, val, **kw).model
     phi0 = warm_start_weights(model, inputs, train, {c.INPUT_PWM_FILTERED: {"tau_s": float(model.pwm_tau_s)},
-                                                     **feature_params})
+                                                     **feature_params}, rename)
     return train_model(train, val, phi0=phi0, **kw).model
 
 
 def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signals],
-                       params: dict[str, dict[str, float]]) -> np.ndarray:
+                       params: dict[str, dict[str, float]], rename: dict[str, str] | None = None) -> np.ndarray:
     """The base network's weights re-expressed in the scaling train_model will use for ``train``,
     with zero weights for the added input(s): the retraining starts from the model as it was.
+    ``rename`` maps a base input to the input that replaces it (its weights carry over).
 
     Starting there (not from random weights) keeps what the model knew where the new data say
     nothing: a network retrained from scratch on a discharge recorded at one command level
@@ -277,8 +308,9 @@ def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signal
     H = W1o.shape[0]
     W1 = np.zeros((H, len(inputs)))
     b1 = b1o.copy()
+    rename = rename or {}
     for jo, name in enumerate(model.input_names):
-        j = list(inputs).index(name)
+        j = list(inputs).index(rename.get(name, name))
         a = span_new[j] / span_o[jo]
         cst = (2.0 * (lo_new[j] - lo_o[jo]) + span_new[j]) / span_o[jo] - 1.0
         W1[:, j] = W1o[:, jo] * a
@@ -405,18 +437,42 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
                 evidence[k] = v
         iterations.append({"evidence": round_ev})
         dyn_params: dict[str, float] | None = None
+        ref_params: dict[str, float] | None = None  # the effect's parameters identified on the reference
+        heat_cand = next((cd for cd in cands if cd.effect == "motor_heating"), None)
+        if heat_cand is not None and cur_ref is not None and best is None:
+            # a changed response to the same thermal state: the feature (driven by the command) is
+            # the same on both sets, so the pooled residual score cannot see it; identified on the
+            # speed directly, the measured and the reference sets fitted together
+            heat = fx.identify_heating(measured, reference)
+            round_ev["motor_heating"]["heating"] = heat.as_dict()
+            progress(f"  identified heating: {heat.describe()}")
+            if heat.changed:
+                ev = round_ev["motor_heating"]
+                ev["verdict_residual"] = ev["verdict"]
+                ev["verdict"] = "new"
+                ev["sentence"] = f"motor_heating: {heat.describe()}"
+                best = (s_own["motor_heating"].fraction, heat_cand)
+                dyn_params = {"tau_s": fx.HEATING_TAU_S}
         if best is not None and best[1].effect not in fx.DYNAMIC_EFFECTS and cur_ref is not None:
             pass
-        elif any(s_own[k].p_value < opts.alpha and s_own[k].fraction >= opts.min_effect
-                 for k in round_ev if k in fx.DYNAMIC_EFFECTS) and cur_ref is not None:
+        elif cur_ref is not None and (
+                any(s_own[k].p_value < opts.alpha and s_own[k].fraction >= opts.min_effect
+                    for k in round_ev if k in fx.DYNAMIC_EFFECTS)
+                or (best is None and _rmse(cur_meas.residuals) >= GAP_RATIO * _rmse(cur_ref.residuals))):
             # (judged on the measured data alone: which dynamic effect changed is decided by
             # identifying the response directly, not by the pooled residual correction)
-            # the measured residual has significant dynamic structure; whether it is NEW is
-            # decided below by comparing the identified response with the reference's
+            # the measured residual has significant dynamic structure, or is far larger than the
+            # reference's with no residual feature to explain it (a changed static map, as a start
+            # level, re-weights into the null columns); whether anything is NEW is decided below
+            # by comparing the identified response with the reference's
             if best is None or best[1].effect not in fx.DYNAMIC_EFFECTS:
                 best = max(((s_own[k].fraction, cd) for cd in cands for k in [cd.effect]
                             if k in fx.DYNAMIC_EFFECTS and s_own[k].p_value < opts.alpha),
-                           key=lambda x: x[0])
+                           key=lambda x: x[0], default=None)
+            gap_txt = (f"({best[1].effect}'s feature removes {100 * best[0]:.0f} % of it, "
+                       f"p = {s_own[best[1].effect].p_value:.2g})" if best is not None else
+                       f"(its RMSE is {_rmse(cur_meas.residuals):.1f} rad/s vs {_rmse(cur_ref.residuals):.1f} "
+                       f"rad/s on the reference)")
             # lag, dead time and spin-down all change the response to a command change, and a
             # residual explained by one is partly explained by the others: which one CHANGED is
             # decided by identifying the response itself on the measured and the reference data
@@ -424,7 +480,11 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
                 progress("  a dynamic effect is new: identifying dead time and spin-up/spin-down "
                          "time constants on the measured and the reference recordings")
                 dyn = (fx.identify_dynamics(measured), fx.identify_dynamics(reference))
-            choice, why = fx.which_dynamic(dyn[0], dyn[1], exclude=named)
+                if any(cd.effect == "esc_deadband" for cd in cands):
+                    for dy, sigs in zip(dyn, (measured, reference)):
+                        dy.start_level = fx.identify_start_level(sigs, dy)
+            offered = {cd.effect for cd in cands}
+            choice, why = fx.which_dynamic(dyn[0], dyn[1], exclude=[*named, *(set(c.EFFECTS) - offered)])
             dynamics_info = {"measured": dyn[0].as_dict(), "reference": dyn[1].as_dict(),
                              "changed": choice, "because": why}
             progress(f"  identified dynamics: {why}")
@@ -444,17 +504,20 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
                     ev = round_ev[choice]
                     ev["verdict_residual"] = ev["verdict"]
                     ev["verdict"] = "new"
-                    ev["sentence"] = (f"{choice}: {why}; the model's residual on held-out blocks of the measured "
-                                      f"data follows the command's changes "
-                                      f"({best[1].effect}'s feature removes {100 * best[0]:.0f} % of it, "
-                                      f"p = {s_own[best[1].effect].p_value:.2g})")
+                    ev["sentence"] = (f"{choice}: {why}; the model's residual on the measured data "
+                                      f"follows the command {gap_txt}")
                     best = (s_own[choice].fraction, cand_c)
             if best is not None and choice == best[1].effect:
                 m = dyn[0]
                 dyn_params = {"rotor_lag": {"tau_s": max(m.tau_up_s, 0.02)},
                               "spin_down_asymmetry": {"tau_up_s": max(m.tau_up_s, 0.02),
                                                       "tau_down_s": max(m.tau_down_s, 0.04)},
+                              "esc_deadband": {"threshold": m.start_level},
+                              # the model already has the reference's own dead time: add the change
+                              "input_delay": {"delay_s": max(m.delay_s - dyn[1].delay_s, 0.01)},
                               }.get(choice)
+                if choice == "esc_deadband":
+                    ref_params = {"threshold": dyn[1].start_level}
             if best is not None:
                 round_ev[best[1].effect]["dynamics"] = dynamics_info
         if best is None or len(named) >= opts.max_effects:
@@ -471,7 +534,7 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
         evidence[cand.effect]["fitted_parameters"] = params
         progress(f"  named: {round_ev[cand.effect]['sentence']}")
         progress(f"step 4: adding {cand.effect} as input '{cand.input_name}' {params or ''}")
-        new_model = retrain(current, cand, params, reference, measured, opts, progress)
+        new_model = retrain(current, cand, params, reference, measured, opts, progress, ref_params)
         added_inputs.append(cand.input_name)
         hold_new = run_model(new_model, hold)
         iterations[-1].update({
