@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The main job end to end on the bundled sample bags: train -> replay -> evaluate -> discrepancy.
+# The main job end to end on the bundled sample bags: train -> replay -> evaluate -> discrepancy
+# (network and physics models).
 # Outputs go to demo/ (git-ignored); every step prints what it found.
 source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
 BP=.venv/bin/bldc-propulsion
@@ -25,4 +26,9 @@ tail -n 1 $OUT/train_no_voltage.log | sed 's/^/  last epoch: /'
 $BP discrepancy --model $OUT/model_no_voltage.npz --measured bags/discharge_a \
     --holdout bags/discharge_b --max-effects 1 -o $OUT/model_found.npz --report $OUT/report_discrepancy --force
 
-step "figures: $OUT/report_train/index.html $OUT/report_eval/index.html $OUT/report_discrepancy/index.html"
+step "5. the same question with the bench physics as the model: the nominal motor and propeller, every effect off"
+$BP discrepancy --physics --measured bags/staircase bags/validation --holdout bags/discharge_b \
+    --max-effects 4 -o $OUT/physics_found.json --report $OUT/report_physics --force 2>$OUT/physics.log
+grep -E "^step (4|5)" $OUT/physics.log | sed 's/^/  /'
+
+step "figures: $OUT/report_train/index.html $OUT/report_eval/index.html $OUT/report_discrepancy/index.html $OUT/report_physics/index.html"

@@ -80,6 +80,12 @@ def test_calibration_recovers_changed_kv_and_cp(tmp_path):
     got = fit.model.constants()
     assert got["motor_kv_rpm_per_v"] == pytest.approx(true.motor_kv_rpm_per_v, rel=0.03)
     assert got["propeller_cp"] == pytest.approx(true.propeller_cp, rel=0.05)
+    # a start a rounding error away from the anchor calibrates the same (scipy's trust radius
+    # starts at ||x0||: unshifted, it was 1e-16 here and the constants never moved)
+    anchor = np.array(list(model.constants().values())) * (1.0 + 1e-15)
+    again = ph.calibrate(model, ph.Data.of([s], "measured"), anchor, ph.LOG_RANGE_BASE).model.constants()
+    for name, value in got.items():
+        assert again[name] == pytest.approx(value, rel=1e-3)
 
 
 # --- hidden effects --------------------------------------------------------------------------------

@@ -40,10 +40,13 @@ from ..training.dataset import Signals
 from . import scoring as sc
 
 #: Constants calibrated on the measured data, log-parameterised: first within a factor
-#: 10^LOG_RANGE_BASE of the CONFIG's (another motor and propeller: a 5 in propeller has
-#: (5/12)^5 = 1/80 of the 12 in one's CP D^5), then, with effects switched on, within a factor
-#: 10^LOG_RANGE_EFFECT of that calibration: an effect may shift the constants, not replace the
-#: propeller law (with CP -> 0 the speed becomes linear in duty and stands in for missing effects).
+#: e^LOG_RANGE_BASE of the CONFIG's (another motor and propeller: a 5 in propeller has
+#: (5/12)^5 = 1/80 of the 12 in one's CP D^5), then, with effects switched on, within the span of
+#: that calibration and the CONFIG's values widened by a factor e^LOG_RANGE_EFFECT: an effect may
+#: shift the constants (back towards the CONFIG's, which the first calibration, made without the
+#: effects, may have left to stand in for them: on the bundled bags CP 0.0026 vs 0.042), not
+#: replace the propeller law (with CP -> 0 the speed becomes linear in duty and stands in for
+#: missing effects).
 CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp")
 LOG_RANGE_BASE = math.log(1000.0)
 LOG_RANGE_EFFECT = math.log(3.0)
@@ -215,39 +218,48 @@ class Fit:
     J: np.ndarray  #: d r / d (log constant, free strength): one column per CALIBRATED, then free
     sse: float
     anchor: np.ndarray  #: constants the calibration stays within a factor exp(log_range) of
-    log_range: float
+    log_range: np.ndarray  #: per constant (log scale)
     free: tuple[str, ...] = ()  #: effects whose strengths were fitted along (those added so far)
 
 
-def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: float,
+def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: np.ndarray | float,
               free: Sequence[str] = (), max_nfev: int = 40) -> Fit:
     """Kv and CP (log scale, within a factor exp(log_range) of ``anchor``) and the strengths of
     the effects ``free`` fitted by least squares from ``model``'s values: an effect added earlier
     gets its strength refitted with each later one, so it cannot keep standing in for a missing one."""
     nc = len(CALIBRATED)
+    # The solver's variables are the log constants shifted by 1: scipy's 'trf' starts with a trust
+    # radius of ||x0|| (1 only when x0 is exactly 0), so a start a rounding error away from the
+    # anchor (log 1e-16) would never move; shifted, the radius is ~1 wherever the start is.
+    shift = np.concatenate([np.ones(nc), np.zeros(len(free))])
 
-    def unpack(x: np.ndarray) -> PhysicsModel:
+    def unpack(z: np.ndarray) -> PhysicsModel:
+        x = z - shift
         m = model.with_constants(anchor * np.exp(x[:nc]))
         for name, v in zip(free, x[nc:]):
             m = m.with_effect(name, v)
         return m
 
-    lo = np.concatenate([np.full(nc, -log_range), np.zeros(len(free))])
-    hi = np.concatenate([np.full(nc, log_range), [STRENGTH_MAX[n] for n in free]])
+    span = np.broadcast_to(np.asarray(log_range, dtype=float), (nc,))
+    lo = np.concatenate([-span, np.zeros(len(free))]) + shift
+    hi = np.concatenate([span, [STRENGTH_MAX[n] for n in free]]) + shift
     x0 = np.concatenate([np.log([getattr(model.params, n) for n in CALIBRATED] / anchor),
-                         [model.effects[n] for n in free]])
-    res = least_squares(lambda x: data.residual(unpack(x)), np.clip(x0, lo, hi), bounds=(lo, hi),
+                         [model.effects[n] for n in free]]) + shift
+    res = least_squares(lambda z: data.residual(unpack(z)), np.clip(x0, lo, hi), bounds=(lo, hi),
                         diff_step=1e-3, max_nfev=max_nfev)
     # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds)
     J = np.where(np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
-    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, log_range, tuple(free))
+    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span.copy(), tuple(free))
 
 
 def calibrate_base(model: PhysicsModel, data: Data) -> Fit:
-    """The CONFIG's constants calibrated (wide range); later fits stay near the result."""
-    fit = calibrate(model, data, np.array(list(model.constants().values())), LOG_RANGE_BASE)
-    return dataclasses.replace(fit, anchor=np.array(list(fit.model.constants().values())),
-                               log_range=LOG_RANGE_EFFECT)
+    """The CONFIG's constants calibrated (wide range); later fits stay between the result and
+    the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean)."""
+    config = np.log(np.array(list(model.constants().values())))
+    fit = calibrate(model, data, np.exp(config), LOG_RANGE_BASE)
+    cal = np.log(np.array(list(fit.model.constants().values())))
+    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)),
+                               log_range=0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT)
 
 
 def recalibrate(fit: Fit, model: PhysicsModel, data: Data, free: Sequence[str] | None = None) -> Fit:
