@@ -75,6 +75,16 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
     return found, missing
 
 
+def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Any], list[Any], list[Any]]:
+    """The measured, reference and holdout recordings, read through the cores."""
+    progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
+             f"{len(args.holdout or [])} holdout recording(s)")
+    measured = load_all(args.measured, "measured")
+    reference = load_all(ref_paths, "reference") if ref_paths else []
+    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    return measured, reference, holdout
+
+
 def run(args: argparse.Namespace) -> CommandResult:
     from ..model import load_model, save_model
 
@@ -98,11 +108,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         if missing:
             warnings.append(f"{len(missing)} of the model's training recordings not found "
                             f"(e.g. {missing[0]}); give --reference")
-    progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
-             f"{len(args.holdout or [])} holdout recording(s)")
-    measured = load_all(args.measured, "measured")
-    reference = load_all(ref_paths, "reference") if ref_paths else []
-    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    measured, reference, holdout = _recordings(args, ref_paths)
     opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
                    max_epochs=300 if args.max_epochs is None else args.max_epochs,
                    seed=0 if args.seed is None else args.seed, alpha=args.alpha,
@@ -138,11 +144,7 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
         if value is not None:
             raise BadInputError(f"{flag}: retrains a network, so it goes with --model, not --physics")
     model = load_config(args.physics)
-    progress(f"reading {len(args.measured)} measured, {len(args.reference or [])} reference and "
-             f"{len(args.holdout or [])} holdout recording(s)")
-    measured = load_all(args.measured, "measured")
-    reference = load_all(args.reference, "reference") if args.reference else []
-    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report)
     result = run_physics_workflow(model, measured, reference, holdout, opts, progress)

@@ -25,8 +25,8 @@ from ..errors import BadInputError
 from ..training.dataset import Signals
 from . import physics as ph
 from . import residuals as rs
-from .workflow import (STRUCTURAL_RATIO, DataSet, Options, Progress, WorkflowResult, _rmse, classify,
-                       explained_mse, summary_lines, windows_of, write_report)
+from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, classify, explained_mse, gap_fields,
+                       shared_fields, summary_lines, windows_of, write_report)
 
 
 def predictions(model: ph.PhysicsModel, signals: Sequence[Signals]) -> DataSet:
@@ -160,32 +160,19 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
     # step 5: the gap
     hold_final = predictions(cur.model, hold) if named else hold_base
     hold_windows, hold_masks = windows_of(hold_base, threshold)
-    any_win = any(m.any() for m in hold_masks)
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
-        "holdout_rmse_before": _rmse(hold_base.residuals),
-        "holdout_rmse_after": _rmse(hold_final.residuals),
+        **gap_fields(hold_base, hold_final, hold_masks),
         "holdout_rmse_uncalibrated": uncal_rmse,
-        "holdout_rmse_in_windows_before": _rmse(hold_base.residuals, hold_masks) if any_win else None,
-        "holdout_rmse_in_windows_after": _rmse(hold_final.residuals, hold_masks) if any_win else None,
-        "holdout_in_sample": in_sample,
-        "holdout_recordings": [s.path for s in hold],
-        "windows": [w.as_dict() for w in windows],
-        "holdout_windows": [w.as_dict() for w in hold_windows],
-        "window_threshold_rad_s": threshold,
+        **shared_fields(hold, windows, hold_windows, threshold, tests_meas, tests_ref, reference, measured, opts,
+                        in_sample),
         "evidence": evidence,
-        "residual_tests": {"measured": tests_meas.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
         "conditions": conditions,
         "iterations": iterations,
         "calibrated_base": base.config(),
         "physics": cur.model.config(),
-        "reference_recordings": [s.path for s in reference],
-        "measured_recordings": [s.path for s in measured],
-        "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
-                     "structural_ratio": STRUCTURAL_RATIO,
-                     "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
         "warnings": warnings,
         "model": None,
     }

@@ -551,33 +551,17 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
     # step 5: the gap
     hold_final = run_model(current, hold) if current is not base else hold_base
     hold_windows, hold_masks = windows_of(hold_base, threshold)
-    before = _rmse(hold_base.residuals)
-    after = _rmse(hold_final.residuals)
-    win_before = _rmse(hold_base.residuals, hold_masks) if any(m.any() for m in hold_masks) else None
-    win_after = _rmse(hold_final.residuals, hold_masks) if any(m.any() for m in hold_masks) else None
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
-        "holdout_rmse_before": before,
-        "holdout_rmse_after": after,
-        "holdout_rmse_in_windows_before": win_before,
-        "holdout_rmse_in_windows_after": win_after,
-        "holdout_in_sample": in_sample_holdout,
-        "holdout_recordings": [s.path for s in hold],
-        "windows": [w.as_dict() for w in windows],
-        "holdout_windows": [w.as_dict() for w in hold_windows],
-        "window_threshold_rad_s": threshold,
+        **gap_fields(hold_base, hold_final, hold_masks),
+        **shared_fields(hold, windows, hold_windows, threshold, tests, tests_ref, reference, measured, opts,
+                        in_sample_holdout),
         "evidence": evidence,
-        "residual_tests": {"measured": tests.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
         "conditions": conditions,
         "iterations": iterations,
         "added_inputs": added_inputs,
-        "reference_recordings": [s.path for s in reference],
-        "measured_recordings": [s.path for s in measured],
-        "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
-                     "structural_ratio": STRUCTURAL_RATIO,
-                     "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
         "warnings": warnings,
         "model": None,
     }
@@ -586,6 +570,36 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
                                       hold_windows, data)
     lines = summary_lines(data)
     return WorkflowResult(data, current, lines)
+
+
+def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.ndarray]) -> dict[str, Any]:
+    """Step 5's figures: holdout RMSE before and after, overall and inside the holdout's windows."""
+    any_win = any(m.any() for m in hold_masks)
+    return {
+        "holdout_rmse_before": _rmse(hold_base.residuals),
+        "holdout_rmse_after": _rmse(hold_final.residuals),
+        "holdout_rmse_in_windows_before": _rmse(hold_base.residuals, hold_masks) if any_win else None,
+        "holdout_rmse_in_windows_after": _rmse(hold_final.residuals, hold_masks) if any_win else None,
+    }
+
+
+def shared_fields(hold: Sequence[Signals], windows: Sequence[rs.Window], hold_windows: Sequence[rs.Window],
+                  threshold: float, tests: Any, tests_ref: Any, reference: Sequence[Signals],
+                  measured: Sequence[Signals], opts: Options, in_sample: bool) -> dict[str, Any]:
+    """The --json fields both model kinds (network, physics) report the same way."""
+    return {
+        "holdout_in_sample": in_sample,
+        "holdout_recordings": [s.path for s in hold],
+        "windows": [w.as_dict() for w in windows],
+        "holdout_windows": [w.as_dict() for w in hold_windows],
+        "window_threshold_rad_s": threshold,
+        "residual_tests": {"measured": tests.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
+        "reference_recordings": [s.path for s in reference],
+        "measured_recordings": [s.path for s in measured],
+        "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
+                     "structural_ratio": STRUCTURAL_RATIO,
+                     "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
+    }
 
 
 def summary_lines(data: dict[str, Any]) -> list[str]:
