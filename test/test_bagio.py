@@ -146,7 +146,9 @@ def test_sigint_during_a_bag_write_leaves_no_partial_bag(tmp_path):
                     time.sleep(0.01)
     """)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env)
+    # SIGINT back to its default in the child (see test_reliability_sigint.default_sigint)
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert proc.stdout.readline().strip() == b"writing"
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=30)

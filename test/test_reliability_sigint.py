@@ -25,6 +25,13 @@ BAGS = ROOT / "bags"
 PY = [sys.executable, "-m", "bldc_propulsion.cli"]
 
 
+
+def default_sigint() -> None:
+    """In the child before exec: SIGINT back to its default. A test run started in the background
+    by a shell without job control (``cmd &``) inherits SIGINT ignored, and a Python started with
+    it ignored never installs its KeyboardInterrupt handler, so the signal would be lost."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 def _env():
     return {**os.environ, "PYTHONPATH": str(ROOT)}
 
@@ -46,6 +53,7 @@ def leftovers(parent: Path, name: str) -> list[Path]:
 def interrupt(args: list, out: Path, *, when: str, timeout: float = 120.0):
     """Start the CLI, wait for ``when`` ('epoch' line or 'staging' dir), send SIGINT; (rc, stderr)."""
     proc = subprocess.Popen([*PY, *map(str, args)], cwd=out.parent, env=_env(), text=True,
+                            preexec_fn=default_sigint,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(iter(proc.stderr.readline, "")), daemon=True)
