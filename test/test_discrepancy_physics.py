@@ -175,6 +175,14 @@ def test_cli_bad_config_is_a_one_line_error(text, word, bags_dir, tmp_path):
     assert word in proc.stderr and str(cfg) in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("flag", [["--hidden", "5"], ["--max-epochs", "10"], ["--seed", "1"]])
+def test_cli_network_flags_are_refused_with_physics(flag, bags_dir):
+    """Options of the network's retraining mean nothing to the physics model: refused, not ignored."""
+    proc = cli("discrepancy", "--physics", "--measured", recordings(bags_dir, "rotor_lag")["measured"][0], *flag)
+    assert proc.returncode == 2, proc.stderr
+    assert flag[0] in proc.stderr and "--model" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
 def test_cli_json_output_and_round_trip(bags_dir, tmp_path):
     paths = recordings(bags_dir, "rotor_lag")
     cfg = tmp_path / "base.json"
