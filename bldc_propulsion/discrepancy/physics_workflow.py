@@ -182,4 +182,8 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
     lines = ["physics model calibrated on the measured data: "
              + ", ".join(f"{k} {v:.4g}" for k, v in base.constants().items())
              + f" (holdout RMSE {uncal_rmse:.2f} rad/s before calibration)", *summary_lines(data)]
+    if named:
+        lines.append("with " + ", ".join(named) + ": " + ", ".join(
+            f"{k} {v:.4g}" for k, v in cur.model.constants().items()) + "; strengths " + ", ".join(
+            f"{n} {cur.model.effects[n]:.2f}" for n in named))
     return WorkflowResult(data, cur.model, lines)
