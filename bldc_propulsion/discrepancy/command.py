@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -11,7 +12,7 @@ from .. import contract as c
 from ..cli import CommandResult, progress
 from ..errors import BadInputError, OutputExistsError
 from ..training.train import load_all
-from .workflow import ALPHA, MIN_EFFECT, Options, run_workflow
+from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
 
 
 def _effects(text: str) -> list[str]:
@@ -88,9 +89,7 @@ def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[An
 def run(args: argparse.Namespace) -> CommandResult:
     from ..model import load_model, save_model
 
-    for name in args.effects or []:
-        if name not in c.EFFECTS:
-            raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    check_effect_names(args.effects)
     if args.max_effects < 1:
         raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
     if not 0.0 < args.alpha < 1.0:
@@ -115,24 +114,17 @@ def run(args: argparse.Namespace) -> CommandResult:
                    min_effect=args.min_reduction, report_dir=args.report)
     result = run_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
-    lines = list(result.lines)
-    if args.output:
-        if data["named"]:
-            meta = result.model.metadata
-            meta["discrepancy"] = {
-                "base_model": str(args.model),
-                "added": [{"effect": n, "input": data["added_inputs"][k],
-                           "parameters": data["evidence"][n].get("fitted_parameters", {})}
-                          for k, n in enumerate(data["named"])],
-            }
-            save_model(result.model, args.output, force=args.force)
-            data["model"] = str(args.output)
-            lines.append(f"saved the model with {', '.join(data['named'])} added to {args.output}")
-        else:
-            lines.append(f"nothing added: {args.output} not written")
-    warnings += data.pop("warnings", [])
-    data["warnings"] = warnings
-    return CommandResult(data, "\n".join(lines), warnings=warnings)
+
+    def save() -> None:
+        result.model.metadata["discrepancy"] = {
+            "base_model": str(args.model),
+            "added": [{"effect": n, "input": data["added_inputs"][k],
+                       "parameters": data["evidence"][n].get("fitted_parameters", {})}
+                      for k, n in enumerate(data["named"])],
+        }
+        save_model(result.model, args.output, force=args.force)
+
+    return _finish(args, result, save, "the model", warnings)
 
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
@@ -149,17 +141,29 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
                    min_effect=args.min_reduction, report_dir=args.report)
     result = run_physics_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
+
+    def save() -> None:
+        save_config(result.model, args.output, args.force, {
+            "base": args.physics or None,
+            "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
+            "measured": [str(p) for p in args.measured]})
+
+    return _finish(args, result, save, "the physics config", [])
+
+
+def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,
+            warnings: list[str]) -> CommandResult:
+    """Step 4's output for either model kind: ``save()`` the model with the named effects to -o
+    (nothing is written when nothing was named), then the summary and every warning."""
+    data = result.data
     lines = list(result.lines)
     if args.output:
         if data["named"]:
-            save_config(result.model, args.output, args.force, {
-                "base": args.physics or None,
-                "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
-                "measured": [str(p) for p in args.measured]})
+            save()
             data["model"] = str(args.output)
-            lines.append(f"saved the physics config with {', '.join(data['named'])} added to {args.output}")
+            lines.append(f"saved {what} with {', '.join(data['named'])} added to {args.output}")
         else:
             lines.append(f"nothing added: {args.output} not written")
-    warnings = data.pop("warnings", [])
+    warnings = [*warnings, *data.pop("warnings", [])]
     data["warnings"] = warnings
     return CommandResult(data, "\n".join(lines), warnings=warnings)

@@ -17,6 +17,7 @@ rotor's dynamics, ``identify_start_level``) and motor heating (``identify_heatin
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -110,8 +111,6 @@ def _deadband_columns(ctx: Context, params: Params) -> np.ndarray:
 def _reference_at_own_start_level(sig: Signals, meas: Params, ref: Params) -> Signals:
     """The reference's command re-expressed so that max(pwm - measured start level, 0) is the
     drive its own (identified) start level gives: the same duty, on the measured data's scale."""
-    import dataclasses
-
     thr_m, thr_r = float(meas["threshold"]), float(ref["threshold"])
     gain = (c.PWM_FULL - thr_m) / (c.PWM_FULL - thr_r)
 

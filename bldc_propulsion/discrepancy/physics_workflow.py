@@ -18,15 +18,16 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from .. import contract as c
-from ..errors import BadInputError
 from ..training.dataset import Signals
 from . import physics as ph
-from . import residuals as rs
-from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, classify, explained_mse, gap_fields,
-                       shared_fields, summary_lines, windows_of, write_report)
+from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, check_effect_names, classify,
+                       explained_mse, find_disagreement, gap_fields, shared_fields, summary_lines, windows_of,
+                       write_report)
+
+
+def constants_text(model: ph.PhysicsModel) -> str:
+    return ", ".join(f"{k} {v:.4g}" for k, v in model.constants().items())
 
 
 def predictions(model: ph.PhysicsModel, signals: Sequence[Signals]) -> DataSet:
@@ -50,10 +51,7 @@ def sentence(name: str, strength: float, p: Any, m: Any, r: Any, verdict: str) -
 
 def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], reference: Sequence[Signals],
                          holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
-    restrict = list(opts.restrict) if opts.restrict else list(c.EFFECTS)
-    for name in restrict:
-        if name not in c.EFFECTS:
-            raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    restrict = check_effect_names(opts.restrict) or list(c.EFFECTS)
     warnings: list[str] = []
     if not reference:
         warnings.append("no --reference recordings: new and structural findings cannot be told apart")
@@ -72,29 +70,14 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
     cur = ph.calibrate_base(model, meas_data)
     cur_ref = ph.calibrate_base(model, ref_data) if ref_data else None
     base = cur.model
-    progress("  calibrated: " + ", ".join(f"{k} {v:.4g}" for k, v in base.constants().items())
+    progress(f"  calibrated: {constants_text(base)}"
              + f" (holdout RMSE {uncal_rmse:.2f} rad/s uncalibrated)")
     meas = predictions(base, measured)
     ref = predictions(cur_ref.model, reference) if cur_ref else None
     hold_base = predictions(base, hold)
 
     # step 2
-    noise = rs.robust_sigma(np.concatenate(ref.residuals if ref else meas.residuals))
-    if not np.isfinite(noise) or noise <= 0:
-        noise = rs.robust_sigma(np.concatenate(meas.residuals))
-    threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
-    windows, _ = windows_of(meas, threshold)
-
-    def tests(ds: DataSet) -> rs.ResidualTests:
-        return rs.residual_tests(ds.residuals, [{"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)}
-                                                for s in ds.signals])
-
-    tests_meas, tests_ref = tests(meas), (tests(ref) if ref else None)
-    conditions = rs.condition_bins([s.t for s in measured], meas.residuals, [s.pwm for s in measured],
-                                   [s.voltage for s in measured])
-    progress(f"step 2: {len(windows)} disagreement window(s) above {threshold:.1f} rad/s; measured "
-             f"residual RMSE {_rmse(meas.residuals):.2f} rad/s" + (f", reference {_rmse(ref.residuals):.2f} rad/s"
-                                                                 if ref else ""))
+    found = find_disagreement(meas, ref, progress)
 
     named: list[str] = []
     structural: list[dict[str, Any]] = []
@@ -154,22 +137,20 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
                               holdout_rmse_rad_s=_rmse(hold_new.residuals))
         progress(f"  named: {evidence[name]['sentence']}")
         progress(f"step 4: added {ph.describe(name, strength, cur.model.params)}; constants now "
-                 + ", ".join(f"{k} {v:.4g}" for k, v in cur.model.constants().items()))
+                 f"{constants_text(cur.model)}")
         progress(f"step 5: holdout RMSE {_rmse(hold_base.residuals):.2f} -> {_rmse(hold_new.residuals):.2f} rad/s")
 
     # step 5: the gap
     hold_final = predictions(cur.model, hold) if named else hold_base
-    hold_windows, hold_masks = windows_of(hold_base, threshold)
+    hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
         **gap_fields(hold_base, hold_final, hold_masks),
         "holdout_rmse_uncalibrated": uncal_rmse,
-        **shared_fields(hold, windows, hold_windows, threshold, tests_meas, tests_ref, reference, measured, opts,
-                        in_sample),
+        **shared_fields(hold, found, hold_windows, reference, measured, opts, in_sample),
         "evidence": evidence,
-        "conditions": conditions,
         "iterations": iterations,
         "calibrated_base": base.config(),
         "physics": cur.model.config(),
@@ -177,13 +158,11 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
         "model": None,
     }
     if opts.report_dir:
-        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, windows,
+        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, found.windows,
                                       hold_windows, data)
-    lines = ["physics model calibrated on the measured data: "
-             + ", ".join(f"{k} {v:.4g}" for k, v in base.constants().items())
+    lines = [f"physics model calibrated on the measured data: {constants_text(base)}"
              + f" (holdout RMSE {uncal_rmse:.2f} rad/s before calibration)", *summary_lines(data)]
     if named:
-        lines.append("with " + ", ".join(named) + ": " + ", ".join(
-            f"{k} {v:.4g}" for k, v in cur.model.constants().items()) + "; strengths " + ", ".join(
-            f"{n} {cur.model.effects[n]:.2f}" for n in named))
+        lines.append(f"with {', '.join(named)}: {constants_text(cur.model)}; strengths "
+                     + ", ".join(f"{n} {cur.model.effects[n]:.2f}" for n in named))
     return WorkflowResult(data, cur.model, lines)

@@ -340,12 +340,49 @@ def windows_of(ds: DataSet, threshold: float) -> tuple[list[rs.Window], list[np.
     return wins, masks
 
 
-def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
-                 holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
-    restrict = list(opts.restrict) if opts.restrict else None
-    for name in restrict or []:
+def check_effect_names(names: Sequence[str] | None) -> list[str]:
+    """``names`` as a list; BadInputError naming the first one that is not an effect of the contract."""
+    for name in names or []:
         if name not in c.EFFECTS:
             raise BadInputError(f"--effects {name}: unknown effect (known: {', '.join(c.EFFECTS)})")
+    return list(names or [])
+
+
+@dataclass
+class Disagreement:
+    """Step 2: where the model and the measured data disagree, and the residual tests."""
+
+    threshold: float  #: rad/s: THRESHOLD_SIGMAS x the robust sigma of the reference residual
+    windows: list[rs.Window]
+    tests: Any  #: residuals.residual_tests on the measured data
+    tests_ref: Any  #: the same on the reference data, or None
+    conditions: Any  #: residuals.condition_bins on the measured data (the disagreement map)
+
+
+def find_disagreement(meas: DataSet, ref: DataSet | None, progress: Progress) -> Disagreement:
+    """Windows above 3 sigma of the reference residual (the measured one without a reference),
+    whiteness and cross-correlation tests, residual per operating condition."""
+    noise = rs.robust_sigma(np.concatenate(ref.residuals if ref else meas.residuals))
+    if not np.isfinite(noise) or noise <= 0:
+        noise = rs.robust_sigma(np.concatenate(meas.residuals))
+    threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
+    windows, _ = windows_of(meas, threshold)
+
+    def tests(ds: DataSet) -> Any:
+        return rs.residual_tests(ds.residuals, [{"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)}
+                                                for s in ds.signals])
+
+    conditions = rs.condition_bins([s.t for s in meas.signals], meas.residuals,
+                                   [s.pwm for s in meas.signals], [s.voltage for s in meas.signals])
+    progress(f"step 2: {len(windows)} disagreement window(s) above {threshold:.1f} rad/s; "
+             f"measured residual RMSE {_rmse(meas.residuals):.2f} rad/s"
+             + (f", reference {_rmse(ref.residuals):.2f} rad/s" if ref else ""))
+    return Disagreement(threshold, windows, tests(meas), tests(ref) if ref else None, conditions)
+
+
+def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
+                 holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+    restrict = check_effect_names(opts.restrict) or None
     check_inputs_computable(model, [*measured, *reference, *holdout])
     warnings: list[str] = []
     if not reference:
@@ -366,20 +403,7 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
     speed_scale = max(float(model.output_max), 1.0)
 
     # step 2
-    noise = rs.robust_sigma(np.concatenate(ref.residuals if ref else meas.residuals))
-    if not np.isfinite(noise) or noise <= 0:
-        noise = rs.robust_sigma(np.concatenate(meas.residuals))
-    threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
-    windows, _ = windows_of(meas, threshold)
-    tests = rs.residual_tests(meas.residuals, [
-        {"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)} for s in meas.signals])
-    tests_ref = (rs.residual_tests(ref.residuals, [
-        {"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)} for s in ref.signals]) if ref else None)
-    conditions = rs.condition_bins([s.t for s in meas.signals], meas.residuals,
-                                   [s.pwm for s in meas.signals], [s.voltage for s in meas.signals])
-    progress(f"step 2: {len(windows)} disagreement window(s) above {threshold:.1f} rad/s; "
-             f"measured residual RMSE {_rmse(meas.residuals):.2f} rad/s"
-             + (f", reference {_rmse(ref.residuals):.2f} rad/s" if ref else ""))
+    found = find_disagreement(meas, ref, progress)
 
     named: list[str] = []
     structural: list[dict[str, Any]] = []
@@ -550,23 +574,21 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
 
     # step 5: the gap
     hold_final = run_model(current, hold) if current is not base else hold_base
-    hold_windows, hold_masks = windows_of(hold_base, threshold)
+    hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
         **gap_fields(hold_base, hold_final, hold_masks),
-        **shared_fields(hold, windows, hold_windows, threshold, tests, tests_ref, reference, measured, opts,
-                        in_sample_holdout),
+        **shared_fields(hold, found, hold_windows, reference, measured, opts, in_sample_holdout),
         "evidence": evidence,
-        "conditions": conditions,
         "iterations": iterations,
         "added_inputs": added_inputs,
         "warnings": warnings,
         "model": None,
     }
     if opts.report_dir:
-        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, windows,
+        data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, found.windows,
                                       hold_windows, data)
     lines = summary_lines(data)
     return WorkflowResult(data, current, lines)
@@ -583,17 +605,19 @@ def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.
     }
 
 
-def shared_fields(hold: Sequence[Signals], windows: Sequence[rs.Window], hold_windows: Sequence[rs.Window],
-                  threshold: float, tests: Any, tests_ref: Any, reference: Sequence[Signals],
-                  measured: Sequence[Signals], opts: Options, in_sample: bool) -> dict[str, Any]:
+def shared_fields(hold: Sequence[Signals], found: Disagreement, hold_windows: Sequence[rs.Window],
+                  reference: Sequence[Signals], measured: Sequence[Signals], opts: Options,
+                  in_sample: bool) -> dict[str, Any]:
     """The --json fields both model kinds (network, physics) report the same way."""
     return {
         "holdout_in_sample": in_sample,
         "holdout_recordings": [s.path for s in hold],
-        "windows": [w.as_dict() for w in windows],
+        "windows": [w.as_dict() for w in found.windows],
         "holdout_windows": [w.as_dict() for w in hold_windows],
-        "window_threshold_rad_s": threshold,
-        "residual_tests": {"measured": tests.as_dict(), "reference": tests_ref.as_dict() if tests_ref else None},
+        "window_threshold_rad_s": found.threshold,
+        "residual_tests": {"measured": found.tests.as_dict(),
+                           "reference": found.tests_ref.as_dict() if found.tests_ref else None},
+        "conditions": found.conditions,
         "reference_recordings": [s.path for s in reference],
         "measured_recordings": [s.path for s in measured],
         "decision": {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect,
