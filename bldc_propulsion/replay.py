@@ -1,11 +1,13 @@
 """ROS-free replay: the nodes' cores over a recording, in message-time order.
 
-What ``replay`` writes is what the three nodes publish during ``ros2 bag play --clock``:
-- ``battery/voltage`` for every accepted ``battery/adc`` sample (the node's decimation 1),
-- ``rotor/speed`` and ``rotor/rpm`` once per ``tachometer/adc`` batch (the core's latest
-  estimate, 0 after signal loss),
-- ``predicted/speed`` and ``predicted/thrust`` on the estimator's timer (100 Hz from the first
-  PWM message), fed with the filtered voltage as the node is through ``battery/voltage``,
+What ``replay`` writes is what the three nodes publish for the same recording (the rules are
+shared, and ``test/test_nodes_live.py`` checks live = replay):
+- ``battery/voltage`` for accepted ``battery/adc`` samples at the node's publish_rate_hz
+  (``core.ticker.Ticker`` on sample time),
+- ``rotor/speed`` and ``rotor/rpm`` after each ``tachometer/adc`` batch that has a speed to
+  stand behind (``core.tach_output.SpeedOutput``: none across a break, 0 only when stopped),
+- ``predicted/speed`` and ``predicted/thrust`` on the estimator's 100 Hz grid from the first
+  PWM message, fed with the published filtered voltage as the node is through ``battery/voltage``,
 - ``diagnostics`` once a second with every core's status.
 A recording that already carries ``battery/voltage`` (e.g. an imported thrust-stand log) feeds
 the estimator from it instead of filtering ``battery/adc``.
@@ -20,11 +22,14 @@ from . import contract as c
 from .bagio import BagWriter, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
+from .core.tach_output import SpeedOutput
 from .core.tachometer import TachometerConfig, TachometerDecoder
+from .core.ticker import Ticker
 from .errors import BagError
 from .model import load_model
 
-ESTIMATOR_RATE_HZ = 100.0
+ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
+VOLTAGE_RATE_HZ = 50.0  #: battery_filter's publish_rate_hz default
 DIAGNOSTICS_RATE_HZ = 1.0
 
 
@@ -54,22 +59,23 @@ def replay_bag(
             )
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
+        speed_out = SpeedOutput(tach)
         est = ThrustEstimator(model)
         counts = {"messages_in": 0, "messages_out": 0}
         per_topic_in: dict[str, int] = {}
-        next_pred: float | None = None
+        predictions = Ticker(ESTIMATOR_RATE_HZ)
+        voltage_out = Ticker(VOLTAGE_RATE_HZ)
         next_diag: float | None = None
 
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
 
             def timers_until(t: float) -> None:
-                nonlocal next_pred, next_diag
-                while next_pred is not None and next_pred <= t:
-                    p = est.predict(next_pred)
+                nonlocal next_diag
+                for tick in predictions.due(t):
+                    p = est.predict(tick)
                     if p.ready:
-                        bag.write_float64(c.TOPIC_PREDICTED_SPEED, next_pred, p.speed_rad_s)
-                        bag.write_float64(c.TOPIC_PREDICTED_THRUST, next_pred, p.thrust_n)
-                    next_pred += 1.0 / ESTIMATOR_RATE_HZ
+                        bag.write_float64(c.TOPIC_PREDICTED_SPEED, tick, p.speed_rad_s)
+                        bag.write_float64(c.TOPIC_PREDICTED_THRUST, tick, p.thrust_n)
                 while next_diag is not None and next_diag <= t:
                     tach.check_timeout(next_diag)
                     statuses = [*filt.status(), *tach.status(), *est.status()]
@@ -83,21 +89,22 @@ def replay_bag(
                 if next_diag is None:
                     next_diag = t + 1.0 / DIAGNOSTICS_RATE_HZ
                 if topic == c.TOPIC_PWM:
-                    est.update_pwm(t, float(msg.data))
-                    if next_pred is None:
-                        next_pred = t
+                    if est.update_pwm(t, float(msg.data)):
+                        predictions.start(t)
                 elif topic == c.TOPIC_BATTERY_ADC:
                     v = filt.update(t, float(msg.data))
-                    if v is not None:
+                    if v is not None and voltage_out.take(t):
                         bag.write_battery_state(c.TOPIC_BATTERY_VOLTAGE, t, v)
                         if not has_voltage:
                             est.update_voltage(t, v)
                 elif topic == c.TOPIC_BATTERY_VOLTAGE:
                     est.update_voltage(t, float(msg.voltage))
                 elif topic == c.TOPIC_TACH_ADC:
-                    out = tach.process_batch(t, msg.data)
-                    bag.write_float64(c.TOPIC_ROTOR_SPEED, t, out.speed_now)
-                    bag.write_float64(c.TOPIC_ROTOR_RPM, t, out.speed_now * c.RAD_S_TO_RPM)
+                    tach.process_batch(t, msg.data)
+                    speed = speed_out.after_batch()
+                    if speed is not None:
+                        bag.write_float64(c.TOPIC_ROTOR_SPEED, t, speed)
+                        bag.write_float64(c.TOPIC_ROTOR_RPM, t, speed * c.RAD_S_TO_RPM)
                 timers_until(t)
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             timers_until(end)

@@ -9,7 +9,7 @@ config/propulsion.yaml), model (a model .npz; '' = model_path of params_file, wh
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
@@ -53,7 +53,7 @@ def launch_nodes(context):
 
     if LaunchConfiguration('single_process').perform(context).lower() in ('true', '1'):
         return [Node(package=PACKAGE, executable='propulsion_all', namespace=namespace,
-                     parameters=parameters, output='screen')]
+                     parameters=parameters, output='screen', on_exit=Shutdown())]
     return [Node(package=PACKAGE, executable=name, name=name, namespace=namespace,
-                 parameters=parameters, output='screen')
+                 parameters=parameters, output='screen', on_exit=Shutdown())
             for name in NODES]

@@ -1,28 +1,31 @@
-"""Four motors, /motor0 ... /motor3, from one parameter file.
+"""A quadrotor: one pack, four motors (../shared/interfaces.md, "A quadrotor").
 
-    ros2 launch bldc_propulsion quadrotor.launch.py                       # 12 processes
+    ros2 launch bldc_propulsion quadrotor.launch.py                       # 9 processes
     ros2 launch bldc_propulsion quadrotor.launch.py single_process:=true  # 1 process
 
-Separate processes: propulsion.launch.py included once per motor with namespace motor<i>.
-single_process:=true: one propulsion_all process running the 12 nodes (--motors 4).
-Arguments use_sim_time, params_file and model are passed to every motor.
+One battery filter at the root (/battery/adc -> /battery/voltage), and under /motor<i> a
+tachometer and a thrust estimator for each motor; every estimator reads the shared
+/battery/voltage. single_process:=true runs the same nodes in one propulsion_all process (the
+cheapest: see benchmarks/bench_nodes_live.py). Arguments: motors (4; 1-16), use_sim_time,
+params_file, model (passed to every estimator), single_process. A node that exits shuts the
+launch down; a bad motor count is refused in one line.
 """
 
 from launch import LaunchDescription
-from launch.actions import (
-    DeclareLaunchArgument, GroupAction, IncludeLaunchDescription, OpaqueFunction)
-from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 PACKAGE = 'bldc_propulsion'
-MOTORS = 4
+MAX_MOTORS = 16
+SHARED_VOLTAGE = [('battery/voltage', '/battery/voltage')]
 
 
 def generate_launch_description():
     return LaunchDescription([
+        DeclareLaunchArgument('motors', default_value='4', description='number of motors, 1-16'),
         DeclareLaunchArgument(
             'use_sim_time', default_value='false',
             description='follow /clock (true with `ros2 bag play --clock`)'),
@@ -30,43 +33,52 @@ def generate_launch_description():
             'params_file',
             default_value=PathJoinSubstitution(
                 [FindPackageShare(PACKAGE), 'config', 'propulsion.yaml']),
-            description='parameter file of every node of every motor'),
+            description='parameter file of every node'),
         DeclareLaunchArgument(
             'model', default_value='',
-            description="model .npz for all four estimators; empty = params_file's model_path"),
+            description="model .npz for every estimator; empty = params_file's model_path"),
         DeclareLaunchArgument(
             'single_process', default_value='false',
-            description='true = all 12 nodes in one propulsion_all process'),
-        OpaqueFunction(function=launch_motors),
+            description='true = every node in one propulsion_all process'),
+        OpaqueFunction(function=launch_vehicle),
     ])
 
 
-def launch_motors(context):
-    """Four includes of propulsion.launch.py, or one propulsion_all process."""
-    use_sim_time = LaunchConfiguration('use_sim_time')
-    params_file = LaunchConfiguration('params_file')
+def motor_count(text):
+    """The motors argument as an int in 1..MAX_MOTORS, or a one-line error."""
+    try:
+        motors = int(text)
+    except ValueError:
+        motors = 0
+    if not 1 <= motors <= MAX_MOTORS:
+        raise ValueError(f"quadrotor.launch.py: motors must be an integer in 1..{MAX_MOTORS}, "
+                         f"got '{text}'")
+    return motors
+
+
+def launch_vehicle(context):
+    """The battery filter and each motor's nodes, or one propulsion_all process."""
+    motors = motor_count(LaunchConfiguration('motors').perform(context))
+    overrides = {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
+                                                value_type=bool)}
     model = LaunchConfiguration('model')
+    if model.perform(context):
+        overrides['model_path'] = ParameterValue(model, value_type=str)
+    parameters = [LaunchConfiguration('params_file'), overrides]
 
     if LaunchConfiguration('single_process').perform(context).lower() in ('true', '1'):
-        overrides = {'use_sim_time': ParameterValue(use_sim_time, value_type=bool)}
-        if model.perform(context):
-            overrides['model_path'] = ParameterValue(model, value_type=str)
         return [Node(package=PACKAGE, executable='propulsion_all',
-                     arguments=['--motors', str(MOTORS)],
-                     parameters=[params_file, overrides], output='screen')]
-
-    one_motor = PathJoinSubstitution([FindPackageShare(PACKAGE), 'launch', 'propulsion.launch.py'])
-    return [
-        GroupAction([  # scoped: each include keeps its own launch arguments
-            IncludeLaunchDescription(
-                PythonLaunchDescriptionSource(one_motor),
-                launch_arguments={
-                    'namespace': f'motor{i}',
-                    'use_sim_time': use_sim_time,
-                    'params_file': params_file,
-                    'model': model,
-                    'single_process': 'false',
-                }.items()),
-        ])
-        for i in range(MOTORS)
-    ]
+                     arguments=['--motors', str(motors)] if motors > 1 else [],
+                     parameters=parameters, output='screen', on_exit=Shutdown())]
+    nodes = [Node(package=PACKAGE, executable='battery_filter', name='battery_filter',
+                  parameters=parameters, output='screen', on_exit=Shutdown())]
+    for i in range(motors):
+        namespace = f'motor{i}' if motors > 1 else ''
+        nodes.append(Node(package=PACKAGE, executable='tachometer', name='tachometer',
+                          namespace=namespace, parameters=parameters, output='screen',
+                          on_exit=Shutdown()))
+        nodes.append(Node(package=PACKAGE, executable='thrust_estimator',
+                          name='thrust_estimator', namespace=namespace,
+                          parameters=parameters, remappings=SHARED_VOLTAGE, output='screen',
+                          on_exit=Shutdown()))
+    return nodes

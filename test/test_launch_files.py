@@ -70,10 +70,38 @@ def test_single_motor_launch_arguments():
 
 def test_quadrotor_launch_arguments_and_motor_namespaces():
     args = launch_arguments(LAUNCH / "quadrotor.launch.py")
-    assert set(args) == {"use_sim_time", "params_file", "model", "single_process"}
+    assert set(args) == {"motors", "use_sim_time", "params_file", "model", "single_process"}
+    assert args["motors"] == "4"
     source = (LAUNCH / "quadrotor.launch.py").read_text()
-    assert "propulsion.launch.py" in source and "propulsion_all" in source
+    assert "propulsion_all" in source
+    # one pack: one battery filter at the root, every estimator reads /battery/voltage
+    assert source.count("executable='battery_filter'") == 1
+    assert "('battery/voltage', '/battery/voltage')" in source
     assert P.namespaces(4) == ["motor0", "motor1", "motor2", "motor3"]
+
+
+def test_quadrotor_launch_refuses_a_bad_motor_count_in_one_line():
+    """motor_count() is plain Python: load it without launch/launch_ros."""
+    tree = ast.parse((LAUNCH / "quadrotor.launch.py").read_text())
+    fn = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "motor_count")
+    scope = {"MAX_MOTORS": 16}
+    exec(compile(ast.Module(body=[fn], type_ignores=[]), "quadrotor.launch.py", "exec"), scope)
+    assert scope["motor_count"]("4") == 4
+    for bad in ("0", "17", "four", "-1", ""):
+        with pytest.raises(ValueError, match="motors must be an integer in 1..16") as e:
+            scope["motor_count"](bad)
+        assert "\n" not in str(e.value)
+
+
+def test_every_launched_node_shuts_the_launch_down_when_it_exits():
+    for name in ("propulsion.launch.py", "quadrotor.launch.py"):
+        source = (LAUNCH / name).read_text()
+        tree = ast.parse(source)
+        calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                 and getattr(n.func, "id", "") == "Node"]
+        assert calls, name
+        for call in calls:
+            assert any(k.arg == "on_exit" for k in call.keywords), f"{name}: a Node without on_exit"
 
 
 def test_launch_files_start_the_entry_points_setup_py_installs():
@@ -151,7 +179,7 @@ def test_tables_are_consistent():
 def test_core_kwargs_keeps_only_core_parameters():
     values = {p.name: p.default for p in P.BATTERY_FILTER_PARAMS}
     kwargs = P.core_kwargs(P.BATTERY_FILTER_PARAMS, values)
-    assert "publish_decimation" not in kwargs
+    assert "publish_rate_hz" not in kwargs and "queue_depth" not in kwargs
     assert kwargs["divider_ratio"] == 1.999
 
 
@@ -191,16 +219,3 @@ def test_node_package_imports_without_rclpy():
 def test_node_sources_compile():
     for path in sorted(NODES.glob("*.py")):
         compile(path.read_text(), str(path), "exec")
-
-
-def test_receipt_clock_smooths_clock_steps_and_keeps_real_gaps():
-    clock = P.ReceiptClock(0.1)
-    # /clock at 40 Hz: 1 kHz samples arrive in bursts sharing one receipt time
-    receipts = [100.0 + 0.025 * (k // 25) for k in range(200)]
-    times = [clock(r, 0.001) for r in receipts]
-    assert times[0] == 100.0
-    assert all(b - a == pytest.approx(0.001) for a, b in zip(times, times[1:]))
-    # a real gap (bag paused 2 s) restarts from the receipt time
-    assert clock(times[-1] + 2.0, 0.001) == pytest.approx(times[-1] + 2.0)
-    raw = P.ReceiptClock(0.0)
-    assert raw(5.0, 0.001) == 5.0 and raw(5.0, 0.001) == 5.0  # 0 = receipt times as they are

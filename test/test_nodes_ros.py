@@ -1,7 +1,9 @@
-"""The rclpy nodes in-process on ROS 2 Jazzy (skipped where rclpy is missing).
+"""The rclpy nodes in-process on ROS 2 Jazzy (CI fails without rclpy; elsewhere skipped).
 
-Every test drives time through /clock (use_sim_time), as ``ros2 bag play --clock`` does, so
-the nodes see exactly the synthetic times and nothing depends on the machine's speed.
+Every test drives time through /clock (use_sim_time), as ``ros2 bag play --clock`` does, and
+times stamp-less inputs on receipt (use_source_timestamps false: the helper publishes whenever
+the node has answered, not at the data's rate), so the nodes see exactly the synthetic times and
+nothing depends on the machine's speed. test_nodes_live.py runs them as processes in real time.
 """
 
 from __future__ import annotations
@@ -12,7 +14,9 @@ import time
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+from _ros import require_rclpy
+
+rclpy = require_rclpy()
 
 from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
@@ -30,6 +34,7 @@ from bldc_propulsion.nodes.tachometer_node import TachometerNode  # noqa: E402
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode, main  # noqa: E402
 
 SIM_TIME = Parameter("use_sim_time", value=True)
+RECEIPT_TIMING = {"use_source_timestamps": False}
 T0 = 100.0  # s, start of the synthetic recording
 
 
@@ -70,13 +75,14 @@ class Harness:
         target = int(round(t_s * 1e9))
         self.spin_until(lambda: self.node.get_clock().now().nanoseconds >= target)
 
-    def send(self, topic, msg, t_s, expect=None):
-        """Publish ``msg`` at sim time ``t_s``; wait until ``expect`` outputs grew by one."""
+    def send(self, topic, msg, t_s, expect=()):
+        """Publish ``msg`` at sim time ``t_s``; wait until each ``expect`` topic grew by one."""
         self.set_time(t_s)
-        before = len(self.received[expect]) if expect else 0
+        expect = (expect,) if isinstance(expect, str) else tuple(expect)
+        before = [len(self.received[e]) for e in expect]
         self.pubs[topic].publish(msg)
         if expect:
-            self.spin_until(lambda: len(self.received[expect]) > before)
+            self.spin_until(lambda: all(len(self.received[e]) > b for e, b in zip(expect, before)))
         else:
             for _ in range(5):
                 self.executor.spin_once(timeout_sec=0.005)
@@ -114,7 +120,7 @@ def tach_signal(speed_rad_s, rate_hz, n, t0, blades=2, high=3.0, low=0.2, duty=0
 
 
 def test_tachometer_measures_a_known_speed_and_reports_loss(context):
-    h = make(context, TachometerNode)
+    h = make(context, TachometerNode, **RECEIPT_TIMING)
     try:
         h.record(Float64, contract.TOPIC_ROTOR_SPEED)
         h.record(Float64, contract.TOPIC_ROTOR_RPM)
@@ -123,23 +129,31 @@ def test_tachometer_measures_a_known_speed_and_reports_loss(context):
         h.wait_for_subscribers(contract.TOPIC_TACH_ADC)
         rate, batch, speed = 20000.0, 200, 600.0
         signal = tach_signal(speed, rate, 60 * batch, T0)
+        first_revolution = 2  # 5 edges (a revolution, 10.5 ms at 600 rad/s) need 2 batches
         for k in range(60):  # 0.6 s of batches, time of the last sample of each
             t_last = T0 + ((k + 1) * batch - 1) / rate
             msg = Float32MultiArray(data=signal[k * batch:(k + 1) * batch].tolist())
-            h.send(contract.TOPIC_TACH_ADC, msg, t_last, expect=contract.TOPIC_ROTOR_SPEED)
-        measured = h.received[contract.TOPIC_ROTOR_SPEED][-1].data
-        assert measured == pytest.approx(speed, rel=0.01)
-        rpm = h.received[contract.TOPIC_ROTOR_RPM][-1].data
-        assert rpm == pytest.approx(measured * 60.0 / (2.0 * math.pi), rel=1e-9)
+            expect = (contract.TOPIC_ROTOR_SPEED, contract.TOPIC_ROTOR_RPM) \
+                if k >= first_revolution else ()
+            h.send(contract.TOPIC_TACH_ADC, msg, t_last, expect=expect)
+        speeds = [m.data for m in h.received[contract.TOPIC_ROTOR_SPEED]]
+        rpms = [m.data for m in h.received[contract.TOPIC_ROTOR_RPM]]
+        assert 60 - first_revolution <= len(speeds) == len(rpms) <= 60 - 1
+        assert all(s == pytest.approx(speed, rel=0.01) for s in speeds)
+        assert rpms == pytest.approx([s * 60.0 / (2.0 * math.pi) for s in speeds], rel=1e-9)
 
-        # no more batches: the timer reports speed 0 and the loss on diagnostics
+        # no more batches: nothing more is published (nothing to stand behind), and
+        # diagnostics say the input is lost
+        n_out = len(speeds)
         t_end = T0 + 60 * batch / rate
         for step in range(1, 31):
             h.set_time(t_end + 0.1 * step)
             for _ in range(3):
                 h.executor.spin_once(timeout_sec=0.005)
-        assert h.received[contract.TOPIC_ROTOR_SPEED][-1].data == 0.0
-        assert any(s.level != DiagnosticStatus.OK for s in statuses(h)[-3:])
+        assert len(h.received[contract.TOPIC_ROTOR_SPEED]) == n_out
+        last = statuses(h)[-2:]
+        assert any(s.level == DiagnosticStatus.ERROR and "no tachometer/adc batch" in s.message
+                   for s in last), last
         assert all(s.name.startswith("/tachometer") for s in statuses(h))
         assert all(s.hardware_id == "bldc_propulsion" for s in statuses(h))
     finally:
@@ -149,7 +163,7 @@ def test_tachometer_measures_a_known_speed_and_reports_loss(context):
 # --- battery filter ---
 
 def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context):
-    h = make(context, BatteryFilterNode)
+    h = make(context, BatteryFilterNode, publish_rate_hz=1000.0, **RECEIPT_TIMING)
     try:
         h.record(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
         h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
@@ -184,7 +198,7 @@ def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context)
         n_diag = len(diagnostics)
         h.set_time(t + 1.5)  # the 1 Hz diagnostics timer fires once more
         h.spin_until(lambda: len(diagnostics) > n_diag)
-        (status,) = diagnostics[-1].status
+        status = diagnostics[-1].status[0]
         assert status.level == DiagnosticStatus.WARN, status
         assert status.name.startswith("/battery_filter")
         rejected = {kv.key: kv.value for kv in status.values if "reject" in kv.key}
@@ -196,7 +210,7 @@ def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context)
 # --- thrust estimator ---
 
 def test_thrust_estimator_predicts_with_the_fallback_and_warns(context):
-    h = make(context, ThrustEstimatorNode)
+    h = make(context, ThrustEstimatorNode, **RECEIPT_TIMING)
     try:
         h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
         h.record(Float64, contract.TOPIC_PREDICTED_THRUST)
@@ -254,12 +268,68 @@ def test_thrust_estimator_keeps_the_last_good_model_on_a_bad_reload(context, tmp
 
 # --- all in one ---
 
-def test_all_in_one_builds_three_nodes_per_motor(context):
+def test_thrust_estimator_keeps_its_rate_under_a_40_hz_clock(context):
+    """`ros2 bag play --clock` steps /clock at 40 Hz: every 10 ms grid time is still predicted."""
+    h = make(context, ThrustEstimatorNode, **RECEIPT_TIMING)
+    try:
+        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+        h.publisher(Float64, contract.TOPIC_PWM)
+        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+        h.wait_for_subscribers(contract.TOPIC_PWM)
+        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
+        voltage = BatteryState(voltage=12.0, present=True)
+        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
+        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
+        h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
+        for k in range(1, 81):  # 2 s of /clock in 25 ms steps
+            h.set_time(T0 + 0.025 * k)
+            for _ in range(3):
+                h.executor.spin_once(timeout_sec=0.002)
+        received = h.received[contract.TOPIC_PREDICTED_SPEED]
+        h.spin_until(lambda: len(received) >= 199)  # 100 Hz over 2 s, not 40 Hz (80)
+        for _ in range(10):
+            h.executor.spin_once(timeout_sec=0.005)
+        assert len(received) <= 201
+    finally:
+        h.close()
+
+
+@pytest.mark.parametrize("node_main, argument, words", [
+    ("tachometer", "blades:=0", ["parameter blades", "[1, 12]"]),
+    ("tachometer", "sample_rate_hz:=1000", ["parameter sample_rate_hz", "double"]),
+    ("battery_filter", "publish_rate_hz:=fast", ["parameter publish_rate_hz", "double"]),
+    ("thrust_estimator", "output_rate_hz:=0.0", ["parameter output_rate_hz"]),
+])
+def test_bad_parameters_exit_2_with_one_line_naming_the_parameter(node_main, argument, words):
+    import subprocess
+    import sys
+    module = {"tachometer": "tachometer_node", "battery_filter": "battery_filter_node",
+              "thrust_estimator": "thrust_estimator_node"}[node_main]
+    proc = subprocess.run(
+        [sys.executable, "-m", f"bldc_propulsion.nodes.{module}", "--ros-args", "-p", argument],
+        capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+# --- all in one ---
+
+def test_all_in_one_is_one_pack_and_four_motors(context):
     nodes = build_nodes(4, context=context)
     try:
         names = sorted(n.get_fully_qualified_name() for n in nodes)
-        assert names == sorted(f"/motor{i}/{name}" for i in range(4)
-                               for name in ("battery_filter", "tachometer", "thrust_estimator"))
+        assert names == sorted(["/battery_filter"] + [
+            f"/motor{i}/{name}" for i in range(4) for name in ("tachometer", "thrust_estimator")])
+        for n in nodes:
+            topics = {s.topic_name for s in n.subscriptions}
+            if n.get_name() == "thrust_estimator":
+                assert "/battery/voltage" in topics, topics  # the shared pack
+                assert f"{n.get_namespace()}/pwm" in topics
+            if n.get_name() == "battery_filter":
+                assert "/battery/adc" in topics
         executor = SingleThreadedExecutor(context=context)
         for n in nodes:
             executor.add_node(n)

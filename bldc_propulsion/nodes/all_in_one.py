@@ -1,72 +1,108 @@
-"""propulsion_all: the three nodes of one or more motors in ONE process, one executor.
+"""propulsion_all: one pack and one or more motors in ONE process.
 
-Saves the memory of separate Python interpreters on a small companion computer. The nodes are
-the very classes that run alone; only the process is shared.
+Saves the memory and the CPU of separate Python interpreters on a small companion computer.
+The nodes are the very classes that run alone; only the process is shared.
 
     ros2 run bldc_propulsion propulsion_all                      # one motor, root names
-    ros2 run bldc_propulsion propulsion_all --ros-args -r __ns:=/motor2   # one motor, /motor2/...
     ros2 run bldc_propulsion propulsion_all --motors 4 \\
-        --ros-args --params-file config/propulsion.yaml          # /motor0 ... /motor3
+        --ros-args --params-file config/propulsion.yaml          # a quadrotor
 
-``--motors N`` (before ``--ros-args``; default 1): one motor keeps the process namespace so a
-bench recording plays straight into it; N > 1 puts motor i under ``motor<i>``. ROS arguments
-(``--params-file``, ``-p``, ``use_sim_time``) reach every node of the process, which is why
-config/propulsion.yaml addresses nodes as ``/**/battery_filter`` and so on. Do not combine
-``-r __ns:=...`` with N > 1 (it would move every motor into the same namespace).
+``--motors N`` (before ``--ros-args``; default 1). One motor: the three nodes at the process
+namespace, so a bench recording plays straight into it. N > 1 (``../shared/interfaces.md``,
+"A quadrotor"): ONE battery filter at the process namespace (one pack), and a tachometer and a
+thrust estimator under ``motor<i>`` for each motor, every estimator reading the shared
+``battery/voltage``. ROS arguments (``--params-file``, ``-p``, ``use_sim_time``) reach every
+node of the process, which is why config/propulsion.yaml addresses nodes as ``/**/<node>``.
+
+``--executor``: ``mixed`` (default) runs the battery filter, the 1 kHz input, on rclpy's
+EventsExecutor in a thread of its own, and the motors on the single-threaded executor, which
+hands them the message info their timing rules need; ``single`` runs everything on the
+single-threaded executor; ``events`` runs everything on the EventsExecutor (cheapest, but the
+motors then judge lateness on receipt times: a stall breaks their streams instead of being
+absorbed, see stream_time.py).
 """
+
+from __future__ import annotations
 
 import argparse
 import sys
+import threading
+from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
-from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.errors import BadInputError, one_line
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
+from bldc_propulsion.nodes.common import events_executor
 from bldc_propulsion.nodes.params import namespaces
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
+#: Every motor's estimator reads the pack's battery/voltage at the process namespace.
+SHARED_VOLTAGE = ['--ros-args', '-r', 'battery/voltage:=/battery/voltage']
+EXECUTORS = ('mixed', 'single', 'events')
+MAX_MOTORS = 16
 
-def build_nodes(motors, **kwargs):
-    """The three nodes of each motor; ``kwargs`` go to every Node (context, overrides)."""
-    nodes = []
+
+def build_nodes(motors: int, message_info: bool = True, **kwargs: Any) -> list[Node]:
+    """The battery filter, then a tachometer and an estimator per motor (``kwargs``: Node args)."""
+    nodes: list[Node] = [BatteryFilterNode(**kwargs)]
     for namespace in namespaces(motors):
-        ns = {'namespace': namespace} if namespace else {}
-        for node_class in (BatteryFilterNode, TachometerNode, ThrustEstimatorNode):
-            nodes.append(node_class(**ns, **kwargs))
+        ns: dict[str, Any] = {'namespace': namespace} if namespace else {}
+        nodes.append(TachometerNode(message_info=message_info, **ns, **kwargs))
+        if namespace:
+            ns['cli_args'] = SHARED_VOLTAGE
+        nodes.append(ThrustEstimatorNode(message_info=message_info, **ns, **kwargs))
     return nodes
 
 
-def parse_args(argv):
+def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog='propulsion_all', description=__doc__.split('\n')[0])
     parser.add_argument('--motors', type=int, default=1,
-                        help='motors to run: 1 = process namespace, N > 1 = motor0..motorN-1')
+                        help=f'motors to run (1-{MAX_MOTORS}): 1 = process namespace, '
+                             'N > 1 = motor0..motorN-1 with one battery filter')
+    parser.add_argument('--executor', choices=EXECUTORS, default='mixed',
+                        help='mixed (default), single or events; see the module docstring')
     options = parser.parse_args(argv)
-    if options.motors < 1:
-        parser.error('--motors must be >= 1')
+    if not 1 <= options.motors <= MAX_MOTORS:
+        parser.error(f'--motors must be in 1..{MAX_MOTORS}, got {options.motors}')
     return options
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     argv = sys.argv if args is None else args
     options = parse_args(remove_ros_args(args=argv)[1:])
     rclpy.init(args=argv)
-    executor = SingleThreadedExecutor()
-    nodes = []
+    nodes: list[Node] = []
+    executors: list[Any] = []
     try:
-        nodes = build_nodes(options.motors)
-        for node in nodes:
-            executor.add_node(node)
-        executor.spin()
+        nodes = build_nodes(options.motors, message_info=options.executor != 'events')
+        if options.executor == 'mixed':
+            battery = events_executor()
+            battery.add_node(nodes[0])
+            executors.append(battery)
+            threading.Thread(target=battery.spin, name='battery_filter', daemon=True).start()
+            main_executor = SingleThreadedExecutor()
+            motor_nodes = nodes[1:]
+        else:
+            main_executor = (events_executor() if options.executor == 'events'
+                             else SingleThreadedExecutor())
+            motor_nodes = nodes
+        executors.append(main_executor)
+        for node in motor_nodes:
+            main_executor.add_node(node)
+        main_executor.spin()
     except BadInputError as e:
-        print(f'propulsion_all: {e}', file=sys.stderr)
+        print(f'propulsion_all: {one_line(e, 400)}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        executor.shutdown()
+        for executor in executors:
+            executor.shutdown()
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()

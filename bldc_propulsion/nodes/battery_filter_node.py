@@ -1,18 +1,22 @@
 """battery_filter: battery/adc (Float64, volts at the ADC pin) -> battery/voltage (BatteryState).
 
-Each sample is timed by the node clock at receipt (the message has no header), which under
-``use_sim_time`` follows the recording's /clock; ``ReceiptClock`` smooths receipt jitter and
-/clock steps onto the nominal 1/sample_rate_hz grid (parameter clock_tolerance_s). The core rejects
+The samples carry no stamp: they are timed by counting at sample_rate_hz from the stream's
+first sample (``stream_time.SampleStream``); lost samples (sequence numbers) advance the count,
+and a publisher that restarts or drifts from the node clock by more than a second starts the
+count over. The filter's time constant is 2 s, so a sample timed a few milliseconds off changes
+nothing; what matters is that a gap is not bridged as if it were one step. The core rejects
 implausible samples (NaN, out of [min_adc_v, max_adc_v]) and counts them; diagnostics say so.
+battery/voltage is published at publish_rate_hz (sample time); header.stamp is the time of the
+sample. No message info is needed, so this node runs on rclpy's EventsExecutor (cheapest).
 """
+
+from __future__ import annotations
 
 import math
 import sys
+from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import BatteryState
@@ -20,42 +24,47 @@ from std_msgs.msg import Float64
 
 from bldc_propulsion import contract
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig
-from bldc_propulsion.errors import BadInputError
-from bldc_propulsion.nodes.common import declare_parameters, diagnostic_array, now_s, to_stamp
+from bldc_propulsion.core.status import counters
+from bldc_propulsion.core.ticker import Ticker
+from bldc_propulsion.nodes.common import (
+    declare_parameters, diagnostic_array, events_executor, input_qos, now_s, run_node, to_stamp)
 from bldc_propulsion.nodes.params import (
-    BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, ReceiptClock, core_kwargs)
+    BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
+from bldc_propulsion.nodes.stream_time import NEW_STREAM, SampleStream, arrival
 
 
 class BatteryFilterNode(Node):
 
-    def __init__(self, **kwargs):
+    def __init__(self, message_info: bool = False, **kwargs: Any) -> None:
         super().__init__(BATTERY_FILTER, **kwargs)
         params = declare_parameters(self, BATTERY_FILTER_PARAMS)
         config = BatteryFilterConfig(**core_kwargs(BATTERY_FILTER_PARAMS, params))
         self.core = BatteryFilter(config)  # BadInputError if the core refuses a value
-        self.period_s = 1.0 / params['sample_rate_hz']
-        self.sample_time = ReceiptClock(params['clock_tolerance_s'])
-        self.decimation = params['publish_decimation']
-        self.accepted = 0
+        self.stream = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
+                                   params['use_source_timestamps'])
+        self.output = Ticker(params['publish_rate_hz'])
 
         self.voltage_pub = self.create_publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE, 10)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
+        callback = self.on_adc if message_info else (lambda msg: self.on_adc(msg, None))
         self.adc_sub = self.create_subscription(
-            Float64, contract.TOPIC_BATTERY_ADC, self.on_adc, qos_profile_sensor_data)
+            Float64, contract.TOPIC_BATTERY_ADC, callback, input_qos(params['queue_depth']))
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
-    def on_adc(self, msg):
-        t = self.sample_time(now_s(self), self.period_s)
+    def on_adc(self, msg: Float64, info: dict | None) -> None:
+        place = self.stream.place(arrival(now_s(self), info), 1)
+        t = place.t_last
+        if place.event == NEW_STREAM and self.stream.streams > 1:
+            self.core.reset()  # restarted publisher or resync: the count starts over
         volts = self.core.update(t, msg.data)
-        if volts is None:
-            return
-        self.accepted += 1
-        if self.accepted % self.decimation == 0:
+        if volts is not None and self.output.take(t):
             self.voltage_pub.publish(battery_state(t, volts))
 
-    def publish_diagnostics(self):
-        self.diagnostics_pub.publish(diagnostic_array(self, self.core.status()))
+    def publish_diagnostics(self) -> None:
+        statuses = self.core.status()
+        statuses[0].values.update(counters(**self.stream.counters()))
+        self.diagnostics_pub.publish(diagnostic_array(self, statuses))
 
 
 def battery_state(t_s, volts):
@@ -76,22 +85,8 @@ def battery_state(t_s, volts):
     return msg
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = BatteryFilterNode()
-        rclpy.spin(node)
-    except BadInputError as e:  # a parameter the core refuses
-        print(f'battery_filter: {e}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: list[str] | None = None) -> int:
+    return run_node(BATTERY_FILTER, BatteryFilterNode, args, events_executor)
 
 
 if __name__ == '__main__':

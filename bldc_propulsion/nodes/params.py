@@ -38,6 +38,22 @@ class Param:
     read_only: bool = True  #: only model_path can change while the node runs
 
 
+def stream_params(depth: int, tolerance_s: float) -> tuple[Param, ...]:
+    """The timing and queue parameters every fixed-rate input stream has (stream_time.py)."""
+    return (
+        Param("queue_depth", depth, "Input history (messages; best effort, so any sensor "
+              "driver connects). Default: 0.5 s of input, so a node stalled that long loses "
+              "nothing.", 1, 100000, core=False),
+        Param("clock_tolerance_s", tolerance_s, "A message later than the transport-latency floor "
+              "by more than this (s, on the publisher's clock) breaks the stream: the "
+              "publisher skipped data or sent a late burst (README 'Timing and faults').",
+              0.0001, 10.0, core=False),
+        Param("use_source_timestamps", True, "Judge lateness on the publisher's clock "
+              "(message info); false = on receipt (e.g. `ros2 bag play --rate` below 1).",
+              core=False),
+    )
+
+
 BATTERY_FILTER_PARAMS: tuple[Param, ...] = (
     Param("sample_rate_hz", 1000.0, "Sample rate of battery/adc (Hz). The filter is "
           "rediscretised for it; samples further apart than max_gap_s restart it.", 1.0, 100000.0),
@@ -49,14 +65,10 @@ BATTERY_FILTER_PARAMS: tuple[Param, ...] = (
           "and counted.", -100.0, 100.0),
     Param("max_gap_s", 0.5, "Largest gap between samples (s) the filter bridges; a longer "
           "gap restarts it from the next sample.", 0.0, 3600.0),
-    Param("publish_decimation", 1, "Publish battery/voltage for every Nth accepted sample "
-          "(1 = every sample, as replay writes). Filtering still sees every sample.",
-          1, 1000, core=False),
-    Param("clock_tolerance_s", 0.1, "A receipt time within this of the expected one (previous "
-          "time + nominal period) is replaced by the expected time, so /clock steps (40 Hz "
-          "with `ros2 bag play --clock`) and transport jitter do not look like irregular "
-          "samples; a larger difference restarts timing from the receipt time. 0 = raw "
-          "receipt times.", 0.0, 10.0, core=False),
+    Param("publish_rate_hz", 50.0, "Rate of battery/voltage (Hz, sample time). The filter "
+          "sees every sample; its 2 s time constant makes a faster output cost CPU in every "
+          "subscriber for nothing.", 0.1, 100000.0, core=False),
+    *stream_params(500, 0.05),
 )
 
 TACHOMETER_PARAMS: tuple[Param, ...] = (
@@ -66,13 +78,11 @@ TACHOMETER_PARAMS: tuple[Param, ...] = (
           "revolution).", 1, 12),
     Param("max_speed_rad_s", 2000.0, "Highest plausible rotor speed (rad/s); faster edge "
           "intervals are rejected as noise.", 1.0, 100000.0),
-    Param("timeout_s", 0.3, "No edge for this long (s) means the rotor stopped or the signal "
-          "is lost: speed is reported as 0.", 0.001, 60.0),
-    Param("clock_tolerance_s", 0.1, "A receipt time within this of the expected one (previous "
-          "time + nominal period) is replaced by the expected time, so /clock steps (40 Hz "
-          "with `ros2 bag play --clock`) and transport jitter do not look like irregular "
-          "samples; a larger difference restarts timing from the receipt time. 0 = raw "
-          "receipt times.", 0.0, 10.0, core=False),
+    Param("timeout_s", 0.3, "No edge for this long (s) in batches that keep coming means the "
+          "rotor stopped: speed 0 is published (signal steady at the clear level). No batch "
+          "for this long (node clock): nothing is published, diagnostics say the input is "
+          "lost.", 0.001, 60.0),
+    *stream_params(50, 0.005),
 )
 
 THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
@@ -82,7 +92,18 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
     Param("thrust_coefficient", 0.0, "b in thrust = b*w^2 (N s^2/rad^2); 0 = the model's "
           "own coefficient.", 0.0, 1.0, core=False),
     Param("output_rate_hz", 100.0, "Rate of predicted/speed and predicted/thrust (Hz, node "
-          "clock).", 1.0, 1000.0, core=False),
+          "clock). Kept under `ros2 bag play --clock`: every output time passed by a /clock "
+          "step is predicted.", 1.0, 1000.0, core=False),
+    Param("pwm_timeout_s", 0.0, "With a flight controller that publishes pwm at a fixed "
+          "rate: no pwm for this long (s) stops predicting (diagnostics ERROR) instead of "
+          "predicting from a stale command. 0 = off (pwm published only on change).",
+          0.0, 60.0, core=False),
+    Param("queue_depth", 100, "Input history per subscription (messages; best effort, so "
+          "any sensor driver connects). Default: 2 s of pwm at 50 Hz and of battery/voltage.",
+          1, 100000, core=False),
+    Param("use_source_timestamps", True, "Time pwm by the publisher's clock (message info) "
+          "mapped onto the node clock, so a stall does not bunch commands; false = receipt "
+          "time.", core=False),
 )
 
 NODE_PARAMS: dict[str, tuple[Param, ...]] = {
@@ -147,32 +168,6 @@ def finite_or_nan(x: float) -> float:
     """x as a float, NaN when it is not finite (what the messages use for 'unknown')."""
     x = float(x)
     return x if math.isfinite(x) else math.nan
-
-
-class ReceiptClock:
-    """Times of a fixed-rate stream whose messages carry no stamp, from their receipt times.
-
-    The node clock at receipt is jittery, and under ``ros2 bag play --clock`` it only moves at
-    the /clock rate (40 Hz by default), so consecutive messages can share a receipt time. A
-    receipt time within ``tolerance_s`` of the expected one (previous time + the message's
-    nominal duration) is replaced by the expected time; anything further off (a real gap, a
-    paused or restarted bag) restarts from the receipt time, so the cores still see gaps.
-    """
-
-    def __init__(self, tolerance_s: float) -> None:
-        self.tolerance_s = float(tolerance_s)
-        self._t: float | None = None
-
-    def __call__(self, t_receipt: float, period_s: float) -> float:
-        """Time (s) of the message received at ``t_receipt`` that follows the previous one by
-        ``period_s`` (1 / rate for a sample, n / rate for a batch of n samples)."""
-        if self._t is not None:
-            expected = self._t + period_s
-            if abs(t_receipt - expected) <= self.tolerance_s:
-                self._t = expected
-                return expected
-        self._t = float(t_receipt)
-        return self._t
 
 
 def namespaces(motors: int) -> list[str]:

@@ -1,85 +1,97 @@
 """tachometer: tachometer/adc batches (Float32MultiArray) -> rotor/speed, rotor/rpm.
 
-Float32MultiArray has no header, so a batch's time (the time of its last sample) is the node
-clock when the batch is received, which under ``use_sim_time`` follows the recording's /clock;
-``ReceiptClock`` smooths receipt jitter and /clock steps onto the batches' nominal duration
-(n samples / sample_rate_hz; parameter clock_tolerance_s). rotor/speed and rotor/rpm are
-published once per batch with the core's latest estimate. A timer also asks the core whether
-batches stopped coming altogether, so that a dead input still reports speed 0 (published once,
-when the loss is declared) and signal loss on diagnostics.
+Float32MultiArray has no header. A batch's samples are timed by counting (n samples follow the
+previous batch's), and whether a batch really follows the previous one is decided from its
+message info: sequence numbers show batches lost in transport, the publisher's timestamp shows
+a publisher that skipped data (``stream_time.py``). Across any break the decoder measures
+nothing, and ``SpeedOutput`` publishes nothing until a full revolution after it: every speed
+published was measured on contiguous samples. rotor/speed and rotor/rpm are published once per
+batch when there is such a speed (0 only when the rotor is known to stand still). A timer
+watches for batches that stop coming altogether: diagnostics then say the input is lost, and
+nothing is published (there is nothing to stand behind).
 """
 
-import sys
+from __future__ import annotations
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+import sys
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
 from std_msgs.msg import Float32MultiArray, Float64
 
 from bldc_propulsion import contract
+from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
+from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
-from bldc_propulsion.errors import BadInputError
-from bldc_propulsion.nodes.common import declare_parameters, diagnostic_array, now_s
+from bldc_propulsion.nodes.common import (
+    declare_parameters, diagnostic_array, input_qos, now_s, run_node)
 from bldc_propulsion.nodes.params import (
-    DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS,
-    ReceiptClock, core_kwargs)
+    DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
+from bldc_propulsion.nodes.stream_time import NEW_STREAM, SampleStream, arrival
 
 
 class TachometerNode(Node):
 
-    def __init__(self, **kwargs):
+    def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
         super().__init__(TACHOMETER, **kwargs)
         params = declare_parameters(self, TACHOMETER_PARAMS)
         config = TachometerConfig(**core_kwargs(TACHOMETER_PARAMS, params))
         self.core = TachometerDecoder(config)  # BadInputError if the core refuses a value
-        self.sample_period_s = 1.0 / params['sample_rate_hz']
-        self.batch_time = ReceiptClock(params['clock_tolerance_s'])
+        self.output = SpeedOutput(self.core)
+        self.stream = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
+                                   params['use_source_timestamps'])
+        self.timeout_s = params['timeout_s']
+        self.last_receipt_s: float | None = None
 
         self.speed_pub = self.create_publisher(Float64, contract.TOPIC_ROTOR_SPEED, 10)
         self.rpm_pub = self.create_publisher(Float64, contract.TOPIC_ROTOR_RPM, 10)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
+        callback = self.on_batch if message_info else (lambda msg: self.on_batch(msg, None))
         self.adc_sub = self.create_subscription(
-            Float32MultiArray, contract.TOPIC_TACH_ADC, self.on_batch, qos_profile_sensor_data)
+            Float32MultiArray, contract.TOPIC_TACH_ADC, callback,
+            input_qos(params['queue_depth']))
         self.timeout_timer = self.create_timer(TACH_TIMEOUT_CHECK_PERIOD_S, self.check_signal)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
-    def on_batch(self, msg):
-        t_last = self.batch_time(now_s(self), len(msg.data) * self.sample_period_s)
-        out = self.core.process_batch(t_last, msg.data)
-        self.publish_speed(out.speed_now)
+    def on_batch(self, msg: Float32MultiArray, info: dict | None) -> None:
+        received = now_s(self)
+        self.last_receipt_s = received
+        data = msg.data
+        place = self.stream.place(arrival(received, info), len(data))
+        if place.event == NEW_STREAM and self.stream.streams > 1:
+            self.core.reset()  # a restarted publisher: its samples do not follow the old ones
+        self.core.process_batch(place.t_last, data)
+        speed = self.output.after_batch()
+        if speed is not None:
+            self.speed_pub.publish(Float64(data=float(speed)))
+            self.rpm_pub.publish(Float64(data=float(speed) * contract.RAD_S_TO_RPM))
 
-    def check_signal(self):
-        if self.core.check_timeout(now_s(self)):  # True once, when the input has gone silent
-            self.publish_speed(0.0)
+    def input_lost(self) -> bool:
+        """No batch for timeout_s on the node clock (publisher dead, link down)."""
+        return (self.last_receipt_s is not None
+                and now_s(self) - self.last_receipt_s > self.timeout_s)
 
-    def publish_speed(self, speed_rad_s):
-        self.speed_pub.publish(Float64(data=float(speed_rad_s)))
-        self.rpm_pub.publish(Float64(data=float(speed_rad_s) * contract.RAD_S_TO_RPM))
+    def check_signal(self) -> None:
+        if self.input_lost():  # publish nothing; the next batch must first measure a revolution
+            self.output.valid = False
 
-    def publish_diagnostics(self):
-        self.diagnostics_pub.publish(diagnostic_array(self, self.core.status()))
+    def publish_diagnostics(self) -> None:
+        statuses = list(self.core.status())
+        timing = {**self.stream.counters(), "batches_withheld": self.output.withheld}
+        if self.input_lost():
+            statuses.append(CoreStatus(
+                'input', ERROR,
+                f'no tachometer/adc batch for {now_s(self) - self.last_receipt_s:.2f} s: '
+                'nothing published', counters(**timing)))
+        else:
+            statuses.append(CoreStatus('input timing', OK, 'ok', counters(**timing)))
+        self.diagnostics_pub.publish(diagnostic_array(self, statuses))
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = TachometerNode()
-        rclpy.spin(node)
-    except BadInputError as e:  # a parameter the core refuses
-        print(f'tachometer: {e}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: list[str] | None = None) -> int:
+    return run_node(TACHOMETER, TachometerNode, args)
 
 
 if __name__ == '__main__':

@@ -1,76 +1,121 @@
-"""thrust_estimator: pwm + battery/voltage -> predicted/speed, predicted/thrust on a timer.
+"""thrust_estimator: pwm + battery/voltage -> predicted/speed, predicted/thrust.
 
-The PWM command is timed by the node clock at receipt (Float64 has no header); the battery
-voltage by its header stamp (the time of the filtered sample). The timer runs on the node clock
-at output_rate_hz, so under ``use_sim_time`` it follows the recording.
+Timing: a PWM command (Float64, no header) is timed by its publisher's clock mapped onto the
+node clock (``stream_time.EventStream``), so commands queued during a stall keep their own
+times; battery/voltage by its header stamp. Predictions are made on a grid of output_rate_hz
+(``core.ticker.Ticker``, started at the first command): before each input is applied, every grid
+time up to it is predicted, and a timer emits the grid times the node clock has passed. So the
+rate holds under ``ros2 bag play --clock`` at 40 Hz, and the outputs are the ones ``replay``
+writes for the same recording.
+
+What is not published: nothing before the first command and voltage; with pwm_timeout_s > 0,
+nothing while the command is older than that (diagnostics ERROR). A lost command (a jump in the
+publisher's sequence numbers) is counted and reported on diagnostics.
 
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
 time (``ros2 param set``), such a file is refused and the last good model kept.
 """
 
-import sys
+from __future__ import annotations
 
-import rclpy
-from rclpy.executors import ExternalShutdownException
-from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+import sys
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
 from bldc_propulsion import contract
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model
-from bldc_propulsion.core.status import WARN, CoreStatus
+from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
+from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    declare_parameters, diagnostic_array, now_s, stamp_s)
+    declare_parameters, diagnostic_array, input_qos, now_s, run_node, stamp_s)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
+from bldc_propulsion.nodes.stream_time import EventStream, arrival
 
 
 class ThrustEstimatorNode(Node):
 
-    def __init__(self, **kwargs):
+    def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
         super().__init__(THRUST_ESTIMATOR, **kwargs)
         params = declare_parameters(self, THRUST_ESTIMATOR_PARAMS)
         self.thrust_coefficient = params['thrust_coefficient'] or None
         self.model_path = params['model_path']
         self.core = make_estimator(self.model_path, self.thrust_coefficient)  # BadInputError
         self.reload_error = ''
+        self.pwm_stream = EventStream(params['use_source_timestamps'])
+        self.pwm_timeout_s = params['pwm_timeout_s']
+        self.ticks = Ticker(params['output_rate_hz'])
+        self.last_pwm_s: float | None = None
+        self.stale_ticks = 0  #: grid times not predicted because the command was stale
 
         self.speed_pub = self.create_publisher(Float64, contract.TOPIC_PREDICTED_SPEED, 10)
         self.thrust_pub = self.create_publisher(Float64, contract.TOPIC_PREDICTED_THRUST, 10)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
-        self.pwm_sub = self.create_subscription(
-            Float64, contract.TOPIC_PWM, self.on_pwm, qos_profile_sensor_data)
+        qos = input_qos(params['queue_depth'])
+        on_pwm = self.on_pwm if message_info else (lambda msg: self.on_pwm(msg, None))
+        self.pwm_sub = self.create_subscription(Float64, contract.TOPIC_PWM, on_pwm, qos)
         self.voltage_sub = self.create_subscription(
-            BatteryState, contract.TOPIC_BATTERY_VOLTAGE, self.on_voltage,
-            qos_profile_sensor_data)
-        self.output_timer = self.create_timer(
-            1.0 / params['output_rate_hz'], self.publish_prediction)
+            BatteryState, contract.TOPIC_BATTERY_VOLTAGE, self.on_voltage, qos)
+        self.output_timer = self.create_timer(self.ticks.period_s, self.on_timer)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
-    def on_pwm(self, msg):
-        self.core.update_pwm(now_s(self), msg.data)
+    def on_pwm(self, msg: Float64, info: dict | None) -> None:
+        t, _lost = self.pwm_stream.place(arrival(now_s(self), info))
+        self.publish_until(t)
+        if self.core.update_pwm(t, msg.data):
+            self.last_pwm_s = t
+            self.ticks.start(t)
 
-    def on_voltage(self, msg):
-        self.core.update_voltage(stamp_s(msg.header.stamp), msg.voltage)
+    def on_voltage(self, msg: BatteryState) -> None:
+        t = stamp_s(msg.header.stamp)
+        self.publish_until(t)
+        self.core.update_voltage(t, msg.voltage)
 
-    def publish_prediction(self):
-        p = self.core.predict(now_s(self))
-        if not p.ready:
-            return  # no PWM command yet: nothing to predict from
-        self.speed_pub.publish(Float64(data=float(p.speed_rad_s)))
-        self.thrust_pub.publish(Float64(data=float(p.thrust_n)))
+    def on_timer(self) -> None:
+        self.publish_until(now_s(self))
 
-    def publish_diagnostics(self):
+    def command_stale(self, t: float) -> bool:
+        return (self.pwm_timeout_s > 0.0 and self.last_pwm_s is not None
+                and t - self.last_pwm_s > self.pwm_timeout_s)
+
+    def publish_until(self, t: float) -> None:
+        """Predict and publish every output grid time up to ``t``."""
+        for tick in self.ticks.due(t):
+            if self.command_stale(tick):
+                self.stale_ticks += 1
+                continue
+            p = self.core.predict(tick)
+            if p.ready:
+                self.speed_pub.publish(Float64(data=float(p.speed_rad_s)))
+                self.thrust_pub.publish(Float64(data=float(p.thrust_n)))
+
+    def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
+        timing = counters(pwm_lost=self.pwm_stream.lost_messages,
+                          pwm_publisher_restarts=self.pwm_stream.publisher_restarts,
+                          stale_command_ticks=self.stale_ticks,
+                          output_ticks_skipped=self.ticks.skipped)
+        now = now_s(self)
+        if self.command_stale(now):
+            statuses.append(CoreStatus(
+                'input', ERROR, f'no pwm for {now - self.last_pwm_s:.2f} s '
+                f'(pwm_timeout_s {self.pwm_timeout_s:g}): not predicting', timing))
+        elif self.pwm_stream.lost_messages:
+            statuses.append(CoreStatus(
+                'input', WARN, f'{self.pwm_stream.lost_messages} pwm commands lost in '
+                'transport (the latest received is used)', timing))
+        else:
+            statuses.append(CoreStatus('input', OK, 'ok', timing))
         if not self.model_path:
             statuses.append(CoreStatus(
                 'model', WARN, 'model missing, using first-principles fallback',
@@ -80,7 +125,7 @@ class ThrustEstimatorNode(Node):
                 'model reload', WARN, self.reload_error, {'model_path': self.model_path}))
         self.diagnostics_pub.publish(diagnostic_array(self, statuses))
 
-    def on_set_parameters(self, parameters):
+    def on_set_parameters(self, parameters: list[Any]) -> SetParametersResult:
         """Load a new model_path before accepting it; keep the last good model otherwise."""
         for p in parameters:
             if p.name != 'model_path':
@@ -96,28 +141,14 @@ class ThrustEstimatorNode(Node):
         return SetParametersResult(successful=True)
 
 
-def make_estimator(model_path, thrust_coefficient):
+def make_estimator(model_path: str, thrust_coefficient: float | None) -> ThrustEstimator:
     """The estimator core for a model file, or for the fallback when the path is empty."""
     model = load_model(model_path) if model_path else fallback_model()
     return ThrustEstimator(model, thrust_coefficient=thrust_coefficient)
 
 
-def main(args=None):
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = ThrustEstimatorNode()
-        rclpy.spin(node)
-    except BadInputError as e:
-        print(f'thrust_estimator: {e}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+def main(args: list[str] | None = None) -> int:
+    return run_node(THRUST_ESTIMATOR, ThrustEstimatorNode, args)
 
 
 if __name__ == '__main__':

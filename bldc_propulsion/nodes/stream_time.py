@@ -1,0 +1,226 @@
+"""When was a message's data taken? Timing rules for inputs whose messages carry no stamp.
+
+``pwm``, ``battery/adc`` and ``tachometer/adc`` are Float64 / Float32MultiArray: no header.
+Guessing their times from receipt alone turns a stall into a wrong number (a batch that arrives
+100 ms late looks like the next one, so the edges across a hole give a speed 60 % too high).
+What rclpy does give, with the single-threaded executor, is the message info of each message:
+the publisher's clock when it published (``source_timestamp``) and the publisher's sequence
+number (``publication_sequence_number``). The rules (README "Timing and faults"):
+
+Fixed-rate streams (``SampleStream``: battery/adc samples, tachometer/adc batches of n samples)
+are timed by counting samples: a message that follows the previous one carries the next n
+samples, so its last sample is ``n / sample_rate_hz`` after the previous one's. Whether it
+really follows is decided by two witnesses:
+
+1. Sequence numbers. Consecutive: nothing was lost in transport. A jump of k: k messages were
+   lost (DDS queue overflow while the node stalled, a lossy link): the time advances by k + 1
+   messages, so the core sees a gap of the right length and measures nothing across it. A
+   number that does not increase: the publisher restarted; the stream starts over.
+2. Lateness on the publisher's clock (``source_timestamp``; receipt time on the node clock when
+   the executor gives no message info). A contiguous stream is published at the rate it is
+   sampled, so ``observed time - counted time`` never falls below the transport latency; its
+   floor over the last ``FLOOR_WINDOW_S`` is tracked. A message later than that floor by more
+   than the tolerance means the publisher skipped data (driver overrun, a recording with a
+   hole) or sent a late burst: the stream breaks there (a gap of the excess) rather than
+   bridging a hole it cannot see into. A late burst costs one revolution of output, never a
+   wrong one. A node that stalls while the publisher keeps going is NOT late on the publisher's
+   clock: the queued messages are processed with their counted times and nothing is lost.
+
+Event streams (``EventStream``: pwm, published on change) are timed by their source time mapped
+onto the node clock through the same latency floor (so a command that sat in the queue during
+a stall keeps its own time), and a jump in sequence numbers counts lost commands.
+
+Counted time is anchored on the node clock at a stream's first message; if it falls behind the
+node clock by more than ``RESYNC_S`` or runs ahead of it by more than ``AHEAD_S`` (wrong sample
+rate, a bag played at another rate, a clock jump) the stream starts over at the node clock. Everything here is plain Python so the rules are
+tested without ROS; the nodes only convert rclpy's message info into :class:`Arrival`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+#: Window (s, on the observing clock) over which the transport latency floor is the minimum.
+FLOOR_WINDOW_S = 2.0
+#: Counted time this far behind the node clock (s) restarts the stream on the node clock ...
+RESYNC_S = 1.0
+#: ... or this far ahead of it (a sample cannot be taken after it is received; the slack covers
+#: a /clock that steps at 40 Hz).
+AHEAD_S = 0.1
+
+#: rmw's "no sequence number" values (RMW_MESSAGE_INFO_SEQUENCE_NUMBER_UNSUPPORTED, 0).
+_NO_SEQ = (0, 2**64 - 1)
+
+# Values of Placement.event
+CONTIGUOUS = "contiguous"  #: follows the previous message
+NEW_STREAM = "new_stream"  #: first message, publisher restart, or resync to the node clock
+LOST = "lost"  #: messages lost in transport (sequence-number jump)
+LATE = "late"  #: later than the latency floor allows: publisher skipped data or burst
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """One received message: node clock at receipt, and what the middleware says of it."""
+
+    receipt_s: float  #: node clock when the callback ran (s): wall or /clock time
+    source_s: float | None = None  #: publisher's clock at publication (s), None if not known
+    seq: int | None = None  #: publisher's sequence number, None if not known
+
+
+def arrival(receipt_s: float, info: Mapping[str, Any] | None) -> Arrival:
+    """An :class:`Arrival` from rclpy's message-info dict (None: the executor gave none)."""
+    if not info:
+        return Arrival(receipt_s)
+    src = info.get("source_timestamp")
+    seq = info.get("publication_sequence_number")
+    return Arrival(
+        receipt_s,
+        None if not src else src * 1e-9,
+        None if seq is None or seq in _NO_SEQ else int(seq),
+    )
+
+
+class LatencyFloor:
+    """Least ``observed - true`` time offset over a sliding window: transport latency floor.
+
+    A monotonic deque keeps the window minimum in O(1) per update; the window slides on the
+    observing clock, so a permanent change of offset (a clock jump) is adopted after the window.
+    """
+
+    def __init__(self, window_s: float = FLOOR_WINDOW_S) -> None:
+        self.window_s = float(window_s)
+        self._q: deque[tuple[float, float]] = deque()  # (observed time, offset), offsets rising
+
+    def reset(self) -> None:
+        self._q.clear()
+
+    def floor(self, observed_s: float, offset_s: float) -> float:
+        """Add one observation; the floor including it."""
+        q = self._q
+        while q and q[-1][1] >= offset_s:
+            q.pop()
+        q.append((observed_s, offset_s))
+        while q[0][0] < observed_s - self.window_s:
+            q.popleft()
+        return q[0][1]
+
+    def peek(self) -> float | None:
+        return self._q[0][1] if self._q else None
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a fixed-rate message goes on the node clock, and why."""
+
+    t_last: float  #: time (s, node clock) of the message's last sample
+    event: str  #: CONTIGUOUS, NEW_STREAM, LOST or LATE
+    lost_messages: int = 0  #: messages known lost in transport before this one
+    late_s: float = 0.0  #: lateness beyond the floor that broke the stream (LATE)
+
+
+class SampleStream:
+    """Times of a fixed-rate sampled stream (module docstring, rules 1-2)."""
+
+    def __init__(self, sample_rate_hz: float, tolerance_s: float, use_source: bool = True) -> None:
+        self.period_s = 1.0 / float(sample_rate_hz)
+        self.tolerance_s = float(tolerance_s)
+        self.use_source = bool(use_source)
+        self.messages = 0
+        self.streams = 0  #: new streams started (the first one included)
+        self.publisher_restarts = 0
+        self.resyncs = 0
+        self.lost_messages = 0  #: known lost in transport (sequence numbers)
+        self.late_breaks = 0  #: breaks because a message came too late on the publisher's clock
+        self.witness = "none yet"  #: which clock judged lateness last: source or receipt
+        self._floor = LatencyFloor()
+        self._t: float | None = None
+        self._seq: int | None = None
+
+    def place(self, a: Arrival, n: int) -> Placement:
+        """Time of the last of the ``n`` samples of message ``a``."""
+        self.messages += 1
+        duration = n * self.period_s
+        source = a.source_s if self.use_source else None
+        observed = source if source is not None else a.receipt_s
+        self.witness = "source" if source is not None else "receipt"
+        restart = a.seq is not None and self._seq is not None and a.seq <= self._seq
+        if self._t is None or restart:
+            self.publisher_restarts += restart
+            return self._start(a, observed)
+        lost = 0
+        if a.seq is not None and self._seq is not None:
+            lost = a.seq - self._seq - 1
+        self._seq = a.seq
+        t = self._t + duration + lost * duration  # lost messages assumed of the same size
+        if t > a.receipt_s + AHEAD_S or t < a.receipt_s - RESYNC_S:
+            self.resyncs += 1
+            return self._start(a, observed)
+        floor = self._floor.floor(observed, observed - t)
+        excess = (observed - t) - floor
+        if lost > 0:
+            self.lost_messages += lost
+            self._t = t
+            return Placement(t, LOST, lost_messages=lost)
+        if excess > self.tolerance_s:
+            self.late_breaks += 1
+            self._t = t + excess
+            self._floor.reset()
+            self._floor.floor(observed, observed - self._t)
+            return Placement(self._t, LATE, late_s=excess)
+        self._t = t
+        return Placement(t, CONTIGUOUS)
+
+    def _start(self, a: Arrival, observed: float) -> Placement:
+        """Anchor a new stream on the node clock at receipt (it may be earlier than the old
+        stream's last time: the caller restarts its core on every NEW_STREAM but the first)."""
+        self.streams += 1
+        self._seq = a.seq
+        t = a.receipt_s
+        self._t = t
+        self._floor.reset()
+        self._floor.floor(observed, observed - t)
+        return Placement(t, NEW_STREAM)
+
+    def counters(self) -> dict[str, Any]:
+        """For diagnostics: what the timing rules saw."""
+        return {
+            "timing_witness": self.witness,
+            "publisher_restarts": self.publisher_restarts,
+            "lost_in_transport": self.lost_messages,
+            "late_breaks": self.late_breaks,
+            "clock_resyncs": self.resyncs,
+        }
+
+
+class EventStream:
+    """Times of messages published on change (pwm): source time on the node clock, losses."""
+
+    def __init__(self, use_source: bool = True) -> None:
+        self.use_source = bool(use_source)
+        self.messages = 0
+        self.lost_messages = 0
+        self.publisher_restarts = 0
+        self._floor = LatencyFloor()
+        self._seq: int | None = None
+
+    def place(self, a: Arrival) -> tuple[float, int]:
+        """(time on the node clock, messages lost just before this one)."""
+        self.messages += 1
+        lost = 0
+        if a.seq is not None:
+            if self._seq is not None and a.seq <= self._seq:
+                self.publisher_restarts += 1
+                self._floor.reset()
+            elif self._seq is not None:
+                lost = a.seq - self._seq - 1
+            self._seq = a.seq
+        self.lost_messages += lost
+        if not self.use_source or a.source_s is None:
+            return a.receipt_s, lost
+        # receipt = source + offset + queueing; the least offset is the clocks' difference
+        floor = self._floor.floor(a.source_s, a.receipt_s - a.source_s)
+        t = a.source_s + floor
+        return (t if math.isfinite(t) and t <= a.receipt_s else a.receipt_s), lost
