@@ -36,7 +36,7 @@ from rclpy.utilities import remove_ros_args
 
 from bldc_propulsion.errors import BadInputError, one_line
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
-from bldc_propulsion.nodes.common import events_executor
+from bldc_propulsion.nodes.common import events_executor, spin
 from bldc_propulsion.nodes.params import namespaces
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
@@ -84,7 +84,7 @@ def main(args: list[str] | None = None) -> int:
             battery = events_executor()
             battery.add_node(nodes[0])
             executors.append(battery)
-            threading.Thread(target=battery.spin, name='battery_filter', daemon=True).start()
+            threading.Thread(target=spin, args=(battery,), name='battery_filter', daemon=True).start()
             main_executor = SingleThreadedExecutor()
             motor_nodes = nodes[1:]
         else:
@@ -94,7 +94,7 @@ def main(args: list[str] | None = None) -> int:
         executors.append(main_executor)
         for node in motor_nodes:
             main_executor.add_node(node)
-        main_executor.spin()
+        spin(main_executor)
     except BadInputError as e:
         print(f'propulsion_all: {one_line(e, 400)}', file=sys.stderr)
         return 2

@@ -30,7 +30,7 @@ from bldc_propulsion.nodes.common import (
     declare_parameters, diagnostic_array, events_executor, input_qos, now_s, run_node, to_stamp)
 from bldc_propulsion.nodes.params import (
     BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
-from bldc_propulsion.nodes.stream_time import NEW_STREAM, SampleStream, arrival
+from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
 
 
 class BatteryFilterNode(Node):
@@ -53,15 +53,18 @@ class BatteryFilterNode(Node):
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def on_adc(self, msg: Float64, info: dict | None) -> None:
-        place = self.stream.place(arrival(now_s(self), info), 1)
-        t = place.t_last
-        if place.event == NEW_STREAM and self.stream.streams > 1:
-            self.core.reset()  # restarted publisher or resync: the count starts over
-        volts = self.core.update(t, msg.data)
-        if volts is not None and self.output.take(t):
-            self.voltage_pub.publish(battery_state(t, volts))
+        self.filter(self.stream.push(arrival(now_s(self), info), 1, msg.data))
+
+    def filter(self, settled: list[tuple[Placement, float]]) -> None:
+        for place, value in settled:
+            if place.event == NEW_STREAM and self.stream.streams > 1:
+                self.core.reset()  # restarted publisher or resync: the count starts over
+            volts = self.core.update(place.t_last, value)
+            if volts is not None and self.output.take(place.t_last):
+                self.voltage_pub.publish(battery_state(place.t_last, volts))
 
     def publish_diagnostics(self) -> None:
+        self.filter(self.stream.release_held())  # a last sample nobody followed
         statuses = self.core.status()
         statuses[0].values.update(counters(**self.stream.counters()))
         self.diagnostics_pub.publish(diagnostic_array(self, statuses))

@@ -87,6 +87,17 @@ def events_executor() -> Any:
     return EventsExecutor()
 
 
+def spin(executor: Any) -> None:
+    """Spin until shutdown. The EventsExecutor's own ``spin`` does not return on Ctrl-C
+    (rclpy 7.1.6: the context's shutdown does not wake it), so it is spun in short slices."""
+    if isinstance(executor, SingleThreadedExecutor):
+        executor.spin()
+        return
+    context = executor._context if hasattr(executor, '_context') else None
+    while rclpy.ok(context=context):
+        executor.spin_once(timeout_sec=0.1)
+
+
 def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
              args: list[str] | None = None, executor_factory: Callable[[], Any] | None = None,
              ) -> int:
@@ -103,7 +114,7 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
         nodes = list(built) if isinstance(built, (list, tuple)) else [built]
         for node in nodes:
             executor.add_node(node)
-        executor.spin()
+        spin(executor)
     except BadInputError as e:
         print(f"{name}: {one_line(e, 400)}", file=sys.stderr)
         return 2

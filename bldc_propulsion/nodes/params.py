@@ -68,7 +68,7 @@ BATTERY_FILTER_PARAMS: tuple[Param, ...] = (
     Param("publish_rate_hz", 50.0, "Rate of battery/voltage (Hz, sample time). The filter "
           "sees every sample; its 2 s time constant makes a faster output cost CPU in every "
           "subscriber for nothing.", 0.1, 100000.0, core=False),
-    *stream_params(500, 0.05),
+    *stream_params(500, 0.5),
 )
 
 TACHOMETER_PARAMS: tuple[Param, ...] = (
@@ -94,6 +94,10 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
     Param("output_rate_hz", 100.0, "Rate of predicted/speed and predicted/thrust (Hz, node "
           "clock). Kept under `ros2 bag play --clock`: every output time passed by a /clock "
           "step is predicted.", 1.0, 1000.0, core=False),
+    Param("output_delay_s", 0.02, "A grid time is predicted once the node clock is this far "
+          "past it (s), so commands published before it have arrived (transport latency); an "
+          "input arriving later than that still emits every grid time up to its own time "
+          "first.", 0.0, 1.0, core=False),
     Param("pwm_timeout_s", 0.0, "With a flight controller that publishes pwm at a fixed "
           "rate: no pwm for this long (s) stops predicting (diagnostics ERROR) instead of "
           "predicting from a stale command. 0 = off (pwm published only on change).",

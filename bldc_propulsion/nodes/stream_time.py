@@ -20,19 +20,20 @@ really follows is decided by two witnesses:
    the executor gives no message info). A contiguous stream is published at the rate it is
    sampled, so ``observed time - counted time`` never falls below the transport latency; its
    floor over the last ``FLOOR_WINDOW_S`` is tracked. A message later than that floor by more
-   than the tolerance means the publisher skipped data (driver overrun, a recording with a
-   hole) or sent a late burst: the stream breaks there (a gap of the excess) rather than
-   bridging a hole it cannot see into. A late burst costs one revolution of output, never a
-   wrong one. A node that stalls while the publisher keeps going is NOT late on the publisher's
+   than the tolerance is held until the next one arrives. Next one late too: the publisher
+   skipped data (driver overrun, a recording with a hole) or sent a late burst, and the stream
+   breaks before the held one (a gap of its lateness) rather than bridging a hole it cannot
+   see into; a late burst costs one revolution of output, never a wrong one. Next one on
+   time: the held one was only published late (a busy publisher), and nothing breaks. A node that stalls while the publisher keeps going is NOT late on the publisher's
    clock: the queued messages are processed with their counted times and nothing is lost.
 
 Event streams (``EventStream``: pwm, published on change) are timed by their source time mapped
 onto the node clock through the same latency floor (so a command that sat in the queue during
 a stall keeps its own time), and a jump in sequence numbers counts lost commands.
 
-Counted time is anchored on the node clock at a stream's first message; if it falls behind the
-node clock by more than ``RESYNC_S`` or runs ahead of it by more than ``AHEAD_S`` (wrong sample
-rate, a bag played at another rate, a clock jump) the stream starts over at the node clock. Everything here is plain Python so the rules are
+Counted time is anchored on the node clock at a stream's first message; if it runs ahead of the
+node clock by more than ``AHEAD_S`` (data faster than sample_rate_hz, a bag played faster, a
+clock jumping back) the stream starts over at the node clock. Everything here is plain Python so the rules are
 tested without ROS; the nodes only convert rclpy's message info into :class:`Arrival`.
 """
 
@@ -45,10 +46,9 @@ from typing import Any, Mapping
 
 #: Window (s, on the observing clock) over which the transport latency floor is the minimum.
 FLOOR_WINDOW_S = 2.0
-#: Counted time this far behind the node clock (s) restarts the stream on the node clock ...
-RESYNC_S = 1.0
-#: ... or this far ahead of it (a sample cannot be taken after it is received; the slack covers
-#: a /clock that steps at 40 Hz).
+#: Counted time this far ahead of the node clock (s) restarts the stream on the node clock: a
+#: sample cannot be taken after it is received (the slack covers a /clock stepping at 40 Hz).
+#: Counted time falling behind needs no rule of its own: it makes later messages late (rule 2).
 AHEAD_S = 0.1
 
 #: rmw's "no sequence number" values (RMW_MESSAGE_INFO_SEQUENCE_NUMBER_UNSUPPORTED, 0).
@@ -121,8 +121,27 @@ class Placement:
     late_s: float = 0.0  #: lateness beyond the floor that broke the stream (LATE)
 
 
+@dataclass
+class _Suspect:
+    """A message later than the floor allows, held until the next one says why."""
+
+    arrival: Arrival
+    observed: float
+    payload: Any
+    t_contiguous: float  #: its time if nothing is missing before it
+    excess: float  #: its lateness beyond the floor (s)
+
+
 class SampleStream:
-    """Times of a fixed-rate sampled stream (module docstring, rules 1-2)."""
+    """Times of a fixed-rate sampled stream (module docstring, rules 1-2).
+
+    A message later than the latency floor by more than the tolerance is *held* until the next
+    one arrives: if that one is late too, data is missing before the held one (a hole: the
+    stream breaks there); if it is back on time, the held one was only published late (jitter
+    of a busy publisher: no break). So the tolerance can sit below one message's duration and
+    still not mistake scheduling jitter for a hole. ``release_held`` lets a node settle a held
+    message when no next one comes (conservatively: as a break).
+    """
 
     def __init__(self, sample_rate_hz: float, tolerance_s: float, use_source: bool = True) -> None:
         self.period_s = 1.0 / float(sample_rate_hz)
@@ -133,45 +152,82 @@ class SampleStream:
         self.publisher_restarts = 0
         self.resyncs = 0
         self.lost_messages = 0  #: known lost in transport (sequence numbers)
-        self.late_breaks = 0  #: breaks because a message came too late on the publisher's clock
+        self.late_breaks = 0  #: breaks because data came too late on the publisher's clock
+        self.late_forgiven = 0  #: late messages the next one showed were only published late
         self.witness = "none yet"  #: which clock judged lateness last: source or receipt
         self._floor = LatencyFloor()
         self._t: float | None = None
         self._seq: int | None = None
+        self._held: _Suspect | None = None
 
-    def place(self, a: Arrival, n: int) -> Placement:
-        """Time of the last of the ``n`` samples of message ``a``."""
+    def push(self, a: Arrival, n: int, payload: Any = None) -> list[tuple[Placement, Any]]:
+        """Place message ``a`` of ``n`` samples; returns the (placement, payload) pairs that are
+        settled now, in order: none while the message is held, two when a held one is settled."""
         self.messages += 1
         duration = n * self.period_s
         source = a.source_s if self.use_source else None
         observed = source if source is not None else a.receipt_s
         self.witness = "source" if source is not None else "receipt"
+        out: list[tuple[Placement, Any]] = []
         restart = a.seq is not None and self._seq is not None and a.seq <= self._seq
         if self._t is None or restart:
+            out += self.release_held()
             self.publisher_restarts += restart
-            return self._start(a, observed)
+            out.append((self._start(a, observed), payload))
+            return out
         lost = 0
         if a.seq is not None and self._seq is not None:
             lost = a.seq - self._seq - 1
         self._seq = a.seq
-        t = self._t + duration + lost * duration  # lost messages assumed of the same size
-        if t > a.receipt_s + AHEAD_S or t < a.receipt_s - RESYNC_S:
+        held = self._held
+        if held is not None:  # does this message say the held one followed its predecessor?
+            self._held = None
+            t_if = held.t_contiguous + duration * (1 + lost)
+            floor = self._floor.peek()
+            still_late = floor is not None and (observed - t_if) - floor > self.tolerance_s
+            out.append(self._settle(held, late=still_late))
+        t = self._t + duration * (1 + lost)  # lost messages assumed of the same size
+        if t > a.receipt_s + AHEAD_S:
             self.resyncs += 1
-            return self._start(a, observed)
-        floor = self._floor.floor(observed, observed - t)
-        excess = (observed - t) - floor
+            out.append((self._start(a, observed), payload))
+            return out
+        floor = self._floor.peek()
+        excess = 0.0 if floor is None else (observed - t) - floor
         if lost > 0:
             self.lost_messages += lost
             self._t = t
-            return Placement(t, LOST, lost_messages=lost)
-        if excess > self.tolerance_s:
+            self._floor.floor(observed, observed - t)
+            out.append((Placement(t, LOST, lost_messages=lost), payload))
+        elif excess > self.tolerance_s:
+            self._held = _Suspect(a, observed, payload, t, excess)
+        else:
+            self._t = t
+            self._floor.floor(observed, observed - t)
+            out.append((Placement(t, CONTIGUOUS), payload))
+        return out
+
+    def release_held(self) -> list[tuple[Placement, Any]]:
+        """Settle a held message with no successor to judge it: as a break (nothing bridged)."""
+        if self._held is None:
+            return []
+        held, self._held = self._held, None
+        return [self._settle(held, late=True)]
+
+    @property
+    def holding(self) -> Arrival | None:
+        return None if self._held is None else self._held.arrival
+
+    def _settle(self, held: _Suspect, late: bool) -> tuple[Placement, Any]:
+        if late:  # data missing before it: break, with the gap its lateness shows
             self.late_breaks += 1
-            self._t = t + excess
+            self._t = held.t_contiguous + held.excess
             self._floor.reset()
-            self._floor.floor(observed, observed - self._t)
-            return Placement(self._t, LATE, late_s=excess)
-        self._t = t
-        return Placement(t, CONTIGUOUS)
+            self._floor.floor(held.observed, held.observed - self._t)
+            return Placement(self._t, LATE, late_s=held.excess), held.payload
+        self.late_forgiven += 1
+        self._t = held.t_contiguous
+        self._floor.floor(held.observed, held.observed - self._t)
+        return Placement(self._t, CONTIGUOUS), held.payload
 
     def _start(self, a: Arrival, observed: float) -> Placement:
         """Anchor a new stream on the node clock at receipt (it may be earlier than the old
@@ -191,6 +247,7 @@ class SampleStream:
             "publisher_restarts": self.publisher_restarts,
             "lost_in_transport": self.lost_messages,
             "late_breaks": self.late_breaks,
+            "late_forgiven": self.late_forgiven,
             "clock_resyncs": self.resyncs,
         }
 

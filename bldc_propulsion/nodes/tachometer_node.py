@@ -28,7 +28,7 @@ from bldc_propulsion.nodes.common import (
     declare_parameters, diagnostic_array, input_qos, now_s, run_node)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
-from bldc_propulsion.nodes.stream_time import NEW_STREAM, SampleStream, arrival
+from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
 
 
 class TachometerNode(Node):
@@ -59,14 +59,18 @@ class TachometerNode(Node):
         received = now_s(self)
         self.last_receipt_s = received
         data = msg.data
-        place = self.stream.place(arrival(received, info), len(data))
-        if place.event == NEW_STREAM and self.stream.streams > 1:
-            self.core.reset()  # a restarted publisher: its samples do not follow the old ones
-        self.core.process_batch(place.t_last, data)
-        speed = self.output.after_batch()
-        if speed is not None:
-            self.speed_pub.publish(Float64(data=float(speed)))
-            self.rpm_pub.publish(Float64(data=float(speed) * contract.RAD_S_TO_RPM))
+        self.decode(self.stream.push(arrival(received, info), len(data), data))
+
+    def decode(self, settled: list[tuple[Placement, Any]]) -> None:
+        """Decode the batches the timing rules have placed; publish what may be published."""
+        for place, data in settled:
+            if place.event == NEW_STREAM and self.stream.streams > 1:
+                self.core.reset()  # a restarted publisher: its samples do not follow the old
+            self.core.process_batch(place.t_last, data)
+            speed = self.output.after_batch()
+            if speed is not None:
+                self.speed_pub.publish(Float64(data=float(speed)))
+                self.rpm_pub.publish(Float64(data=float(speed) * contract.RAD_S_TO_RPM))
 
     def input_lost(self) -> bool:
         """No batch for timeout_s on the node clock (publisher dead, link down)."""
@@ -74,6 +78,9 @@ class TachometerNode(Node):
                 and now_s(self) - self.last_receipt_s > self.timeout_s)
 
     def check_signal(self) -> None:
+        held = self.stream.holding
+        if held is not None and now_s(self) - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
+            self.decode(self.stream.release_held())  # no successor came to vouch for it
         if self.input_lost():  # publish nothing; the next batch must first measure a revolution
             self.output.valid = False
 

@@ -4,9 +4,10 @@ Timing: a PWM command (Float64, no header) is timed by its publisher's clock map
 node clock (``stream_time.EventStream``), so commands queued during a stall keep their own
 times; battery/voltage by its header stamp. Predictions are made on a grid of output_rate_hz
 (``core.ticker.Ticker``, started at the first command): before each input is applied, every grid
-time up to it is predicted, and a timer emits the grid times the node clock has passed. So the
-rate holds under ``ros2 bag play --clock`` at 40 Hz, and the outputs are the ones ``replay``
-writes for the same recording.
+time up to it is predicted, and a timer emits the grid times the node clock has passed by
+output_delay_s (so inputs published before a grid time have arrived). So the rate holds under
+``ros2 bag play --clock`` at 40 Hz, and the outputs are the ones ``replay`` writes for the same
+recording.
 
 What is not published: nothing before the first command and voltage; with pwm_timeout_s > 0,
 nothing while the command is older than that (diagnostics ERROR). A lost command (a jump in the
@@ -53,6 +54,7 @@ class ThrustEstimatorNode(Node):
         self.pwm_stream = EventStream(params['use_source_timestamps'])
         self.pwm_timeout_s = params['pwm_timeout_s']
         self.ticks = Ticker(params['output_rate_hz'])
+        self.output_delay_s = params['output_delay_s']
         self.last_pwm_s: float | None = None
         self.stale_ticks = 0  #: grid times not predicted because the command was stale
 
@@ -82,7 +84,7 @@ class ThrustEstimatorNode(Node):
         self.core.update_voltage(t, msg.voltage)
 
     def on_timer(self) -> None:
-        self.publish_until(now_s(self))
+        self.publish_until(now_s(self) - self.output_delay_s)
 
     def command_stale(self, t: float) -> bool:
         return (self.pwm_timeout_s > 0.0 and self.last_pwm_s is not None

@@ -1,0 +1,98 @@
+"""Play a recording's input topics into ROS 2 in real time, with faults on request.
+
+Run as a process of its own (``python test/_player.py SPEC.json``), so the nodes under test
+are fed from another process, as on a vehicle. SPEC keys:
+  bag        the recording; topics: input topics to play (bare names; default all three)
+  t0_wall    wall time (s since the epoch) at which bag time ``t_from`` is played; without
+             it, ``delay`` (default 1.0) seconds after every subscriber was found
+  t_from, t_to   the part of the recording to play (bag seconds)
+  drop       [[a, b], ...]: tachometer batches with bag time in [a, b) are never published
+  hold       [[a, b], ...]: such batches are held and published together at bag time b
+  namespace  prefix of every topic ('' = root names)
+It waits (up to 60 s) for a subscriber on every topic, prints "t0 <wall time>", plays, prints
+"published N" and exits.
+"""
+
+from __future__ import annotations
+
+import array
+import json
+import sys
+import time
+
+import numpy as np
+import rclpy
+from std_msgs.msg import Float32MultiArray, Float64
+
+from bldc_propulsion import contract as c
+from bldc_propulsion.bagio import open_recording
+
+TYPES = {c.TOPIC_PWM: Float64, c.TOPIC_BATTERY_ADC: Float64, c.TOPIC_TACH_ADC: Float32MultiArray}
+
+
+def in_any(t: float, ranges: list[list[float]]) -> list[float] | None:
+    return next((r for r in ranges if r[0] <= t < r[1]), None)
+
+
+def main(spec_path: str) -> int:
+    spec = json.loads(open(spec_path).read())
+    topics = spec.get("topics", list(TYPES))
+    ns = spec.get("namespace", "")
+    t_from, t_to = spec.get("t_from", 0.0), spec.get("t_to", 1e9)
+    with open_recording(spec["bag"]) as rec:
+        items = []
+        for topic, t, msg in rec.messages(topics):
+            if t_from <= t < t_to:
+                data = msg.data
+                if topic == c.TOPIC_TACH_ADC:
+                    data = array.array("f", np.asarray(data, dtype=np.float32).tobytes())
+                items.append((t, topic, data))
+    rclpy.init()
+    node = rclpy.create_node("test_player")
+    pubs = {t: node.create_publisher(TYPES[t], f"{ns}/{t}" if ns else t, 1000) for t in topics}
+    deadline = time.monotonic() + 60.0
+    while any(p.get_subscription_count() == 0 for p in pubs.values()):
+        if time.monotonic() > deadline:
+            print("no subscriber", file=sys.stderr)
+            return 1
+        time.sleep(0.05)
+    held: list[tuple[float, str, object]] = []
+    drop, hold = spec.get("drop", []), spec.get("hold", [])
+    t0_wall = spec.get("t0_wall") or time.time() + spec.get("delay", 1.0)
+    print(f"t0 {t0_wall!r}", flush=True)
+    n = 0
+
+    def publish(topic: str, data: object) -> None:
+        nonlocal n
+        msg = TYPES[topic]()
+        msg.data = data
+        pubs[topic].publish(msg)
+        n += 1
+
+    for t, topic, data in items:
+        due = t0_wall + (t - t_from)
+        delay = due - time.time()
+        if delay > 0:
+            time.sleep(delay)
+        if held and t >= held[0][0]:  # release a held burst
+            for _, h_topic, h_data in held[1:]:
+                publish(h_topic, h_data)
+            held = []
+        if topic == c.TOPIC_TACH_ADC:
+            if in_any(t, drop):
+                continue
+            r = in_any(t, hold)
+            if r is not None:
+                if not held:
+                    held.append((r[1], "", None))
+                held.append((t, topic, data))
+                continue
+        publish(topic, data)
+    print(f"published {n}", flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1]))
