@@ -60,9 +60,9 @@ the timeout and signal loss of step 6 in :class:`SpeedGate` (one-revolution edge
 reported speed); step 5 in :class:`SampleClock` (anchor and next sample index, gaps and resyncs,
 the sample-rate median check), except the dropping of NaN/inf samples, which
 :class:`TachometerDecoder` does before handing each finite run to the edge detector. The
-decoder composes the three, holds the counters they update (:class:`TachCounters`) and builds each batch's
-:class:`TachBatchResult` from a :class:`TachOutput`; the rotor state of step 6 combines the
-gate's signal loss with the detector's levels.
+decoder composes the three, holds the counters they update (:class:`TachCounters`) and
+builds each batch's :class:`TachBatchResult` from a :class:`TachOutput`; the rotor state of
+step 6 combines the gate's signal loss with the detector's levels.
 """
 
 from __future__ import annotations
