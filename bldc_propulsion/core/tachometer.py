@@ -52,21 +52,29 @@ speeds do not depend on how the samples are cut into batches):
    be known: ``stopped`` (steady at the clear level: speed 0 is true), ``blocked`` (steady at the
    blocked level: a blade parked in the beam, or the emitter dark), ``stuck`` (steady between
    the levels: sensor fault), ``no_edges`` (no blade seen yet, levels unknown).
+
+Where each step lives (:mod:`bldc_propulsion.core.tachometer_parts`): steps 1-3 and the glitch
+check of step 4 in :class:`EdgeDetector` (level trackers, hysteresis state, midpoint crossing,
+the edge awaiting its glitch check); the speed, overspeed and noise verification of step 4 and
+the timeout and signal loss of step 6 in :class:`SpeedGate` (one-revolution edge history, last
+reported speed); step 5 in :class:`SampleClock` (anchor and next sample index, gaps and resyncs,
+the sample-rate median check), except the dropping of NaN/inf samples, which
+:class:`TachometerDecoder` does before handing each finite run to the edge detector. The
+decoder composes the three, holds the counters they update (:class:`TachCounters`) and
+builds each batch's :class:`TachBatchResult` from a :class:`TachOutput`; the rotor state of
+step 6 combines the gate's signal loss with the detector's levels.
 """
 
 from __future__ import annotations
 
 import math
-import statistics
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import BadInputError
 from .status import ERROR, OK, WARN, CoreStatus, counters
-
-TWO_PI = 2.0 * math.pi
+from .tachometer_parts import TWO_PI, EdgeDetector, SampleClock, SpeedGate, TachCounters, TachOutput
 
 #: Values of :attr:`TachBatchResult.state`.
 SPINNING = "spinning"
@@ -153,8 +161,25 @@ class TachBatchResult:
 _EMPTY = np.zeros(0)
 
 
+class _Counter:
+    """A decoder attribute that is one field of its :class:`TachCounters` (read and write)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj: TachometerDecoder | None, owner: type | None = None):
+        return self if obj is None else getattr(obj.counts, self.name)
+
+    def __set__(self, obj: TachometerDecoder, value: int) -> None:
+        setattr(obj.counts, self.name, value)
+
+
 class TachometerDecoder:
-    """Streaming decoder of phototransistor batches into edge times and speeds."""
+    """Streaming decoder of phototransistor batches into edge times and speeds.
+
+    Composes a :class:`SampleClock` (sample times), an :class:`EdgeDetector` (samples to edges)
+    and a :class:`SpeedGate` (edges to speeds), which share one :class:`TachCounters`.
+    """
 
     _CHUNK = 16384  #: long inputs are processed in slices of this size (cache, precision)
     RATE_CHECK_BATCHES = 5  #: batches whose median sample rate is compared with the parameter
@@ -162,67 +187,39 @@ class TachometerDecoder:
     VERIFY_TOLERANCE = 0.05  #: relative agreement of consecutive speeds that ends a noise check
     MAX_ACCEL_RAD_S2 = 20000.0  #: faster speed changes than this are noise (a 12" prop: ~5000)
 
+    # counters (attributes of the decoder, kept in self.counts)
+    batches = _Counter()
+    samples = _Counter()
+    rejected_batches = _Counter()  #: time not increasing / not finite
+    gaps = _Counter()  #: batches that started later than expected (missing samples)
+    missing_samples = _Counter()
+    time_resyncs = _Counter()  #: batches that overlapped the previous ones beyond tolerance
+    nonfinite_samples = _Counter()  #: NaN/inf samples, and samples beyond max_abs_v
+    nonfinite_gaps = _Counter()
+    edges = _Counter()
+    glitches = _Counter()  #: edge pairs closer than physically possible, dropped
+    overspeed = _Counter()  #: speeds above max_speed_rad_s, rejected
+    speeds = _Counter()
+    signal_losses = _Counter()
+    history_resets = _Counter()
+    rate_mismatch_batches = _Counter()  #: batches decoded while the sample rate disagreed
+    speeds_suppressed = _Counter()  #: speeds not reported because of a sample-rate mismatch
+    speeds_unverified = _Counter()  #: speeds withheld after noise until two consecutive agree
+
     def __init__(self, config: TachometerConfig | None = None) -> None:
         self.config = config or TachometerConfig()
-        cfg = self.config
-        self.dt = 1.0 / cfg.sample_rate_hz
-        self._n_rev = cfg.edges_per_rev
-        self._min_trig = cfg.min_edge_interval_s * cfg.sample_rate_hz  # in samples
-        self._decay = cfg.level_decay_v_per_s * self.dt  # volts per sample
-        self._ramp = np.arange(1024, dtype=float) * self._decay
-        # counters
-        self.batches = 0
-        self.samples = 0
-        self.rejected_batches = 0  #: time not increasing / not finite
-        self.gaps = 0  #: batches that started later than expected (missing samples)
-        self.missing_samples = 0
-        self.time_resyncs = 0  #: batches that overlapped the previous ones beyond tolerance
-        self.nonfinite_samples = 0  #: NaN/inf samples, and samples beyond max_abs_v
-        self.nonfinite_gaps = 0
-        self.edges = 0
-        self.glitches = 0  #: edge pairs closer than physically possible, dropped
-        self.overspeed = 0  #: speeds above max_speed_rad_s, rejected
-        self.speeds = 0
-        self.signal_losses = 0
-        self.history_resets = 0
-        self.rate_mismatch_batches = 0  #: batches decoded while the sample rate disagreed
-        self.speeds_suppressed = 0  #: speeds not reported because of a sample-rate mismatch
-        self.speeds_unverified = 0  #: speeds withheld after noise until two consecutive agree
+        self.dt = 1.0 / self.config.sample_rate_hz
+        self.counts = TachCounters()
         self.reset()
 
     def reset(self) -> None:
         """Forget everything measured (counters stay)."""
-        self._anchor: float | None = None  # time of sample index 0 of the current clock
-        self._next_idx = 0  # clock index of the next expected sample
-        self._last_batch_t: float | None = None
-        self._t_start: float | None = None
-        self._now: float | None = None
-        self._hi: float | None = None  # level trackers (unclamped), carried across gaps
-        self._lo: float | None = None
-        self._level_now = math.nan
-        self._known: tuple[float, float] | None = None  # (blocked, clear) at the last edge
-        self._hist: deque[float] = deque(maxlen=self._n_rev + 1)  # edge positions (samples)
-        self._last_edge_t: float | None = None
-        self._lost = True  # no signal yet
-        self._edges_since_loss = 0
-        self._have_speed = False
-        self._speed_now = 0.0
-        self._rates: deque[float] = deque(maxlen=self.RATE_CHECK_BATCHES)  # implied rate / parameter
-        self._rate_bad = False
-        self._rate_measured = math.nan
-        self._verify = False  # noise seen: check speeds against each other before reporting
-        self._candidate: float | None = None
-        self._t_speed: float | None = None  # time of the last reported speed
-        self._break_continuity()
-
-    def _break_continuity(self) -> None:
-        """Samples before and after this point are not adjacent: no interpolation across."""
-        self._tail: float | None = None  # previous raw sample (spike guard of the trackers)
-        self._state: bool | None = None  # hysteresis state: True = high (beam clear)
-        self._r_last: float | None = None  # normalised level of the previous sample
-        self._cross: float | None = None  # position of the latest midpoint crossing
-        self._pending: tuple[float, int] | None = None  # (position, switch index)
-        self._pending_levels = (math.nan, math.nan)
+        cfg, counts = self.config, self.counts
+        self._clock = SampleClock(cfg, counts, rate_batches=self.RATE_CHECK_BATCHES,
+                                  rate_tolerance=self.RATE_TOLERANCE)
+        self._gate = SpeedGate(cfg, counts, self._clock, verify_tolerance=self.VERIFY_TOLERANCE,
+                               max_accel=self.MAX_ACCEL_RAD_S2)
+        self._edges = EdgeDetector(cfg, counts, self._gate)
 
     # --- public API --------------------------------------------------------------------------
 
@@ -232,50 +229,35 @@ class TachometerDecoder:
         if x.ndim != 1:
             x = x.reshape(-1)
         n = len(x)
+        out = TachOutput()
         if n == 0:
-            return self._result([], [], [])
+            return self._result(out)
         t_last = float(t_last)
-        if not math.isfinite(t_last) or (self._last_batch_t is not None and t_last <= self._last_batch_t):
-            self.rejected_batches += 1
-            return self._result([], [], [])
-        dt = self.dt
-        edge_t: list[float] = []
-        speed: list[float] = []
-        all_t: list[float] = []
-        out = (edge_t, speed, all_t)
-        self._check_rate(t_last, n)
-        t_first = t_last - (n - 1) * dt
-        if self._anchor is None:
-            self._anchor, self._next_idx = t_first, 0
-            if self._t_start is None:
-                self._t_start = t_first
-        else:
-            delta = t_first - (self._anchor + self._next_idx * dt)
-            if abs(delta) > self.config.gap_tolerance_s:
-                if delta > 0:
-                    self.gaps += 1
-                    self.missing_samples += int(round(delta / dt))
-                else:
-                    self.time_resyncs += 1
-                self._restart_history(out)
-                self._anchor, self._next_idx = t_first, 0
-        self.batches += 1
-        self.samples += n
-        self._last_batch_t = t_last
-        i0 = self._next_idx
-        self._next_idx += n
+        clock, edges = self._clock, self._edges
+        if not clock.accepts(t_last):
+            return self._result(out)
+        if clock.check_rate(t_last, n):  # whatever was measured at the wrong rate is void
+            self._gate.void_speed()
+        t_first = t_last - (n - 1) * self.dt
+        if clock.anchor is None:
+            clock.restart(t_first)
+        elif clock.breaks(t_first):  # samples missing, or time went back: no speed across
+            edges.settle(out)
+            clock.restart(t_first)
+        i0 = clock.advance(t_last, n)
         lim = self.config.max_abs_v
         if not (x.max() <= lim and x.min() >= -lim):  # NaN/inf or absurd values: all as NaN
             x = np.where(np.abs(x) <= lim, x, np.nan)
+        segment, chunk = edges.segment, self._CHUNK
         if math.isfinite(x.sum()):  # no NaN/inf (the sum of volts cannot overflow)
-            if n <= self._CHUNK:
-                self._segment(x, i0, out)
+            if n <= chunk:
+                segment(x, i0, out)
             else:
-                for a in range(0, n, self._CHUNK):
-                    self._segment(x[a:a + self._CHUNK], i0 + a, out)
+                for a in range(0, n, chunk):
+                    segment(x[a:a + chunk], i0 + a, out)
         else:
             fin = np.isfinite(x)
-            self.nonfinite_samples += int(n - np.count_nonzero(fin))
+            self.counts.nonfinite_samples += int(n - np.count_nonzero(fin))
             # runs of finite samples: [starts[i], stops[i])
             d = np.diff(np.concatenate(([0], fin.astype(np.int8), [0])))
             starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
@@ -284,12 +266,12 @@ class TachometerDecoder:
             for k, (a, b) in enumerate(zip(starts.tolist(), stops.tolist())):
                 if k > 0:
                     self._nonfinite_gap(out)
-                for c in range(a, b, self._CHUNK):
-                    self._segment(x[c:min(b, c + self._CHUNK)], i0 + c, out)
+                for c in range(a, b, chunk):
+                    segment(x[c:min(b, c + chunk)], i0 + c, out)
             if len(stops) and stops[-1] < n:
                 self._nonfinite_gap(out)
-        self._check_time(self._anchor + (self._next_idx - 1) * dt)
-        return self._result(edge_t, speed, all_t)
+        self._check_time(clock.last_sample_t())
+        return self._result(out)
 
     def process(self, t0: float, samples, batch_size: int | None = None) -> TachBatchResult:
         """Decode a flat array whose first sample is at ``t0`` (s), in batches of ``batch_size``.
@@ -307,7 +289,7 @@ class TachometerDecoder:
             b = min(n, a + bs)
             parts.append(self.process_batch(t0 + (b - 1) * self.dt, x[a:b]))
         if not parts:  # empty input
-            return self._result([], [], [])
+            return self._result(TachOutput())
         return TachBatchResult(
             edge_t=np.concatenate([p.edge_t for p in parts]),
             speed=np.concatenate([p.speed for p in parts]),
@@ -320,26 +302,7 @@ class TachometerDecoder:
     @property
     def rate_mismatch(self) -> bool:
         """True while the batches' timing says the data is not at ``sample_rate_hz``."""
-        return self._rate_bad
-
-    def _check_rate(self, t_last: float, n: int) -> None:
-        """Compare the samples per second the batch stamps imply with the parameter."""
-        if self._last_batch_t is not None:
-            self._rates.append(n / (t_last - self._last_batch_t) / self.config.sample_rate_hz)
-        if not self._rates:  # the first batch: no timing to compare yet
-            return
-        ratio = float(statistics.median(self._rates))  # 5 numbers: faster than np.median
-        bad = abs(ratio - 1.0) > self.RATE_TOLERANCE
-        if bad:
-            self._rate_measured = ratio * self.config.sample_rate_hz
-            self.rate_mismatch_batches += 1
-            if not self._rate_bad:  # whatever was measured at the wrong rate is void
-                self._speed_now = 0.0
-                self._have_speed = False
-                if self._hist:
-                    self.history_resets += 1
-                self._hist.clear()
-        self._rate_bad = bad
+        return self._clock.rate_bad
 
     def check_timeout(self, t_now: float) -> bool:
         """Apply the timeout at ``t_now`` (s) when no batch arrives; True if the signal is lost just now."""
@@ -350,21 +313,22 @@ class TachometerDecoder:
 
     @property
     def speed_now(self) -> float:
-        return self._speed_now
+        return self._gate.speed_now
 
     @property
     def signal_ok(self) -> bool:
-        return self._have_speed and not self._lost
+        return self._gate.have_speed and not self._gate.lost
 
     @property
     def state(self) -> str:
         """What is known about the rotor: spinning, starting, stopped, blocked, stuck, no_edges."""
-        if not self._lost:
-            return SPINNING if self._have_speed else STARTING
-        if self._known is None or not math.isfinite(self._level_now):
+        gate, edges = self._gate, self._edges
+        if not gate.lost:
+            return SPINNING if gate.have_speed else STARTING
+        if edges.known is None or not math.isfinite(edges.level_now):
             return NO_EDGES
-        lo, hi = self._known
-        frac = (self._level_now - lo) / (hi - lo)
+        lo, hi = edges.known
+        frac = (edges.level_now - lo) / (hi - lo)
         if frac > 0.75:
             return STOPPED
         if frac < 0.25:
@@ -374,23 +338,24 @@ class TachometerDecoder:
     def status(self) -> list[CoreStatus]:
         """Counters and what the signal says; WARN when no speed can be measured for a bad reason."""
         state = self.state
+        clock, edges = self._clock, self._edges
         level = OK if state in (SPINNING, STARTING, STOPPED) else WARN
         msg = _STATE_TEXT[state]
-        if self._rate_bad:
+        if clock.rate_bad:
             level, msg = ERROR, (
-                f"sample rate mismatch: batches carry {self._rate_measured:.0f} samples/s, "
+                f"sample rate mismatch: batches carry {clock.rate_measured:.0f} samples/s, "
                 f"sample_rate_hz is {self.config.sample_rate_hz:g}; no speed reported")
-        elif self._now is not None and self._last_batch_t is not None \
-                and self._now - self._last_batch_t > self.config.timeout_s:
-            level, msg = WARN, f"no tachometer/adc batch for {self._now - self._last_batch_t:.2f} s"
-        elif self._last_batch_t is None:
+        elif clock.now is not None and clock.last_batch_t is not None \
+                and clock.now - clock.last_batch_t > self.config.timeout_s:
+            level, msg = WARN, f"no tachometer/adc batch for {clock.now - clock.last_batch_t:.2f} s"
+        elif clock.last_batch_t is None:
             level, msg = WARN, "no tachometer/adc batch yet"
-        known = self._known or (math.nan, math.nan)
+        known = edges.known or (math.nan, math.nan)
         return [CoreStatus("tachometer", level, msg, counters(
             state=state,
-            speed_rad_s=self._speed_now,
+            speed_rad_s=self.speed_now,
             signal_ok=self.signal_ok,
-            level_v=self._level_now,
+            level_v=edges.level_now,
             clear_level_v=known[1],
             blocked_level_v=known[0],
             batches=self.batches,
@@ -406,8 +371,8 @@ class TachometerDecoder:
             missing_samples=self.missing_samples,
             time_resyncs=self.time_resyncs,
             nonfinite_samples=self.nonfinite_samples,
-            rate_mismatch=self._rate_bad,
-            measured_sample_rate_hz=self._rate_measured,
+            rate_mismatch=clock.rate_bad,
+            measured_sample_rate_hz=clock.rate_measured,
             rate_mismatch_batches=self.rate_mismatch_batches,
             speeds_suppressed=self.speeds_suppressed,
             speeds_unverified=self.speeds_unverified,
@@ -415,216 +380,25 @@ class TachometerDecoder:
 
     # --- internals ---------------------------------------------------------------------------
 
-    def _result(self, edge_t, speed, all_t) -> TachBatchResult:
+    def _result(self, out: TachOutput) -> TachBatchResult:
         return TachBatchResult(
-            edge_t=np.asarray(edge_t, dtype=float) if edge_t else _EMPTY,
-            speed=np.asarray(speed, dtype=float) if speed else _EMPTY,
-            speed_now=self._speed_now,
+            edge_t=np.asarray(out.edge_t, dtype=float) if out.edge_t else _EMPTY,
+            speed=np.asarray(out.speed, dtype=float) if out.speed else _EMPTY,
+            speed_now=self._gate.speed_now,
             signal_ok=self.signal_ok,
-            all_edge_t=np.asarray(all_t, dtype=float) if all_t else _EMPTY,
+            all_edge_t=np.asarray(out.all_edge_t, dtype=float) if out.all_edge_t else _EMPTY,
             state=self.state,
         )
 
-    def _nonfinite_gap(self, out) -> None:
-        if self._tail is not None:  # count each hole once, however it is cut into batches
-            self.nonfinite_gaps += 1
-            self._restart_history(out)
-
-    def _restart_history(self, out) -> None:
-        """Samples are missing: settle the pending edge, forget the edge history and continuity."""
-        if self._pending is not None:
-            self._confirm(self._pending[0], out)
-        if self._hist:
-            self.history_resets += 1
-        self._hist.clear()
-        self._break_continuity()
+    def _nonfinite_gap(self, out: TachOutput) -> None:
+        if self._edges.tail is not None:  # count each hole once, however it is cut into batches
+            self.counts.nonfinite_gaps += 1
+            self._edges.settle(out)
 
     def _check_time(self, now: float) -> bool:
         """Timeout bookkeeping at time ``now``; True if the signal was declared lost here."""
-        if self._now is None or now > self._now:
-            self._now = now
-        ref = self._last_edge_t if self._last_edge_t is not None else self._t_start
-        if self._lost or ref is None or now - ref <= self.config.timeout_s:
-            return False
-        if self._pending is not None and self._pos_time(self._pending[0]) - ref <= self.config.timeout_s:
-            return False  # an edge arrived in time, it is only awaiting its glitch check
-        self._declare_lost()
-        return True
-
-    def _declare_lost(self) -> None:
-        self._lost = True
-        self.signal_losses += 1
-        self._speed_now = 0.0
-        self._have_speed = False
-        self._edges_since_loss = 0
-        if self._hist:
-            self.history_resets += 1
-        self._hist.clear()
-
-    def _ramp_for(self, n: int) -> np.ndarray:
-        if n > len(self._ramp):
-            self._ramp = np.arange(max(n, 2 * len(self._ramp)), dtype=float) * self._decay
-        return self._ramp[:n]
-
-    def _segment(self, x: np.ndarray, i0: int, out) -> None:
-        """Decode contiguous finite samples x whose first one has clock index i0."""
-        n = len(x)
-        cfg = self.config
-        c = self._decay
-        x0 = x.item(0)
-        if self._tail is None:
-            self._tail = x0
-        if self._hi is None:
-            self._hi = x0 + c
-            self._lo = min(cfg.initial_low_v, x0) - c
-        # Level trackers see a 2-sample min (clear level) / max (blocked level) of the signal,
-        # so a one-sample spike does not move them. Peak trackers with linear decay,
-        # hi[i] = max(s[i], hi[i-1] - c), vectorised as hi[i] = max_j<=i (s[j] + c j) - c i
-        # (and the same for lo with min).
-        k = self._ramp[:n] if n <= len(self._ramp) else self._ramp_for(n)
-        u = np.empty(n)
-        np.minimum(x[:-1], x[1:], out=u[1:])
-        u[0] = min(self._tail, x0)
-        u += k
-        if u[0] < self._hi - c:
-            u[0] = self._hi - c
-        np.maximum.accumulate(u, out=u)
-        hi = u
-        hi -= k
-        v = np.empty(n)
-        np.maximum(x[:-1], x[1:], out=v[1:])
-        v[0] = max(self._tail, x0)
-        v -= k
-        if v[0] > self._lo + c:
-            v[0] = self._lo + c
-        np.minimum.accumulate(v, out=v)
-        lo = v
-        lo += k
-        self._tail = self._level_now = x.item(-1)
-        self._hi, self._lo = hi.item(-1), lo.item(-1)
-        # clamp: keep the blocked level at least min_contrast_v under the clear level
-        np.minimum(lo, hi - cfg.min_contrast_v, out=lo)
-        span = hi - lo
-        r = x - lo
-        r /= span  # 0 = blocked level, 1 = clear level
-        r_prev0 = self._r_last if self._r_last is not None else r.item(0)
-        self._r_last = r.item(-1)
-        state = self._state
-        if state is None:
-            state = self._state = bool(r[0] >= 0.5)
-        # fast path: nothing can switch
-        if (r.min() >= cfg.low_fraction) if state else (r.max() <= cfg.high_fraction):
-            trig = None
-        else:
-            # vectorised hysteresis: +1 above high, -1 below low; a switch is an event whose
-            # sign differs from the previous event's
-            e = (r > cfg.high_fraction).view(np.int8) - (r < cfg.low_fraction).view(np.int8)
-            ev = np.flatnonzero(e)
-            val = e[ev] > 0
-            prev = np.empty_like(val)
-            prev[0] = state
-            prev[1:] = val[:-1]
-            trig = ev[val != prev]
-            self._state = bool(val[-1])
-        if trig is not None:
-            for kk in trig.tolist():
-                p = self._crossing(r, kk, r_prev0, i0)
-                if p is None:  # the crossing was in an earlier slice
-                    p = self._cross if self._cross is not None else float(i0 + kk)
-                self._switch(p, i0 + kk, out, float(hi[kk]), float(lo[kk]))
-        if cfg.low_fraction <= self._r_last <= cfg.high_fraction:
-            # the slice ends inside a transition: its switch may come in a later slice and
-            # need the midpoint crossing found here
-            p = self._crossing(r, n, r_prev0, i0)
-            if p is not None:
-                self._cross = p
-        # a pending edge is confirmed once no later switch can be close enough to cancel it
-        if self._pending is not None and (i0 + n - self._pending[1]) >= self._min_trig:
-            self._confirm(self._pending[0], out)
-            self._pending = None
-
-    def _crossing(self, r: np.ndarray, kk: int, r_prev0: float, i0: int) -> float | None:
-        """Position (clock samples) of the last midpoint crossing at or before index kk of the slice.
-
-        Scans back while the signal stays in the hysteresis band (between a crossing and its
-        switch it does); None if the crossing is before the slice or not there yet.
-        kk == len(r) asks for the last crossing of the slice.
-        """
-        lo_f, hi_f = self.config.low_fraction, self.config.high_fraction
-        item = r.item
-        i = min(kk, len(r) - 1)
-        side = item(i) >= 0.5
-        while True:
-            rb = item(i)
-            ra = item(i - 1) if i > 0 else r_prev0
-            if (ra >= 0.5) != side and (rb >= 0.5) == side:
-                frac = (ra - 0.5) / (ra - rb) if ra != rb else 0.0
-                return i0 + i - 1 + frac
-            if i == 0 or not (lo_f <= ra <= hi_f):
-                return None
-            i -= 1
-
-    def _switch(self, p: float, g: int, out, hi: float, lo: float) -> None:
-        """A hysteresis switch at clock index g, interpolated edge position p."""
-        if self._pending is not None:
-            if g - self._pending[1] < self._min_trig:  # a spike: drop it and its partner
-                self.glitches += 1
-                self._verify, self._candidate = True, None
-                self._pending = None
-                return
-            self._confirm(self._pending[0], out)
-        self._pending = (p, g)
-        self._pending_levels = (float(lo), float(hi))
-
-    def _pos_time(self, p: float) -> float:
-        return self._anchor + p * self.dt
-
-    def _confirm(self, p: float, out) -> None:
-        """An accepted edge at position p: history, speed, timeout bookkeeping."""
-        t = self._pos_time(p)
-        if self._last_edge_t is not None and t - self._last_edge_t > self.config.timeout_s \
-                and not self._lost:
-            self._declare_lost()  # silence between two edges longer than the timeout
-        self._lost = False
-        self._edges_since_loss += 1
-        self.edges += 1
-        self._last_edge_t = t
-        self._known = self._pending_levels
-        hist = self._hist
-        hist.append(p)
-        if out is not None:
-            out[2].append(t)
-        if len(hist) == self._n_rev + 1:
-            w = TWO_PI / ((p - hist[0]) * self.dt)
-            if w > self.config.max_speed_rad_s:
-                self.overspeed += 1
-                self.history_resets += 1
-                self._verify, self._candidate = True, None
-                hist.clear()
-                hist.append(p)
-                return
-            if self._rate_bad:  # edge times scaled by the wrong rate: not a speed
-                self.speeds_suppressed += 1
-                return
-            tol = self.VERIFY_TOLERANCE
-            reachable = True
-            if self._t_speed is not None and self._speed_now > 0.0:
-                jump = abs(w - self._speed_now)
-                reachable = jump <= self.MAX_ACCEL_RAD_S2 * (t - self._t_speed) + tol * self._speed_now
-            if not reachable and not self._verify:
-                self._verify, self._candidate = True, None
-            if self._verify:  # after noise: only a plausible speed that its predecessor confirms
-                prev, self._candidate = self._candidate, w
-                agree = (self._t_speed is not None and self._speed_now > 0.0 and reachable
-                         and abs(w / self._speed_now - 1.0) <= tol)
-                if not agree and (prev is None or abs(w / prev - 1.0) > tol or not reachable):
-                    self.speeds_unverified += 1
-                    return
-                self._verify, self._candidate = False, None
-            self.speeds += 1
-            self._t_speed = t
-            self._speed_now = w
-            self._have_speed = True
-            if out is not None:
-                out[0].append(t)
-                out[1].append(w)
+        clock = self._clock
+        clock.see(now)
+        pending = self._edges.pending
+        t_pending = None if pending is None else clock.anchor + pending[0] * clock.dt
+        return self._gate.check_timeout(now, clock.t_start, t_pending)

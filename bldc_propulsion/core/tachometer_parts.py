@@ -1,0 +1,437 @@
+"""The collaborators :class:`~bldc_propulsion.core.tachometer.TachometerDecoder` is made of.
+
+- :class:`SampleClock`: which time each sample has (anchor, gaps, resyncs, the sample-rate check);
+- :class:`EdgeDetector`: samples to edge positions (level trackers, hysteresis, midpoint-crossing
+  interpolation, glitches, the edge awaiting its glitch check);
+- :class:`SpeedGate`: edges to speeds (one-revolution history, overspeed, noise verification,
+  timeout and signal loss);
+- :class:`TachCounters`: the counters all three update (the decoder shows them as attributes);
+- :class:`TachOutput`: what one batch produced so far.
+
+The steps are described in the docstring of :mod:`bldc_propulsion.core.tachometer`. Positions
+are in clock samples (float, sub-sample), times in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .tachometer import TachometerConfig
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass(slots=True)
+class TachCounters:
+    """Event counters of one decoder (kept by :meth:`TachometerDecoder.reset`)."""
+
+    batches: int = 0
+    samples: int = 0
+    rejected_batches: int = 0  #: time not increasing / not finite
+    gaps: int = 0  #: batches that started later than expected (missing samples)
+    missing_samples: int = 0
+    time_resyncs: int = 0  #: batches that overlapped the previous ones beyond tolerance
+    nonfinite_samples: int = 0  #: NaN/inf samples, and samples beyond max_abs_v
+    nonfinite_gaps: int = 0
+    edges: int = 0
+    glitches: int = 0  #: edge pairs closer than physically possible, dropped
+    overspeed: int = 0  #: speeds above max_speed_rad_s, rejected
+    speeds: int = 0
+    signal_losses: int = 0
+    history_resets: int = 0
+    rate_mismatch_batches: int = 0  #: batches decoded while the sample rate disagreed
+    speeds_suppressed: int = 0  #: speeds not reported because of a sample-rate mismatch
+    speeds_unverified: int = 0  #: speeds withheld after noise until two consecutive agree
+
+
+@dataclass(slots=True)
+class TachOutput:
+    """Accumulator of one batch: speeds with their edge times, and every accepted edge time."""
+
+    edge_t: list[float] = field(default_factory=list)
+    speed: list[float] = field(default_factory=list)
+    all_edge_t: list[float] = field(default_factory=list)
+
+
+class SampleClock:
+    """Clock index of every sample, anchored on the batch stamps (step 5 of the decoder).
+
+    Sample ``i`` of the current clock is at ``anchor + i * dt``; a batch that does not start
+    where the previous one ended (beyond ``gap_tolerance_s``) is a gap or a resync and starts a
+    new clock. Also checks the median sample rate the batch stamps imply against the parameter.
+    """
+
+    __slots__ = ("dt", "counts", "_rate_hz", "_gap_tolerance_s", "_rate_tolerance",
+                 "anchor", "next_idx", "last_batch_t", "t_start", "now",
+                 "rates", "rate_bad", "rate_measured")
+
+    def __init__(self, cfg: TachometerConfig, counts: TachCounters, *, rate_batches: int,
+                 rate_tolerance: float) -> None:
+        self.dt = 1.0 / cfg.sample_rate_hz
+        self.counts = counts
+        self._rate_hz = cfg.sample_rate_hz
+        self._gap_tolerance_s = cfg.gap_tolerance_s
+        self._rate_tolerance = rate_tolerance
+        self.anchor: float | None = None  #: time of sample index 0 of the current clock
+        self.next_idx = 0  #: clock index of the next expected sample
+        self.last_batch_t: float | None = None  #: stamp of the last accepted batch
+        self.t_start: float | None = None  #: time of the very first sample
+        self.now: float | None = None  #: latest time seen (batch or check_timeout)
+        self.rates: deque[float] = deque(maxlen=rate_batches)  #: implied rate / parameter
+        self.rate_bad = False  #: the median implied rate disagrees with the parameter
+        self.rate_measured = math.nan  #: that median rate (samples/s), while it disagrees
+
+    def accepts(self, t_last: float) -> bool:
+        """A batch stamped ``t_last`` moves time forward (else it is counted as rejected)."""
+        if not math.isfinite(t_last) or (self.last_batch_t is not None and t_last <= self.last_batch_t):
+            self.counts.rejected_batches += 1
+            return False
+        return True
+
+    def check_rate(self, t_last: float, n: int) -> bool:
+        """Compare the samples per second the batch stamps imply with the parameter.
+
+        True if a mismatch starts with this batch (what was measured at the wrong rate is void).
+        """
+        if self.last_batch_t is not None:
+            self.rates.append(n / (t_last - self.last_batch_t) / self._rate_hz)
+        if not self.rates:  # the first batch: no timing to compare yet
+            return False
+        ratio = float(statistics.median(self.rates))  # 5 numbers: faster than np.median
+        bad = abs(ratio - 1.0) > self._rate_tolerance
+        starts = False
+        if bad:
+            self.rate_measured = ratio * self._rate_hz
+            self.counts.rate_mismatch_batches += 1
+            starts = not self.rate_bad
+        self.rate_bad = bad
+        return starts
+
+    def breaks(self, t_first: float) -> bool:
+        """True if a batch whose first sample is at ``t_first`` does not continue the clock
+        (gap or resync, counted); the caller then settles the old clock and calls :meth:`restart`."""
+        dt = self.dt
+        delta = t_first - (self.anchor + self.next_idx * dt)
+        if abs(delta) > self._gap_tolerance_s:
+            if delta > 0:
+                self.counts.gaps += 1
+                self.counts.missing_samples += int(round(delta / dt))
+            else:
+                self.counts.time_resyncs += 1
+            return True
+        return False
+
+    def restart(self, t_first: float) -> None:
+        """A new clock whose index 0 is at ``t_first``."""
+        self.anchor, self.next_idx = t_first, 0
+        if self.t_start is None:
+            self.t_start = t_first
+
+    def advance(self, t_last: float, n: int) -> int:
+        """Account for a batch of n samples stamped t_last; the clock index of its first sample."""
+        self.counts.batches += 1
+        self.counts.samples += n
+        self.last_batch_t = t_last
+        i0 = self.next_idx
+        self.next_idx += n
+        return i0
+
+    def last_sample_t(self) -> float:
+        return self.anchor + (self.next_idx - 1) * self.dt
+
+    def see(self, now: float) -> None:
+        """Time has reached ``now`` (never goes back)."""
+        if self.now is None or now > self.now:
+            self.now = now
+
+
+class SpeedGate:
+    """Accepted edges to speeds (steps 4 and 6): one-revolution history, overspeed, noise
+    verification, timeout and signal loss."""
+
+    __slots__ = ("counts", "_clock", "_n_rev", "_max_speed", "_timeout_s", "_verify_tol",
+                 "_max_accel", "hist", "last_edge_t", "lost", "edges_since_loss", "have_speed",
+                 "speed_now", "verify", "candidate", "t_speed")
+
+    def __init__(self, cfg: TachometerConfig, counts: TachCounters, clock: SampleClock, *,
+                 verify_tolerance: float, max_accel: float) -> None:
+        self.counts = counts
+        self._clock = clock  # edge positions to times, and the sample-rate verdict
+        self._n_rev = cfg.edges_per_rev
+        self._max_speed = cfg.max_speed_rad_s
+        self._timeout_s = cfg.timeout_s
+        self._verify_tol = verify_tolerance
+        self._max_accel = max_accel
+        self.hist: deque[float] = deque(maxlen=self._n_rev + 1)  #: edge positions (samples)
+        self.last_edge_t: float | None = None
+        self.lost = True  #: no signal yet, or lost
+        self.edges_since_loss = 0
+        self.have_speed = False
+        self.speed_now = 0.0
+        self.verify = False  #: noise seen: check speeds against each other before reporting
+        self.candidate: float | None = None  #: the previous speed under verification
+        self.t_speed: float | None = None  #: time of the last reported speed
+
+    def clear_history(self) -> None:
+        """No speed across this point (gap, loss, rate mismatch)."""
+        if self.hist:
+            self.counts.history_resets += 1
+        self.hist.clear()
+
+    def void_speed(self) -> None:
+        """The speed so far was measured at a wrong sample rate: forget it."""
+        self.speed_now = 0.0
+        self.have_speed = False
+        self.clear_history()
+
+    def noise_seen(self) -> None:
+        """Evidence of noise: verify the next speeds before reporting them."""
+        self.verify, self.candidate = True, None
+
+    def declare_lost(self) -> None:
+        self.lost = True
+        self.counts.signal_losses += 1
+        self.speed_now = 0.0
+        self.have_speed = False
+        self.edges_since_loss = 0
+        self.clear_history()
+
+    def check_timeout(self, now: float, t_start: float | None, t_pending: float | None) -> bool:
+        """Declare the signal lost if no edge came for timeout_s before ``now``; True if so here.
+
+        ``t_pending`` is the time of an edge still awaiting its glitch check (None if none).
+        """
+        ref = self.last_edge_t if self.last_edge_t is not None else t_start
+        if self.lost or ref is None or now - ref <= self._timeout_s:
+            return False
+        if t_pending is not None and t_pending - ref <= self._timeout_s:
+            return False  # an edge arrived in time, it is only awaiting its glitch check
+        self.declare_lost()
+        return True
+
+    def edge(self, p: float, out: TachOutput) -> None:
+        """An accepted edge at position p: history, speed, timeout bookkeeping."""
+        clock = self._clock
+        t = clock.anchor + p * clock.dt
+        counts = self.counts
+        if self.last_edge_t is not None and t - self.last_edge_t > self._timeout_s \
+                and not self.lost:
+            self.declare_lost()  # silence between two edges longer than the timeout
+        self.lost = False
+        self.edges_since_loss += 1
+        counts.edges += 1
+        self.last_edge_t = t
+        hist = self.hist
+        hist.append(p)
+        out.all_edge_t.append(t)
+        if len(hist) == self._n_rev + 1:
+            w = TWO_PI / ((p - hist[0]) * clock.dt)
+            if w > self._max_speed:
+                counts.overspeed += 1
+                counts.history_resets += 1
+                self.verify, self.candidate = True, None
+                hist.clear()
+                hist.append(p)
+                return
+            if clock.rate_bad:  # edge times scaled by the wrong rate: not a speed
+                counts.speeds_suppressed += 1
+                return
+            if not self._plausible(w, t):
+                counts.speeds_unverified += 1
+                return
+            counts.speeds += 1
+            self.t_speed = t
+            self.speed_now = w
+            self.have_speed = True
+            out.edge_t.append(t)
+            out.speed.append(w)
+
+    def _plausible(self, w: float, t: float) -> bool:
+        """Whether speed w at time t may be reported (the noise verification of step 4)."""
+        tol = self._verify_tol
+        reachable = True
+        if self.t_speed is not None and self.speed_now > 0.0:
+            jump = abs(w - self.speed_now)
+            reachable = jump <= self._max_accel * (t - self.t_speed) + tol * self.speed_now
+        if not reachable and not self.verify:
+            self.verify, self.candidate = True, None
+        if self.verify:  # after noise: only a plausible speed that its predecessor confirms
+            prev, self.candidate = self.candidate, w
+            agree = (self.t_speed is not None and self.speed_now > 0.0 and reachable
+                     and abs(w / self.speed_now - 1.0) <= tol)
+            if not agree and (prev is None or abs(w / prev - 1.0) > tol or not reachable):
+                return False
+            self.verify, self.candidate = False, None
+        return True
+
+
+class EdgeDetector:
+    """Contiguous finite samples to edge positions (steps 1 to 4 of the decoder).
+
+    Tracks the clear and blocked levels, applies the hysteresis, interpolates each edge at the
+    midpoint crossing and holds the latest edge until no later switch can make it a glitch;
+    accepted edges go to the :class:`SpeedGate`.
+    """
+
+    __slots__ = ("counts", "_gate", "_decay", "_ramp", "_min_trig", "_low_f", "_high_f",
+                 "_min_contrast", "_initial_low", "hi", "lo", "level_now", "known",
+                 "tail", "state", "r_last", "cross", "pending", "pending_levels")
+
+    def __init__(self, cfg: TachometerConfig, counts: TachCounters, gate: SpeedGate) -> None:
+        self.counts = counts
+        self._gate = gate
+        dt = 1.0 / cfg.sample_rate_hz
+        self._decay = cfg.level_decay_v_per_s * dt  # volts per sample
+        self._ramp = np.arange(1024, dtype=float) * self._decay
+        self._min_trig = cfg.min_edge_interval_s * cfg.sample_rate_hz  # in samples
+        self._low_f = cfg.low_fraction
+        self._high_f = cfg.high_fraction
+        self._min_contrast = cfg.min_contrast_v
+        self._initial_low = cfg.initial_low_v
+        self.hi: float | None = None  #: clear-level tracker (unclamped), carried across gaps
+        self.lo: float | None = None  #: blocked-level tracker (unclamped), carried across gaps
+        self.level_now = math.nan  #: latest sample (V)
+        self.known: tuple[float, float] | None = None  #: (blocked, clear) at the last edge
+        self.break_continuity()
+
+    def break_continuity(self) -> None:
+        """Samples before and after this point are not adjacent: no interpolation across."""
+        self.tail: float | None = None  #: previous raw sample (spike guard of the trackers)
+        self.state: bool | None = None  #: hysteresis state: True = high (beam clear)
+        self.r_last: float | None = None  #: normalised level of the previous sample
+        self.cross: float | None = None  #: position of the latest midpoint crossing
+        self.pending: tuple[float, int] | None = None  #: (position, switch index)
+        self.pending_levels = (math.nan, math.nan)  #: (blocked, clear) at the pending edge
+
+    def settle(self, out: TachOutput) -> None:
+        """Samples are missing: accept the pending edge now and forget continuity."""
+        if self.pending is not None:
+            self._confirm(out)
+        self._gate.clear_history()
+        self.break_continuity()
+
+    def _confirm(self, out: TachOutput) -> None:
+        self.known = self.pending_levels
+        self._gate.edge(self.pending[0], out)
+
+    def _ramp_for(self, n: int) -> np.ndarray:
+        if n > len(self._ramp):
+            self._ramp = np.arange(max(n, 2 * len(self._ramp)), dtype=float) * self._decay
+        return self._ramp[:n]
+
+    def segment(self, x: np.ndarray, i0: int, out: TachOutput) -> None:
+        """Decode contiguous finite samples x whose first one has clock index i0."""
+        n = len(x)
+        c = self._decay
+        x0 = x.item(0)
+        if self.tail is None:
+            self.tail = x0
+        if self.hi is None:
+            self.hi = x0 + c
+            self.lo = min(self._initial_low, x0) - c
+        # Level trackers see a 2-sample min (clear level) / max (blocked level) of the signal,
+        # so a one-sample spike does not move them. Peak trackers with linear decay,
+        # hi[i] = max(s[i], hi[i-1] - c), vectorised as hi[i] = max_j<=i (s[j] + c j) - c i
+        # (and the same for lo with min).
+        k = self._ramp[:n] if n <= len(self._ramp) else self._ramp_for(n)
+        u = np.empty(n)
+        np.minimum(x[:-1], x[1:], out=u[1:])
+        u[0] = min(self.tail, x0)
+        u += k
+        if u[0] < self.hi - c:
+            u[0] = self.hi - c
+        np.maximum.accumulate(u, out=u)
+        hi = u
+        hi -= k
+        v = np.empty(n)
+        np.maximum(x[:-1], x[1:], out=v[1:])
+        v[0] = max(self.tail, x0)
+        v -= k
+        if v[0] > self.lo + c:
+            v[0] = self.lo + c
+        np.minimum.accumulate(v, out=v)
+        lo = v
+        lo += k
+        self.tail = self.level_now = x.item(-1)
+        self.hi, self.lo = hi.item(-1), lo.item(-1)
+        # clamp: keep the blocked level at least min_contrast_v under the clear level
+        np.minimum(lo, hi - self._min_contrast, out=lo)
+        span = hi - lo
+        r = x - lo
+        r /= span  # 0 = blocked level, 1 = clear level
+        r_prev0 = self.r_last if self.r_last is not None else r.item(0)
+        self.r_last = r.item(-1)
+        low_f, high_f = self._low_f, self._high_f
+        state = self.state
+        if state is None:
+            state = self.state = bool(r[0] >= 0.5)
+        # fast path: nothing can switch
+        if (r.min() >= low_f) if state else (r.max() <= high_f):
+            trig = None
+        else:
+            # vectorised hysteresis: +1 above high, -1 below low; a switch is an event whose
+            # sign differs from the previous event's
+            e = (r > high_f).view(np.int8) - (r < low_f).view(np.int8)
+            ev = np.flatnonzero(e)
+            val = e[ev] > 0
+            prev = np.empty_like(val)
+            prev[0] = state
+            prev[1:] = val[:-1]
+            trig = ev[val != prev]
+            self.state = bool(val[-1])
+        if trig is not None:
+            for kk in trig.tolist():
+                p = self._crossing(r, kk, r_prev0, i0)
+                if p is None:  # the crossing was in an earlier slice
+                    p = self.cross if self.cross is not None else float(i0 + kk)
+                self._switch(p, i0 + kk, out, float(hi[kk]), float(lo[kk]))
+        if low_f <= self.r_last <= high_f:
+            # the slice ends inside a transition: its switch may come in a later slice and
+            # need the midpoint crossing found here
+            p = self._crossing(r, n, r_prev0, i0)
+            if p is not None:
+                self.cross = p
+        # a pending edge is confirmed once no later switch can be close enough to cancel it
+        if self.pending is not None and (i0 + n - self.pending[1]) >= self._min_trig:
+            self._confirm(out)
+            self.pending = None
+
+    def _crossing(self, r: np.ndarray, kk: int, r_prev0: float, i0: int) -> float | None:
+        """Position (clock samples) of the last midpoint crossing at or before index kk of the slice.
+
+        Scans back while the signal stays in the hysteresis band (between a crossing and its
+        switch it does); None if the crossing is before the slice or not there yet.
+        kk == len(r) asks for the last crossing of the slice.
+        """
+        lo_f, hi_f = self._low_f, self._high_f
+        item = r.item
+        i = min(kk, len(r) - 1)
+        side = item(i) >= 0.5
+        while True:
+            rb = item(i)
+            ra = item(i - 1) if i > 0 else r_prev0
+            if (ra >= 0.5) != side and (rb >= 0.5) == side:
+                frac = (ra - 0.5) / (ra - rb) if ra != rb else 0.0
+                return i0 + i - 1 + frac
+            if i == 0 or not (lo_f <= ra <= hi_f):
+                return None
+            i -= 1
+
+    def _switch(self, p: float, g: int, out: TachOutput, hi: float, lo: float) -> None:
+        """A hysteresis switch at clock index g, interpolated edge position p."""
+        if self.pending is not None:
+            if g - self.pending[1] < self._min_trig:  # a spike: drop it and its partner
+                self.counts.glitches += 1
+                self._gate.noise_seen()
+                self.pending = None
+                return
+            self._confirm(out)
+        self.pending = (p, g)
+        self.pending_levels = (float(lo), float(hi))
