@@ -29,7 +29,7 @@ from .errors import BagError
 from .model import load_model
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
-VOLTAGE_RATE_HZ = 50.0  #: battery_filter's publish_rate_hz default
+VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
 DIAGNOSTICS_RATE_HZ = 1.0
 
 

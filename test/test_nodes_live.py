@@ -1,5 +1,7 @@
 """The node executables as processes, fed in real time from another process (test/_player.py).
 
+Inputs come from ``bldc_propulsion.nodes.player`` in another process.
+
 - Live = replay: a simulated recording played at 1x into battery_filter, tachometer and
   thrust_estimator gives what the ROS-free ``replay`` writes for it.
 - No wrong number after a fault: batches dropped by the publisher, the node stopped with
@@ -38,7 +40,6 @@ from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-PLAYER = Path(__file__).resolve().parent / "_player.py"
 MODULES = {"battery_filter": "battery_filter_node", "tachometer": "tachometer_node",
            "thrust_estimator": "thrust_estimator_node"}
 
@@ -69,7 +70,7 @@ def stop(proc: subprocess.Popen) -> None:
 def play(tmp_path: Path, name: str, **spec) -> subprocess.Popen:
     path = tmp_path / f"{name}.json"
     path.write_text(json.dumps(spec))
-    return subprocess.Popen([sys.executable, str(PLAYER), str(path)], env=env(),
+    return subprocess.Popen([sys.executable, "-m", "bldc_propulsion.nodes.player", str(path)], env=env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

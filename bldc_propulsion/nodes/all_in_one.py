@@ -14,12 +14,13 @@ thrust estimator under ``motor<i>`` for each motor, every estimator reading the 
 ``battery/voltage``. ROS arguments (``--params-file``, ``-p``, ``use_sim_time``) reach every
 node of the process, which is why config/propulsion.yaml addresses nodes as ``/**/<node>``.
 
-``--executor``: ``mixed`` (default) runs the battery filter, the 1 kHz input, on rclpy's
-EventsExecutor in a thread of its own, and the motors on the single-threaded executor, which
-hands them the message info their timing rules need; ``single`` runs everything on the
-single-threaded executor; ``events`` runs everything on the EventsExecutor (cheapest, but the
-motors then judge lateness on receipt times: a stall breaks their streams instead of being
-absorbed, see stream_time.py).
+``--executor``: ``events`` (default) runs every node on rclpy's EventsExecutor, the cheapest
+(benchmarks/bench_nodes_live.py); it cannot hand callbacks the message info, so the motors
+judge lateness on receipt times: a stall of the process breaks their streams (one revolution
+withheld) instead of being absorbed, and a batch lost in transport is only seen as lateness.
+``single`` runs every node on the single-threaded executor with message info (sequence numbers,
+publisher timestamps; more CPU). ``mixed``: the battery filter on the EventsExecutor in a thread
+of its own, the motors on the single-threaded executor.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
 #: Every motor's estimator reads the pack's battery/voltage at the process namespace.
 SHARED_VOLTAGE = ['--ros-args', '-r', 'battery/voltage:=/battery/voltage']
-EXECUTORS = ('mixed', 'single', 'events')
+EXECUTORS = ('events', 'single', 'mixed')
 MAX_MOTORS = 16
 
 
@@ -64,8 +65,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     parser.add_argument('--motors', type=int, default=1,
                         help=f'motors to run (1-{MAX_MOTORS}): 1 = process namespace, '
                              'N > 1 = motor0..motorN-1 with one battery filter')
-    parser.add_argument('--executor', choices=EXECUTORS, default='mixed',
-                        help='mixed (default), single or events; see the module docstring')
+    parser.add_argument('--executor', choices=EXECUTORS, default='events',
+                        help='events (default), single or mixed; see the module docstring')
     options = parser.parse_args(argv)
     if not 1 <= options.motors <= MAX_MOTORS:
         parser.error(f'--motors must be in 1..{MAX_MOTORS}, got {options.motors}')

@@ -65,7 +65,7 @@ BATTERY_FILTER_PARAMS: tuple[Param, ...] = (
           "and counted.", -100.0, 100.0),
     Param("max_gap_s", 0.5, "Largest gap between samples (s) the filter bridges; a longer "
           "gap restarts it from the next sample.", 0.0, 3600.0),
-    Param("publish_rate_hz", 50.0, "Rate of battery/voltage (Hz, sample time). The filter "
+    Param("publish_rate_hz", 20.0, "Rate of battery/voltage (Hz, sample time). The filter "
           "sees every sample; its 2 s time constant makes a faster output cost CPU in every "
           "subscriber for nothing.", 0.1, 100000.0, core=False),
     *stream_params(500, 0.5),

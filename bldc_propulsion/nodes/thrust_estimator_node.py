@@ -4,8 +4,9 @@ Timing: a PWM command (Float64, no header) is timed by its publisher's clock map
 node clock (``stream_time.EventStream``), so commands queued during a stall keep their own
 times; battery/voltage by its header stamp. Predictions are made on a grid of output_rate_hz
 (``core.ticker.Ticker``, started at the first command): before each input is applied, every grid
-time up to it is predicted, and a timer emits the grid times the node clock has passed by
-output_delay_s (so inputs published before a grid time have arrived). So the rate holds under
+time up to it is predicted, and a timer (25 Hz: inputs usually come faster) emits the grid
+times the node clock has passed by output_delay_s (so inputs published before a grid time have
+arrived). So the rate holds under
 ``ros2 bag play --clock`` at 40 Hz, and the outputs are the ones ``replay`` writes for the same
 recording.
 
@@ -42,6 +43,9 @@ from bldc_propulsion.nodes.params import (
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
 
 
+FALLBACK_TIMER_HZ = 25.0
+
+
 class ThrustEstimatorNode(Node):
 
     def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
@@ -67,7 +71,10 @@ class ThrustEstimatorNode(Node):
         self.pwm_sub = self.create_subscription(Float64, contract.TOPIC_PWM, on_pwm, qos)
         self.voltage_sub = self.create_subscription(
             BatteryState, contract.TOPIC_BATTERY_VOLTAGE, self.on_voltage, qos)
-        self.output_timer = self.create_timer(self.ticks.period_s, self.on_timer)
+        # Inputs emit the grid up to their own time; the timer only covers quiet inputs, so
+        # it runs at most at FALLBACK_TIMER_HZ (each callback costs as much as a message).
+        self.output_timer = self.create_timer(
+            max(self.ticks.period_s, 1.0 / FALLBACK_TIMER_HZ), self.on_timer)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
         self.add_on_set_parameters_callback(self.on_set_parameters)
 

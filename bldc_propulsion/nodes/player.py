@@ -1,8 +1,13 @@
 """Play a recording's input topics into ROS 2 in real time, with faults on request.
 
-Run as a process of its own (``python test/_player.py SPEC.json``), so the nodes under test
-are fed from another process, as on a vehicle. SPEC keys:
+For machines without rosbag2 (the pip-only install) and for the live tests and benchmarks:
+run as a process of its own (``python -m bldc_propulsion.nodes.player SPEC.json``), so the
+nodes are fed from another process, as on a vehicle. ``ros2 bag play`` does the same on a full
+Jazzy. SPEC (JSON) keys:
   bag        the recording; topics: input topics to play (bare names; default all three)
+  rate       playback speed (default 1.0)
+  motors     namespaces to play the motor topics (pwm, tachometer/adc) into, each the same
+             recording (default [""]: root names); battery/adc always goes to the root
   t0_wall    wall time (s since the epoch) at which bag time ``t_from`` is played; without
              it, ``delay`` (default 1.0) seconds after every subscriber was found
   t_from, t_to   the part of the recording to play (bag seconds)
@@ -37,7 +42,8 @@ def in_any(t: float, ranges: list[list[float]]) -> list[float] | None:
 def main(spec_path: str) -> int:
     spec = json.loads(open(spec_path).read())
     topics = spec.get("topics", list(TYPES))
-    ns = spec.get("namespace", "")
+    motors = spec.get("motors", [""])
+    rate = float(spec.get("rate", 1.0))
     t_from, t_to = spec.get("t_from", 0.0), spec.get("t_to", 1e9)
     with open_recording(spec["bag"]) as rec:
         items = []
@@ -49,9 +55,13 @@ def main(spec_path: str) -> int:
                 items.append((t, topic, data))
     rclpy.init()
     node = rclpy.create_node("test_player")
-    pubs = {t: node.create_publisher(TYPES[t], f"{ns}/{t}" if ns else t, 1000) for t in topics}
+    pubs: dict[str, list] = {}
+    for t in topics:
+        spaces = [""] if t == c.TOPIC_BATTERY_ADC else motors
+        pubs[t] = [node.create_publisher(TYPES[t], f"{ns}/{t}" if ns else t, 1000)
+                   for ns in spaces]
     deadline = time.monotonic() + 60.0
-    while any(p.get_subscription_count() == 0 for p in pubs.values()):
+    while any(p.get_subscription_count() == 0 for ps in pubs.values() for p in ps):
         if time.monotonic() > deadline:
             print("no subscriber", file=sys.stderr)
             return 1
@@ -66,11 +76,12 @@ def main(spec_path: str) -> int:
         nonlocal n
         msg = TYPES[topic]()
         msg.data = data
-        pubs[topic].publish(msg)
-        n += 1
+        for pub in pubs[topic]:
+            pub.publish(msg)
+            n += 1
 
     for t, topic, data in items:
-        due = t0_wall + (t - t_from)
+        due = t0_wall + (t - t_from) / rate
         delay = due - time.time()
         if delay > 0:
             time.sleep(delay)
@@ -88,7 +99,7 @@ def main(spec_path: str) -> int:
                 held.append((t, topic, data))
                 continue
         publish(topic, data)
-    print(f"published {n}", flush=True)
+    print(f"published {n} t_end {time.time()!r}", flush=True)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0

@@ -1,0 +1,188 @@
+"""Live nodes on ROS 2 Jazzy: CPU, messages lost, a 5x playback, and the ROS-free replay speed.
+
+A simulated recording (default 40 s of random steps) is played at 1x on wall time by
+``bldc_propulsion.nodes.player`` into a quadrotor's nodes: the battery filter at the root and the
+same motor streams into /motor0 .. /motor3, as quadrotor.launch.py starts them. CPU = the node
+processes' CPU time (from /proc) over the wall time of the playback, in % of one core. Lost =
+input messages published minus those the nodes counted (from their diagnostics). Prints figures;
+not a test.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+os.environ.setdefault("ROS_DOMAIN_ID", str(101 - os.getpid() % 50))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+import rclpy  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+
+from bldc_propulsion import contract as c  # noqa: E402
+from bldc_propulsion.bagio import open_recording  # noqa: E402
+from bldc_propulsion.replay import replay_bag  # noqa: E402
+from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
+
+MOTORS = [f"motor{i}" for i in range(4)]
+NODE = [sys.executable, "-m"]
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time of a process (s)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK
+
+
+def start(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(NODE + args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+def processes(mode: str) -> list[subprocess.Popen]:
+    """The quadrotor's nodes: one process (propulsion_all) or nine."""
+    if mode.startswith("one process"):
+        executor = mode.split("(")[1].rstrip(")")
+        return [start(["bldc_propulsion.nodes.all_in_one", "--motors", "4",
+                       "--executor", executor])]
+    procs = [start(["bldc_propulsion.nodes.battery_filter_node"])]
+    for ns in MOTORS:
+        procs.append(start(["bldc_propulsion.nodes.tachometer_node", "--ros-args",
+                            "-r", f"__ns:=/{ns}"]))
+        procs.append(start(["bldc_propulsion.nodes.thrust_estimator_node", "--ros-args",
+                            "-r", f"__ns:=/{ns}", "-r", "battery/voltage:=/battery/voltage"]))
+    return procs
+
+
+def one_motor() -> list[subprocess.Popen]:
+    return [start([f"bldc_propulsion.nodes.{m}"]) for m in
+            ("battery_filter_node", "tachometer_node", "thrust_estimator_node")]
+
+
+class Diagnostics:
+    """The latest status values of every node, by status name."""
+
+    def __init__(self, namespaces: list[str]) -> None:
+        self.context = rclpy.context.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("bench_diagnostics", context=self.context)
+        self.latest: dict[str, dict[str, str]] = {}
+        for ns in namespaces:
+            topic = f"/{ns}/diagnostics" if ns else "/diagnostics"
+            self.node.create_subscription(DiagnosticArray, topic, self.on_diag, 100)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.running = True
+        self.thread = threading.Thread(target=self.spin, daemon=True)
+        self.thread.start()
+
+    def spin(self) -> None:
+        while self.running:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def on_diag(self, msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            self.latest[s.name] = {kv.key: kv.value for kv in s.values}
+
+    def total(self, suffix: str, key: str) -> int:
+        return sum(int(float(v[key])) for name, v in self.latest.items()
+                   if name.endswith(suffix) and key in v)
+
+    def close(self) -> None:
+        self.running = False
+        self.thread.join(5)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float,
+        counts: dict[str, int], tmp: Path) -> dict[str, float]:
+    """Play ``bag`` into ``procs``; CPU and messages lost."""
+    diag = Diagnostics(["", *[m for m in motors if m]])
+    spec = tmp / "spec.json"
+    spec.write_text(json.dumps({"bag": str(bag), "motors": motors, "rate": rate, "delay": 2.0}))
+    player = subprocess.Popen(NODE + ["bldc_propulsion.nodes.player", str(spec)], cwd=ROOT,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = float(player.stdout.readline().split()[1])
+    time.sleep(max(0.0, t0 - time.time()))
+    cpu0 = [cpu_s(p.pid) for p in procs]
+    out, err = player.communicate()
+    t_end = float(out.split("t_end")[1])
+    cpu1 = [cpu_s(p.pid) for p in procs]
+    wall = t_end - t0
+    time.sleep(2.5)  # diagnostics after the last input
+    diag.close()
+    for p in procs:
+        p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+    n = len(motors)
+    received = {
+        "battery/adc": diag.total("battery_filter: battery filter", "accepted")
+        + diag.total("battery_filter: battery filter", "rejected_nonfinite"),
+        "tachometer/adc": diag.total("tachometer: tachometer", "batches"),
+        "pwm": diag.total("thrust_estimator: thrust estimator", "pwm_accepted"),
+    }
+    lost = {k: counts[k] * (1 if k == "battery/adc" else n) - received[k] for k in received}
+    handled = sum(received.values()) + n * counts["battery/voltage"]
+    cpu = sum(b - a for a, b in zip(cpu0, cpu1))
+    return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),
+            "us_per_input_message": 1e6 * cpu / max(handled, 1),
+            "lost": lost, "received": received}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--duration", type=float, default=40.0)
+    parser.add_argument("--modes", nargs="*", default=[
+        "one process (mixed)", "one process (events)", "separate processes"])
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        bag = tmp / "rec"
+        write_sim_bag(simulate("random_steps", args.duration, seed=3), bag)
+        with open_recording(bag) as rec:
+            counts = {t: rec.count(t) for t in ("pwm", "battery/adc", "tachometer/adc")}
+            duration = (rec.end_ns - rec.t0_ns) * 1e-9
+        counts["battery/voltage"] = int(duration * 20)  # publish_rate_hz
+        print(f"recording: {duration:.1f} s, per motor {counts['tachometer/adc']} tachometer "
+              f"batches, {counts['pwm']} pwm; {counts['battery/adc']} battery samples; "
+              f"{os.cpu_count()} cores")
+        print("rclpy floor on this machine class: ~150 us/message single-threaded executor, "
+              "~60 us EventsExecutor")
+        for mode in args.modes:
+            r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp)
+            print(f"quadrotor, {mode:<22} {r['processes']} process(es): CPU "
+                  f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
+                  f"per input message, lost {r['lost']}")
+        r = run(bag, one_motor(), [""], 5.0, counts, tmp)
+        print(f"one motor at 5x: CPU {r['cpu_core_pct']:.1f} % of one core, lost {r['lost']}")
+        t = time.perf_counter()
+        replay_bag(bag, tmp / "replayed")
+        dt = time.perf_counter() - t
+        print(f"ROS-free replay: {duration / dt:.0f}x real time ({dt:.2f} s for {duration:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
