@@ -294,6 +294,34 @@ def test_thrust_estimator_keeps_its_rate_under_a_40_hz_clock(context):
         h.close()
 
 
+def test_thrust_estimator_stops_predicting_from_a_stale_command(context):
+    """pwm_timeout_s: a fixed-rate pwm that falls silent stops the predictions, and says so."""
+    h = make(context, ThrustEstimatorNode, pwm_timeout_s=0.2, **RECEIPT_TIMING)
+    try:
+        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+        h.publisher(Float64, contract.TOPIC_PWM)
+        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+        h.wait_for_subscribers(contract.TOPIC_PWM)
+        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
+        voltage = BatteryState(voltage=12.0, present=True)
+        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
+        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
+        for k in range(25):  # 0.5 s of pwm at 50 Hz
+            h.send(contract.TOPIC_PWM, Float64(data=0.075), T0 + 0.02 * k)
+        received = h.received[contract.TOPIC_PREDICTED_SPEED]
+        for k in range(1, 61):  # then 1.5 s without pwm
+            h.set_time(T0 + 0.48 + 0.025 * k)
+            h.executor.spin_once(timeout_sec=0.002)
+        h.spin_until(lambda: any("no pwm for" in s.message for s in statuses(h)))
+        # predictions up to 0.2 s after the last command (0.48 s), none after
+        assert 65 <= len(received) <= 70, len(received)
+        assert any(s.level == DiagnosticStatus.ERROR and "not predicting" in s.message
+                   for s in statuses(h))
+    finally:
+        h.close()
+
+
 @pytest.mark.parametrize("node_main, argument, words", [
     ("tachometer", "blades:=0", ["parameter blades", "[1, 12]"]),
     ("tachometer", "sample_rate_hz:=1000", ["parameter sample_rate_hz", "double"]),
