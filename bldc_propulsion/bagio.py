@@ -24,7 +24,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from rosbags.typesys import Stores, get_typestore
 
 from . import contract as c
-from .atomic import atomic_output
+from .atomic import RECORDING, atomic_output
 from .errors import BagError, one_line
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -332,12 +332,23 @@ class BagWriter:
         self._writer: Writer | None = None
         self.messages_written = 0
 
+    @property
+    def single_file(self) -> bool:
+        """``path`` ends in .mcap: write one MCAP file there, not a bag directory."""
+        return self.path.suffix.lower() == ".mcap"
+
     def __enter__(self) -> BagWriter:
-        self._stage = atomic_output(self.path, force=self.force)
+        if self.single_file and self.storage != "mcap":
+            raise BagError(f"{self.path}: a single .mcap file cannot hold {self.storage} storage "
+                           "(give a directory name)")
+        self._stage = atomic_output(self.path, force=self.force, kind=RECORDING)
         tmp = self._stage.__enter__()
         try:
             plugin = StoragePlugin.MCAP if self.storage == "mcap" else StoragePlugin.SQLITE3
-            self._writer = Writer(tmp, version=9, storage_plugin=plugin)
+            # a single .mcap is written as a bag directory beside the staged name, then moved
+            self._tmp = tmp
+            self._bag_dir = tmp.with_name(tmp.stem + ".bag") if self.single_file else tmp
+            self._writer = Writer(self._bag_dir, version=9, storage_plugin=plugin)
             if self.storage == "mcap":
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
@@ -358,6 +369,12 @@ class BagWriter:
         except Exception as close_exc:
             if exc is None:
                 exc_type, exc, tb = type(close_exc), close_exc, close_exc.__traceback__
+        if exc is None and self.single_file:
+            try:
+                (mcap,) = self._bag_dir.glob("*.mcap")
+                os.replace(mcap, self._tmp)
+            except BaseException as move_exc:
+                exc_type, exc, tb = type(move_exc), move_exc, move_exc.__traceback__
         result = self._stage.__exit__(exc_type, exc, tb)
         if exc is not None and exc_type is not None and not result:
             if exc_type.__module__.startswith("rosbags"):

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import contract as c
-from .atomic import atomic_output
+from .atomic import MODEL, atomic_output, describe_path
 from .errors import ModelError, one_line
 
 FORMAT_VERSION = 1
@@ -258,7 +258,7 @@ def save_model(model: NetworkModel, path: str | os.PathLike[str], force: bool = 
     """Write the model atomically; refuses an existing file unless ``force`` (OutputExistsError)."""
     arrays = model._arrays()
     _check(arrays, "model")
-    with atomic_output(path, force=force) as tmp:
+    with atomic_output(path, force=force, kind=MODEL) as tmp:
         # a file object: np.savez would append ".npz" to a bare temporary name
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)

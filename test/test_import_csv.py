@@ -124,8 +124,13 @@ def test_existing_output_refused_and_untouched(tmp_path: Path) -> None:
     with pytest.raises(OutputExistsError, match="out.bag"):
         import_csv(src, out)
     assert (out / "keep.txt").read_text() == "precious"
-    info = import_csv(src, out, force=True)
-    assert info["rows"] == 4 and not (out / "keep.txt").exists()
+    with pytest.raises(BadInputError, match="not a recording"):  # --force replaces recordings only
+        import_csv(src, out, force=True)
+    assert (out / "keep.txt").read_text() == "precious"
+    bag = tmp_path / "log_bag"
+    import_csv(src, bag)
+    info = import_csv(src, bag, force=True)
+    assert info["rows"] == 4
     assert not list(tmp_path.glob(".*partial*"))
 
 

@@ -9,9 +9,12 @@ from pathlib import Path
 from typing import Any
 
 from .. import contract as c
-from ..cli import CommandResult, progress
-from ..errors import BadInputError, OutputExistsError
-from ..training.train import load_all
+from ..cli import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+from ..atomic import CONFIG, MODEL, REPORT, check_outputs
+from ..errors import BadInputError
+from ..training.dataset import load_signals
+from ..training.evaluate import input_range
+from ..training.train import load_all, unique
 from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
 
 
@@ -94,8 +97,10 @@ def run(args: argparse.Namespace) -> CommandResult:
         raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
     if not 0.0 < args.alpha < 1.0:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
-    if args.output and Path(args.output).exists() and not args.force:
-        raise OutputExistsError(f"{args.output}: already exists (use --force to replace it)")
+    check_outputs([(args.output, CONFIG if args.physics is not None else MODEL, "-o"),
+                   (args.report, REPORT, "--report")], force=args.force,
+                  inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
+                          args.model, args.physics])
     if args.physics is not None:
         return run_physics(args)
     model = load_model(args.model)
@@ -138,7 +143,8 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
     model = load_config(args.physics)
     measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
-                   min_effect=args.min_reduction, report_dir=args.report)
+                   min_effect=args.min_reduction, report_dir=args.report,
+                   report_force=args.force)
     result = run_physics_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
 

@@ -10,8 +10,9 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
-from ..cli import CommandResult, progress
-from ..errors import BadInputError, OutputExistsError
+from ..cli import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+from ..atomic import MODEL, REPORT, check_outputs, report_output
+from ..errors import BadInputError
 from ..model import load_model, save_model
 from .dataset import Signals, load_signals
 from .evaluate import evaluate, predict_speed
@@ -66,12 +67,12 @@ def _check_disjoint(train: list[str], validation: list[str]) -> None:
 
 def run_train(args: argparse.Namespace) -> CommandResult:
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
+    check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
+                  inputs=[*args.train, *args.validation])
     _check_disjoint(args.train, args.validation)
     progress(f"reading {len(args.train)} training and {len(args.validation)} validation recordings")
-    train = load_all(args.train, "training")
-    validation = load_all(args.validation, "validation")
+    train = load_all(args.train, "training", args.namespace)
+    validation = load_all(args.validation, "validation", args.namespace)
     by_hash = {s.sha256: s.path for s in train}
     for s in validation:
         if s.sha256 in by_hash:
@@ -111,7 +112,7 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         "restarts": meta["restarts"],
     }
     if args.report:
-        data["report"] = write_training_report(Path(args.report), outcome)
+        data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     fit = outcome.thrust
     text = "\n".join([
         f"trained {len(args.inputs)}-{args.hidden}-1 on {', '.join(args.inputs)}: "
@@ -124,19 +125,24 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         + (f", residual {fit.residual_rms_n:.3f} N RMS)" if fit.residual_rms_n is not None else ")"),
         f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
     ])
-    return CommandResult(data, text)
+    data["warnings"] = warnings
+    return CommandResult(data, text, warnings=warnings)
 
 
 def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True, help="model file (.npz) from `train`")
     p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
+    p.add_argument("--force", action="store_true", help="replace an existing report folder (one this tool made)")
+    add_namespace_argument(p)
     p.set_defaults(run=run_evaluate)
 
 
 def run_evaluate(args: argparse.Namespace) -> CommandResult:
+    check_outputs([(args.report, REPORT, "--report")], force=args.force,
+                  inputs=[args.model, *args.recordings])
     model = load_model(args.model)
-    signals = [load_signals(p) for p in args.recordings]
+    signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
     rmse, scores, preds = evaluate(model, signals)
     data: dict[str, Any] = {
         "model": str(args.model),
@@ -155,23 +161,24 @@ def run_evaluate(args: argparse.Namespace) -> CommandResult:
                 f"({b['rmse_percent_of_range']:.2f} %)"
             )
     if args.report:
-        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores)
+        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores, force=args.force)
         lines.append(f"  figures in {data['report']}")
-    return CommandResult(data, "\n".join(lines))
+    warnings = [w for s in scores if s.out_of_range and (w := s.out_of_range.warning())]
+    data["warnings"] = warnings
+    return CommandResult(data, "\n".join(lines), warnings=warnings)
 
 
 # --- reports -------------------------------------------------------------------------------
-def _report_dir(path: Path) -> Path:
-    if path.exists() and not path.is_dir():
-        raise BadInputError(f"{path}: --report must be a directory")
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
+    """Figures of a training run, written whole to ``path`` (atomic.report_output)."""
+    with report_output(path, force=force) as d:
+        _training_report(d, outcome)
+    return str(path)
 
 
-def write_training_report(path: Path, outcome: Any) -> str:
+def _training_report(d: Path, outcome: Any) -> None:
     from . import report
 
-    d = _report_dir(path)
     figs: list[tuple[str, str]] = []
     h = outcome.lm.history
     report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch,
@@ -192,24 +199,41 @@ def write_training_report(path: Path, outcome: Any) -> str:
         report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
         figs.append((name, f"Fig. 13: predicted vs measured speed on validation recording {sig.path}"))
     report.write_index(d, "bldc_propulsion training report", figs)
-    return str(d)
 
 
-def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> str:
+def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any],
+                            force: bool = False) -> str:
+    """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output)."""
+    with report_output(path, force=force) as d:
+        _evaluation_report(d, signals, preds, scores)
+    return str(path)
+
+
+def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> None:
     from . import report
 
-    d = _report_dir(path)
     figs: list[tuple[str, str]] = []
     for k, (sig, pred) in enumerate(zip(signals, preds)):
         name = f"fig13_{k}.png"
         report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
         figs.append((name, f"predicted vs measured speed: {sig.path}"))
         name = f"scatter_{k}.png"
-        report.fig_prediction_scatter(sig.speed, pred, d / name)
+        report.fig_prediction_scatter(sig.speed, pred, d / name, recording=sig.path)
         figs.append((name, f"predicted vs measured: {sig.path}"))
-    rows = [{k: v for k, v in s.as_dict().items() if k != "bands"} for s in scores]
-    report.write_index(d, "bldc_propulsion evaluation report", figs, [("per recording", rows)])
-    return str(d)
+    bands = []
+    for k, s in enumerate(scores):
+        if s.bands:
+            name = f"band_error_{k}.png"
+            report.fig_band_error(s.bands, d / name, recording=s.path)
+            figs.append((name, f"speed error per command frequency band: {s.path}"))
+            bands += [{"recording": s.path, "band (Hz)": f"{b['low_hz']:.1f}-{b['high_hz']:.1f}",
+                       "samples": b["samples"], "RMSE (rad/s)": b["rmse_rad_s"],
+                       "% of speed range": b["rmse_percent_of_range"]} for b in s.bands]
+    rows = [{k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
+            | {"outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
+            for s in scores]
+    tables = [("per recording", rows)] + ([("error per command frequency band", bands)] if bands else [])
+    report.write_index(d, "bldc_propulsion evaluation report", figs, tables)
 
 
 def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
