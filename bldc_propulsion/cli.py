@@ -52,14 +52,44 @@ def parse_assignments(items: Sequence[str] | None, option: str) -> dict[str, flo
     return out
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not math.isfinite(value) or value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
-    return value
+def add_namespace_argument(p: argparse.ArgumentParser) -> None:
+    """``--namespace motorN``: one motor of a vehicle's recording (interfaces.md, "A quadrotor")."""
+    p.add_argument("--namespace", metavar="NS",
+                   help="read one motor of a vehicle's recording: its topics under /NS/ (e.g. motor0), "
+                        "the battery topics from /NS/ if recorded there, else from the root")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with the CLI's error convention: one line on stderr (no usage block), exit 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
+
+
+def number(kind: type = float, lo: float | None = None, hi: float | None = None,
+           lo_open: bool = False) -> Callable[[str], Any]:
+    """An argparse type: a finite ``kind`` (int or float) within [lo, hi] ((lo, hi] with
+    ``lo_open``). Every numeric option has a bound, so that no value can make a command run
+    for days or exhaust memory."""
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}") from None
+        if not math.isfinite(value) or (lo is not None and (value <= lo if lo_open else value < lo)) \
+                or (hi is not None and value > hi):
+            low = "" if lo is None else f"{'>' if lo_open else '>='} {lo:g}"
+            high = "" if hi is None else f"<= {hi:g}"
+            raise argparse.ArgumentTypeError(f"{text!r} must be {' and '.join(x for x in (low, high) if x)}")
+        return value
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
+
+
+#: Bounds shared by several commands.
+SEED = number(int, 0, 2**32 - 1)
+HIDDEN = number(int, 1, 200)
+EPOCHS = number(int, 1, 100_000)
 
 
 # --- subcommands -------------------------------------------------------------------------
@@ -135,15 +165,17 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.add_argument("input", help="recording to replay (bag directory or .mcap file)")
     p.add_argument("-o", "--output", required=True, help="bag directory to write")
     p.add_argument("--model", help="model .npz (default: the first-principles fallback)")
-    p.add_argument("--force", action="store_true", help="replace an existing output")
+    p.add_argument("--force", action="store_true", help="replace an existing recording")
+    add_namespace_argument(p)
     p.set_defaults(run=_run_replay)
 
 
 def _run_replay(args: argparse.Namespace) -> CommandResult:
     from .replay import replay_bag, summary_text
 
-    info = replay_bag(args.input, args.output, model_path=args.model, force=args.force)
-    return CommandResult(info, summary_text(info))
+    info = replay_bag(args.input, args.output, model_path=args.model, force=args.force,
+                      namespace=args.namespace)
+    return CommandResult(info, summary_text(info), warnings=info["warnings"])
 
 
 def _add_train(sub: argparse._SubParsersAction) -> None:
@@ -211,7 +243,23 @@ def _add_discrepancy(sub: argparse._SubParsersAction) -> None:
     add_arguments(p)
 
 
+def _add_info(sub: argparse._SubParsersAction) -> None:
+    from .info import add_info_arguments
+
+    p = sub.add_parser(
+        "info",
+        help="what a recording holds and what it can be used for (like `ros2 bag info`)",
+        description=(
+            "Print each recording's topics (type, messages, rate, gaps), duration, the PWM and "
+            "battery-voltage ranges, whether the tachometer decodes, and which commands can use "
+            "it (train, evaluate, discrepancy, replay) or why not."
+        ),
+    )
+    add_info_arguments(p)
+
+
 _SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
+    "info": _add_info,
     "simulate": _add_simulate,
     "train": _add_train,
     "evaluate": _add_evaluate,
@@ -281,6 +329,7 @@ def _entry(name: str) -> Callable[[], None]:
     return run
 
 
+main_info = _entry("info")
 main_simulate = _entry("simulate")
 main_train = _entry("train")
 main_evaluate = _entry("evaluate")

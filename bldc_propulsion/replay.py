@@ -17,12 +17,12 @@ import os
 from typing import Any
 
 from . import contract as c
+from .atomic import RECORDING, check_output
 from .bagio import BagWriter, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
 from .core.tachometer import TachometerConfig, TachometerDecoder
-from .errors import BagError
-from .model import load_model
+from .model import RangeReport, load_model
 
 ESTIMATOR_RATE_HZ = 100.0
 DIAGNOSTICS_RATE_HZ = 1.0
@@ -36,10 +36,20 @@ def replay_bag(
     force: bool = False,
     battery: BatteryFilterConfig | None = None,
     tachometer: TachometerConfig | None = None,
+    namespace: str | None = None,
 ) -> dict[str, Any]:
-    """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``)."""
+    """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
+
+    With ``namespace`` (one motor of a vehicle's recording) the outputs are written as the
+    quadrotor launch publishes them: under the namespace, ``battery/voltage`` at the root."""
+    check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
     model = load_model(model_path) if model_path else fallback_model()
-    with open_recording(in_path) as rec:
+    with open_recording(in_path, namespace) as rec:
+        ns = rec.namespace
+
+        def topic_out(topic: str) -> str:
+            return topic if ns is None or topic == c.TOPIC_BATTERY_VOLTAGE else f"{ns}/{topic}"
+
         inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
         if has_voltage:
@@ -49,9 +59,10 @@ def replay_bag(
             if rec.has(topic):
                 rec.require(topic, msgtype)
         if not inputs:
-            raise BagError(
-                f"{in_path}: none of the input topics (/pwm, /battery/adc, /tachometer/adc) is recorded"
-            )
+            raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
+        motor = [c.TOPIC_PWM, c.TOPIC_TACH_ADC]
+        if not any(rec.has(t) for t in motor) and any(rec.namespaces_with(t) for t in motor):
+            raise rec.missing_error(motor)  # a vehicle's recording: only its battery is at the root
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model)
@@ -67,13 +78,13 @@ def replay_bag(
                 while next_pred is not None and next_pred <= t:
                     p = est.predict(next_pred)
                     if p.ready:
-                        bag.write_float64(c.TOPIC_PREDICTED_SPEED, next_pred, p.speed_rad_s)
-                        bag.write_float64(c.TOPIC_PREDICTED_THRUST, next_pred, p.thrust_n)
+                        bag.write_float64(topic_out(c.TOPIC_PREDICTED_SPEED), next_pred, p.speed_rad_s)
+                        bag.write_float64(topic_out(c.TOPIC_PREDICTED_THRUST), next_pred, p.thrust_n)
                     next_pred += 1.0 / ESTIMATOR_RATE_HZ
                 while next_diag is not None and next_diag <= t:
                     tach.check_timeout(next_diag)
                     statuses = [*filt.status(), *tach.status(), *est.status()]
-                    bag.write_diagnostics(c.TOPIC_DIAGNOSTICS, next_diag, statuses)
+                    bag.write_diagnostics(topic_out(c.TOPIC_DIAGNOSTICS), next_diag, statuses)
                     next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
 
             for topic, t, msg in rec.messages(inputs, tolerant=True):
@@ -89,29 +100,36 @@ def replay_bag(
                 elif topic == c.TOPIC_BATTERY_ADC:
                     v = filt.update(t, float(msg.data))
                     if v is not None:
-                        bag.write_battery_state(c.TOPIC_BATTERY_VOLTAGE, t, v)
+                        bag.write_battery_state(topic_out(c.TOPIC_BATTERY_VOLTAGE), t, v)
                         if not has_voltage:
                             est.update_voltage(t, v)
                 elif topic == c.TOPIC_BATTERY_VOLTAGE:
                     est.update_voltage(t, float(msg.voltage))
                 elif topic == c.TOPIC_TACH_ADC:
                     out = tach.process_batch(t, msg.data)
-                    bag.write_float64(c.TOPIC_ROTOR_SPEED, t, out.speed_now)
-                    bag.write_float64(c.TOPIC_ROTOR_RPM, t, out.speed_now * c.RAD_S_TO_RPM)
+                    bag.write_float64(topic_out(c.TOPIC_ROTOR_SPEED), t, out.speed_now)
+                    bag.write_float64(topic_out(c.TOPIC_ROTOR_RPM), t, out.speed_now * c.RAD_S_TO_RPM)
                 timers_until(t)
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             timers_until(end)
             counts["messages_out"] = bag.messages_written
         tach.check_timeout(end)  # a tachometer silent until the end is lost, as the node's timer says
         statuses = [*filt.status(), *tach.status(), *est.status()]
+        n = max(est.predictions, 1)
+        ranged = None if est.is_fallback else RangeReport(
+            str(in_path), est.clipped / n, {k: v / n for k, v in est.clipped_by_input.items() if v})
+        warning = ranged.warning() if ranged else None
         return {
             "path": str(out_path),
             "input": str(in_path),
             "model": str(model_path) if model_path else None,
+            "namespace": ns,
             **counts,
             "messages_in_per_topic": per_topic_in,
             "duration_s": end,
             "read_error": rec.read_error,
+            "out_of_training_range": ranged.as_dict() if ranged else None,
+            "warnings": [warning] if warning else [],
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
                 for s in statuses

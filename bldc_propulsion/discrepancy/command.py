@@ -83,10 +83,24 @@ def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[An
     """The measured, reference and holdout recordings, read through the cores."""
     progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
              f"{len(args.holdout or [])} holdout recording(s)")
-    measured = load_all(args.measured, "measured")
-    reference = load_all(ref_paths, "reference") if ref_paths else []
-    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    ns = args.namespace
+    measured = load_all(args.measured, "measured", ns)
+    # a model trained on the bench and measured on a vehicle: its reference recordings are read
+    # under the namespace where they have it, else at the root (bench recordings)
+    reference = unique([load_signals(p, namespace=ns if _has_namespace(p, ns) else None) for p in ref_paths],
+                       "reference")
+    holdout = load_all(args.holdout, "holdout", ns) if args.holdout else []
     return measured, reference, holdout
+
+
+def _has_namespace(path: str, namespace: str | None) -> bool:
+    """The recording has the motor topics under ``namespace`` (not only at the root)."""
+    from ..bagio import open_recording
+
+    if namespace is None:
+        return False
+    with open_recording(path, namespace) as rec:
+        return rec.has(c.TOPIC_PWM)
 
 
 def run(args: argparse.Namespace) -> CommandResult:

@@ -241,7 +241,7 @@ def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     from ..bagio import open_recording
     from ..core.battery_filter import BatteryFilterConfig
 
-    with open_recording(sig.path) as rec:
+    with open_recording(sig.path, sig.namespace) as rec:
         if not rec.has(c.TOPIC_BATTERY_ADC):
             return None
         t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
