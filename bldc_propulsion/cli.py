@@ -15,7 +15,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 from .errors import BadInputError
 
@@ -111,8 +111,9 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--profile", required=True, help="command profile: " + ", ".join(PROFILES))
-    p.add_argument("--duration", required=True, type=float, help="recording length in seconds")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same bag)")
+    p.add_argument("--duration", required=True, type=float,
+                   help="recording length in seconds (at most 1800: longer runs in parts)")
+    p.add_argument("--seed", type=SEED, default=0, help="random seed (same seed, same bag)")
     p.add_argument("--soc", type=float, default=1.0, help="starting state of charge, 0..1 (default 1)")
     p.add_argument(
         "--effect", action="append", metavar="NAME=VALUE",
@@ -270,7 +271,7 @@ _SUBCOMMANDS: dict[str, Callable[[argparse._SubParsersAction], None]] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="bldc-propulsion",
         description=(
             "Estimate rotor speed and thrust of a brushless motor + propeller from the PWM "

@@ -41,19 +41,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "from the model's metadata)")
     p.add_argument("--holdout", nargs="+", metavar="BAG",
                    help="recordings kept out of everything, for the before/after RMSE")
-    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--max-effects", type=number(int, 1, len(c.EFFECTS)), default=3,
+                   help="most effects to add (default 3)")
     p.add_argument("--effects", type=_effects, metavar="NAME,...",
                    help="only consider these effects (default: all of " + ", ".join(c.EFFECTS) + ")")
-    p.add_argument("--alpha", type=float, default=ALPHA, help=f"significance level (default {ALPHA})")
-    p.add_argument("--min-reduction", type=float, default=MIN_EFFECT,
+    p.add_argument("--alpha", type=number(float, 0.0, 0.5, lo_open=True), default=ALPHA, help=f"significance level (default {ALPHA})")
+    p.add_argument("--min-reduction", type=number(float, 0.0, 1.0), default=MIN_EFFECT,
                    help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
-    p.add_argument("--hidden", type=int, help="hidden neurons of the retrained model (--model only; default: as the model)")
-    p.add_argument("--max-epochs", type=int, help="epoch limit of the retraining (--model only; default 300)")
-    p.add_argument("--seed", type=int, help="seed of the retraining (--model only; default 0)")
+    p.add_argument("--hidden", type=HIDDEN, help="hidden neurons of the retrained model (--model only; default: as the model)")
+    p.add_argument("--max-epochs", type=EPOCHS, help="epoch limit of the retraining (--model only; default 300)")
+    p.add_argument("--seed", type=SEED, help="seed of the retraining (--model only; default 0)")
     p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
     p.add_argument("-o", "--output", metavar="NEW",
                    help="save the model with the effect(s) added (.npz; with --physics a CONFIG .json)")
-    p.add_argument("--force", action="store_true", help="replace an existing output model")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing output of the same kind (a model / CONFIG written by this "
+                        "tool, a report folder it made)")
+    add_namespace_argument(p)
     p.set_defaults(run=run)
 
 
@@ -127,12 +131,16 @@ def run(args: argparse.Namespace) -> CommandResult:
             warnings.append(f"{len(missing)} of the model's training recordings not found "
                             f"(e.g. {missing[0]}); give --reference")
     measured, reference, holdout = _recordings(args, ref_paths)
+    ranges = [input_range(model, s) for s in [*measured, *holdout]]
+    warnings += [w for r in ranges if (w := r.warning())]
     opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
                    max_epochs=300 if args.max_epochs is None else args.max_epochs,
                    seed=0 if args.seed is None else args.seed, alpha=args.alpha,
-                   min_effect=args.min_reduction, report_dir=args.report)
+                   min_effect=args.min_reduction, report_dir=args.report,
+                   report_force=args.force)
     result = run_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
+    data["out_of_training_range"] = {r.where: r.as_dict() for r in ranges}
 
     def save() -> None:
         result.model.metadata["discrepancy"] = {

@@ -24,6 +24,8 @@ DEFAULT_THRUST_COEFFICIENT = 2.8e-5
 #: LM runs from different initial weights, best on validation kept (see train_model): on the
 #: bundled bags one run's chirp error below 0.5 Hz spans 1.7-5.4 % of the range over seeds.
 DEFAULT_RESTARTS = 5
+#: Most restarts: each is a whole LM training (seconds to minutes at the paper's size).
+MAX_RESTARTS = 50
 
 
 def _inputs(text: str) -> list[str]:
@@ -42,18 +44,21 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
     p.add_argument("--inputs", type=_inputs, default=list(c.DEFAULT_INPUTS),
                    help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
-    p.add_argument("--hidden", type=int, default=c.PAPER_HIDDEN, help="hidden neurons (default 25)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial weights")
-    p.add_argument("--restarts", type=int, default=DEFAULT_RESTARTS,
+    p.add_argument("--hidden", type=HIDDEN, default=c.PAPER_HIDDEN, help="hidden neurons, 1..200 (default 25)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the initial weights")
+    p.add_argument("--restarts", type=number(int, 1, MAX_RESTARTS), default=DEFAULT_RESTARTS,
                    help=f"train from the initial weights of seeds SEED, SEED+1, ... and keep the one with "
                         f"the least validation cost (default {DEFAULT_RESTARTS})")
-    p.add_argument("--max-epochs", type=int, default=1000, help="epoch limit (default 1000)")
-    p.add_argument("--patience", type=int, default=6,
+    p.add_argument("--max-epochs", type=EPOCHS, default=1000, help="epoch limit (default 1000)")
+    p.add_argument("--patience", type=number(int, 1, 10_000), default=6,
                    help="stop after this many epochs without validation improvement (default 6)")
-    p.add_argument("--thrust-coefficient", type=float, default=DEFAULT_THRUST_COEFFICIENT,
+    p.add_argument("--thrust-coefficient", type=number(float, 0.0, 1e-2, lo_open=True),
+                   default=DEFAULT_THRUST_COEFFICIENT,
                    help="b in thrust = b w^2 (N s^2/rad^2) when no recording has /thrust/measured")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing model file")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing model file (a model only) and report folder (one this tool made)")
+    add_namespace_argument(p)
     p.set_defaults(run=run_train)
 
 
@@ -91,8 +96,18 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
         patience=args.patience, progress=report_epoch, restarts=args.restarts,
     )
-    save_model(outcome.model, out, force=args.force)
     meta = outcome.model.metadata
+    runs = len(meta["restarts"])
+    if meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
+        raise BadInputError(
+            f"-o {out}: not written: no training run improved on its initial weights (validation "
+            f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
+            "validation recordings are the same bench and signals as the training ones "
+            "(`bldc-propulsion info`), or give more --restarts")
+    stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
+    warnings = [f"{stuck} of {runs} training runs never improved on their initial weights "
+                "(the kept run did)"] if stuck else []
+    save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
         "inputs": list(args.inputs),

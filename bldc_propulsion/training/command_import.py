@@ -4,18 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..cli import CommandResult, progress
-from ..errors import BadInputError
-
-
-def _pole_pairs(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive integer")
-    return value
+from ..cli import CommandResult, number, progress
+from ..atomic import RECORDING, check_output
 
 
 def add_import_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +14,7 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, help="bag directory to write")
     parser.add_argument("--force", action="store_true", help="replace an existing output")
     parser.add_argument(
-        "--pole-pairs", type=_pole_pairs, default=None, metavar="N",
+        "--pole-pairs", type=number(int, 1, 100), default=None, metavar="N",
         help=(
             "divide the 'Motor Electrical Speed (RPM)' column by N (e.g. 7 for a 14-pole "
             "outrunner) because it holds raw commutation RPM. Default: none, the column is "
@@ -39,8 +29,7 @@ def run_import(args: argparse.Namespace) -> CommandResult:
     """Run the import; ``--json`` data has ``path``, ``rows`` and the full summary."""
     from .import_csv import import_csv, summary_text
 
-    if not args.output:
-        raise BadInputError("-o/--output: an output bag path is required")
+    check_output(args.output, RECORDING, force=args.force, inputs=[args.csv])  # before any work
     progress(f"importing {args.csv}")
     info = import_csv(args.csv, args.output, force=args.force, pole_pairs=args.pole_pairs)
     return CommandResult(info, summary_text(info), warnings=list(info.get("warnings", [])))
