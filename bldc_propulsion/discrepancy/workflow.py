@@ -683,7 +683,7 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
     for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions)):
         name = f"before_after_{k}.png"
         spans = [(w.t_start_s, w.t_end_s) for w in hold_windows if w.path == s.path]
-        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans)
+        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans, recording=s.path)
         figs.append((name, f"{s.path}: model before and after adding {', '.join(data['named']) or 'nothing'}"))
     rows = [{"effect": k, "verdict": v["verdict"],
              "measured reduction": v["measured"]["mse_reduction"], "measured p": v["measured"]["p_value"],

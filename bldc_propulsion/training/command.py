@@ -203,10 +203,10 @@ def _training_report(d: Path, outcome: Any) -> None:
     raw = _raw_battery(first)
     if raw is not None:
         report.fig_battery_filter(raw[0], raw[1], raw[2], d / "fig01_battery_filter.png",
-                                  pwm_t=first.t, pwm=first.pwm)
+                                  pwm_t=first.t, pwm=first.pwm, recording=first.path)
         figs.append(("fig01_battery_filter.png", f"Fig. 1-2: raw vs filtered battery voltage ({first.path})"))
     ramp = next((s for s in outcome.train if "triangle" in s.path or "ramp" in s.path), outcome.train[-1])
-    report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png")
+    report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png", recording=ramp.path)
     figs.append(("fig05_ramp.png", f"Figs. 5-6: PWM and measured speed ({ramp.path})"))
     for k, sig in enumerate(outcome.validation):
         pred = predict_speed(outcome.model, sig)
