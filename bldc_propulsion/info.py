@@ -1,4 +1,4 @@
-"""`bldc-propulsion info BAG...`: what a recording holds and what it can be used for.
+"""What a recording holds and what it can be used for (`bldc-propulsion info`, commands/info.py).
 
 In the spirit of ``ros2 bag info``, before any training: topics with types, counts, rates and
 gaps; the PWM and battery-voltage ranges; whether the tachometer decodes (the tachometer core,
@@ -9,7 +9,6 @@ so the answer and its reason are theirs.
 
 from __future__ import annotations
 
-import argparse
 import math
 from typing import Any
 
@@ -17,14 +16,7 @@ import numpy as np
 
 from . import contract as c
 from .bagio import open_recording
-from .cli import CommandResult, add_namespace_argument
 from .errors import BadInputError, one_line
-
-
-def add_info_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings (bag directory or .mcap file)")
-    add_namespace_argument(p)
-    p.set_defaults(run=run_info)
 
 
 def _range(values: np.ndarray) -> dict[str, float] | None:
@@ -146,8 +138,3 @@ def summary_text(info: dict[str, Any]) -> str:
     for why, cmds in by_reason.items():
         lines.append(f"  not for {', '.join(cmds)}: {why}")
     return "\n".join(lines)
-
-
-def run_info(args: argparse.Namespace) -> CommandResult:
-    infos = [recording_info(p, args.namespace) for p in args.recordings]
-    return CommandResult({"recordings": infos}, "\n\n".join(summary_text(i) for i in infos))

@@ -12,7 +12,7 @@ import pytest
 
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.errors import BadInputError, OutputExistsError
-from bldc_propulsion.training.command_import import add_import_arguments
+from bldc_propulsion.commands import import_csv as import_command
 from bldc_propulsion.training.import_csv import import_csv
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
@@ -137,7 +137,8 @@ def test_existing_output_refused_and_untouched(tmp_path: Path) -> None:
 # --- command line --------------------------------------------------------------------------
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="import-csv")
-    add_import_arguments(p)
+    import_command.add_arguments(p)
+    p.set_defaults(run=import_command.run)
     return p
 
 

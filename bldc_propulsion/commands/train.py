@@ -1,4 +1,5 @@
-"""The `train` and `evaluate` subcommands: arguments, work, summaries."""
+"""`bldc-propulsion train`: the speed network from recordings (training/train.py), its
+summary and its report (the paper's Figs. 1, 5-6, 12, 13)."""
 
 from __future__ import annotations
 
@@ -10,13 +11,22 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
-from ..cli import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import load_model, save_model
-from .dataset import Signals, load_signals
-from .evaluate import evaluate, predict_speed
-from .train import load_all, train_model
+from ..model import save_model
+from ..training.dataset import Signals
+from ..training.evaluate import predict_speed
+from ..training.train import load_all, train_model
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+
+NAME = "train"
+HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt) from recordings"
+DESCRIPTION = (
+    "Train the paper's network (default 3-25-1: filtered battery voltage, PWM, PWM "
+    "through a 0.25 s lag) with Levenberg-Marquardt on the training recordings, stop "
+    "early on separate validation recordings, and save weights, scaling and "
+    "provenance to an .npz model file."
+)
 
 #: b of the nominal bench (12x4.5 propeller, CT ~0.105, rho 1.225, D 0.305 m): used when no
 #: recording has /thrust/measured and no --thrust-coefficient is given.
@@ -37,7 +47,7 @@ def _inputs(text: str) -> list[str]:
     return names
 
 
-def add_train_arguments(p: argparse.ArgumentParser) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("train", nargs="+", metavar="TRAIN_BAG", help="training recordings")
     p.add_argument("--validation", nargs="+", required=True, metavar="BAG",
                    help="validation recordings (separate experiments; they stop the training)")
@@ -59,7 +69,6 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true",
                    help="replace an existing model file (a model only) and report folder (one this tool made)")
     add_namespace_argument(p)
-    p.set_defaults(run=run_train)
 
 
 def _check_disjoint(train: list[str], validation: list[str]) -> None:
@@ -70,7 +79,7 @@ def _check_disjoint(train: list[str], validation: list[str]) -> None:
         )
 
 
-def run_train(args: argparse.Namespace) -> CommandResult:
+def run(args: argparse.Namespace) -> CommandResult:
     out = Path(args.output)
     check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.train, *args.validation])
@@ -144,46 +153,7 @@ def run_train(args: argparse.Namespace) -> CommandResult:
     return CommandResult(data, text, warnings=warnings)
 
 
-def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", required=True, help="model file (.npz) from `train`")
-    p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
-    p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing report folder (one this tool made)")
-    add_namespace_argument(p)
-    p.set_defaults(run=run_evaluate)
-
-
-def run_evaluate(args: argparse.Namespace) -> CommandResult:
-    check_outputs([(args.report, REPORT, "--report")], force=args.force,
-                  inputs=[args.model, *args.recordings])
-    model = load_model(args.model)
-    signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
-    rmse, scores, preds = evaluate(model, signals)
-    data: dict[str, Any] = {
-        "model": str(args.model),
-        "rmse_rad_s": rmse,
-        "recordings": [s.as_dict() for s in scores],
-    }
-    lines = [f"model {args.model}: overall RMSE {rmse:.2f} rad/s"]
-    for s in scores:
-        lines.append(
-            f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
-            f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
-        )
-        for b in s.bands:
-            lines.append(
-                f"      command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz: RMSE {b['rmse_rad_s']:.2f} rad/s "
-                f"({b['rmse_percent_of_range']:.2f} %)"
-            )
-    if args.report:
-        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores, force=args.force)
-        lines.append(f"  figures in {data['report']}")
-    warnings = [w for s in scores if s.out_of_range and (w := s.out_of_range.warning())]
-    data["warnings"] = warnings
-    return CommandResult(data, "\n".join(lines), warnings=warnings)
-
-
-# --- reports -------------------------------------------------------------------------------
+# --- report ---------------------------------------------------------------------------------
 def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
     """Figures of a training run, written whole to ``path`` (atomic.report_output)."""
     with report_output(path, force=force) as d:
@@ -192,7 +162,7 @@ def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
 
 
 def _training_report(d: Path, outcome: Any) -> None:
-    from . import report
+    from ..training import report
 
     figs: list[tuple[str, str]] = []
     h = outcome.lm.history
@@ -216,41 +186,6 @@ def _training_report(d: Path, outcome: Any) -> None:
     report.write_index(d, "bldc_propulsion training report", figs)
 
 
-def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any],
-                            force: bool = False) -> str:
-    """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output)."""
-    with report_output(path, force=force) as d:
-        _evaluation_report(d, signals, preds, scores)
-    return str(path)
-
-
-def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> None:
-    from . import report
-
-    figs: list[tuple[str, str]] = []
-    for k, (sig, pred) in enumerate(zip(signals, preds)):
-        name = f"fig13_{k}.png"
-        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
-        figs.append((name, f"predicted vs measured speed: {sig.path}"))
-        name = f"scatter_{k}.png"
-        report.fig_prediction_scatter(sig.speed, pred, d / name, recording=sig.path)
-        figs.append((name, f"predicted vs measured: {sig.path}"))
-    bands = []
-    for k, s in enumerate(scores):
-        if s.bands:
-            name = f"band_error_{k}.png"
-            report.fig_band_error(s.bands, d / name, recording=s.path)
-            figs.append((name, f"speed error per command frequency band: {s.path}"))
-            bands += [{"recording": s.path, "band (Hz)": f"{b['low_hz']:.1f}-{b['high_hz']:.1f}",
-                       "samples": b["samples"], "RMSE (rad/s)": b["rmse_rad_s"],
-                       "% of speed range": b["rmse_percent_of_range"]} for b in s.bands]
-    rows = [{k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
-            | {"outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
-            for s in scores]
-    tables = [("per recording", rows)] + ([("error per command frequency band", bands)] if bands else [])
-    report.write_index(d, "bldc_propulsion evaluation report", figs, tables)
-
-
 def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(t, raw battery V with divider undone, filtered V) for Fig. 1, when battery/adc exists."""
     from ..bagio import open_recording
@@ -262,4 +197,3 @@ def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
         t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
     ratio = BatteryFilterConfig().divider_ratio
     return t, adc * ratio, np.interp(t, *sig.voltage_events)
-

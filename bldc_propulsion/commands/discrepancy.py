@@ -1,21 +1,21 @@
-"""The `discrepancy` subcommand: arguments, loading, and the summary for people and scripts."""
+"""`bldc-propulsion discrepancy`: arguments, loading, and the summary for people and scripts
+(the workflow itself is discrepancy/workflow.py and physics_workflow.py)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from .. import contract as c
-from ..cli import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 from ..atomic import CONFIG, MODEL, REPORT, check_outputs
 from ..errors import BadInputError
 from ..training.dataset import load_signals
 from ..training.evaluate import input_range
 from ..training.train import load_all, unique
-from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from ..discrepancy.workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 
 def _effects(text: str) -> list[str]:
@@ -23,6 +23,17 @@ def _effects(text: str) -> list[str]:
     if not names:
         raise argparse.ArgumentTypeError("at least one effect name")
     return names
+
+
+NAME = "discrepancy"
+HELP = "find where a model and measurements disagree, name the missing effect, add it"
+DESCRIPTION = (
+    "Run a model (trained network or bench physics) over measured recordings, find "
+    "where and when it disagrees with the measured speed, test which physical effect "
+    "explains the disagreement (battery_voltage, rotor_lag, input_delay, "
+    "esc_deadband, spin_down_asymmetry, motor_heating), add the best one to the "
+    "model, and show the error shrink on held-out recordings."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,7 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="most effects to add (default 3)")
     p.add_argument("--effects", type=_effects, metavar="NAME,...",
                    help="only consider these effects (default: all of " + ", ".join(c.EFFECTS) + ")")
-    p.add_argument("--alpha", type=number(float, 0.0, 0.5, lo_open=True), default=ALPHA, help=f"significance level (default {ALPHA})")
+    p.add_argument("--alpha", type=number(float, 0.0, 0.5, lo_open=True), default=ALPHA,
+                   help=f"significance level (default {ALPHA})")
     p.add_argument("--min-reduction", type=number(float, 0.0, 1.0), default=MIN_EFFECT,
                    help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
     p.add_argument("--hidden", type=HIDDEN, help="hidden neurons of the retrained model (--model only; default: as the model)")
@@ -58,7 +70,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="replace an existing output of the same kind (a model / CONFIG written by this "
                         "tool, a report folder it made)")
     add_namespace_argument(p)
-    p.set_defaults(run=run)
 
 
 def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
@@ -156,8 +167,8 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
     """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
-    from .physics import load_config, save_config
-    from .physics_workflow import run_physics_workflow
+    from ..discrepancy.physics import load_config, save_config
+    from ..discrepancy.physics_workflow import run_physics_workflow
 
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
         if value is not None:

@@ -1,14 +1,23 @@
-"""`bldc-propulsion import-csv`: arguments and runner (the converter is import_csv.py)."""
+"""`bldc-propulsion import-csv`: arguments and runner (the converter is training/import_csv.py)."""
 
 from __future__ import annotations
 
 import argparse
 
-from ..cli import CommandResult, number, progress
 from ..atomic import RECORDING, check_output
+from .common import CommandResult, number, progress
+
+NAME = "import-csv"
+HELP = "turn an RCbenchmark / Tyto Robotics thrust-stand CSV log into a bag"
+DESCRIPTION = (
+    "Convert the CSV log a RCbenchmark / Tyto Robotics thrust stand exports (ESC signal "
+    "in microseconds, voltage, current, thrust, RPM) into a bag with the contract's "
+    "topics (/pwm at 50 Hz, /battery/voltage, /rotor/speed, /thrust/measured), so that "
+    "data from a commercial stand trains, evaluates and goes through discrepancy."
+)
 
 
-def add_import_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``import-csv``: ``CSV -o BAG [--force] [--pole-pairs N]``."""
     parser.add_argument("csv", metavar="CSV", help="RCbenchmark / Tyto Robotics CSV log")
     parser.add_argument("-o", "--output", required=True, help="bag directory to write")
@@ -22,12 +31,11 @@ def add_import_arguments(parser: argparse.ArgumentParser) -> None:
             "the pole count set in its setup). Not used when optical RPM has data."
         ),
     )
-    parser.set_defaults(run=run_import)
 
 
-def run_import(args: argparse.Namespace) -> CommandResult:
+def run(args: argparse.Namespace) -> CommandResult:
     """Run the import; ``--json`` data has ``path``, ``rows`` and the full summary."""
-    from .import_csv import import_csv, summary_text
+    from ..training.import_csv import import_csv, summary_text
 
     check_output(args.output, RECORDING, force=args.force, inputs=[args.csv])  # before any work
     progress(f"importing {args.csv}")
