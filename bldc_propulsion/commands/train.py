@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"train from the initial weights of seeds SEED, SEED+1, ... and keep the one with "
                         f"the least validation cost (default {DEFAULT_RESTARTS})")
     p.add_argument("--max-epochs", type=EPOCHS, default=1000, help="epoch limit (default 1000)")
-    p.add_argument("--patience", type=number(int, 1, 10_000), default=6,
+    p.add_argument("--patience", type=EPOCHS, default=6,
                    help="stop after this many epochs without validation improvement (default 6)")
     p.add_argument("--thrust-coefficient", type=number(float, 0.0, 1e-2, lo_open=True),
                    default=DEFAULT_THRUST_COEFFICIENT,
