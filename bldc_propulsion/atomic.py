@@ -1,14 +1,198 @@
-"""Write outputs under a temporary name and rename when complete, so nothing is half-written."""
+"""Outputs: which paths a command may write (checked before any work), and writing them so that
+nothing is half-written.
+
+The rule, for every command and every output option (``-o``, ``--report``), in one place
+(``check_outputs``): the parent directory exists and is writable; the name fits the kind of
+output (a model ``.npz``, a physics CONFIG ``.json``, a recording as a bag directory or a
+``.mcap`` file, a report directory); it is not one of the command's inputs (nor inside one,
+nor holding one); and an existing path is replaced only with ``--force`` and only when it is
+the same kind of output (a recording by a recording, a model by a model, a report folder this
+tool made by a report). Anything else the user owns is refused, never deleted.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import BadInputError, OutputExistsError
+
+#: File in every report directory the tool writes: only such a directory is replaced by a report.
+REPORT_MARKER = ".bldc-propulsion-report"
+#: Name endings that say "a file of another kind": refused as a recording or report directory.
+_FILE_SUFFIXES = (".npz", ".json", ".csv", ".db3", ".yaml", ".yml", ".txt", ".html", ".png",
+                  ".py", ".npy", ".zip")
+
+
+def describe_path(path: str | os.PathLike[str]) -> str:
+    """What a path holds, for messages ("a JSON file", "a directory with 3 entries"): so that a
+    refusal or a wrong --model says what the file *is*, not what failed inside a parser."""
+    p = Path(path)
+    if p.is_dir():
+        if (p / "metadata.yaml").is_file():
+            return "a rosbag2 recording (directory)"
+        if (p / REPORT_MARKER).is_file():
+            return "a report directory"
+        n = sum(1 for _ in p.iterdir())
+        return f"a directory with {n} entr{'y' if n == 1 else 'ies'}" if n else "an empty directory"
+    if not p.exists():
+        return "nothing (no such file)"
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(512)
+    except OSError as exc:
+        return f"an unreadable file ({exc.strerror or exc})"
+    if not head:
+        return "an empty file"
+    for magic, what in ((b"PK\x03\x04", "a zip archive (.npz)"), (b"\x89MCAP", "an MCAP recording"),
+                        (b"SQLite format 3", "an SQLite database"), (b"\x93NUMPY", "a single NumPy array (.npy)"),
+                        (b"\x89PNG", "a PNG image"), (b"\x80", "a Python pickle")):
+        if head.startswith(magic):
+            return what
+    text = head.lstrip()
+    if text[:1] in (b"{", b"["):
+        return "a JSON file"
+    if text[:5].lower() in (b"<!doc", b"<html"):
+        return "an HTML file"
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return "a binary file"
+    return "a text file"
+
+
+@dataclass(frozen=True)
+class OutputKind:
+    """One kind of output: how its name must end and how to recognise an existing one."""
+
+    name: str  #: "recording", "model", ...
+    what: str  #: what the user must give, for messages
+    suffixes: tuple[str, ...]  #: allowed endings; () = a directory (no file ending)
+    holds: Callable[[Path], bool]  #: an existing path is this kind of output (may be replaced)
+
+    def name_fits(self, path: Path) -> bool:
+        if self.suffixes:
+            return path.suffix.lower() in self.suffixes
+        return path.suffix.lower() not in _FILE_SUFFIXES
+
+
+def _is_recording(p: Path) -> bool:
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    if p.is_file() and p.suffix == ".mcap":
+        with open(p, "rb") as fh:
+            return fh.read(5) == b"\x89MCAP"
+    return False
+
+
+def _loads(loader: Callable[[Path], object]) -> Callable[[Path], bool]:
+    def holds(p: Path) -> bool:
+        if not p.is_file():
+            return False
+        try:
+            loader(p)
+        except BadInputError:
+            return False
+        return True
+    return holds
+
+
+def _model_loader(p: Path) -> object:
+    from .model import load_model  # late: model imports this module
+
+    return load_model(p)
+
+
+def _config_loader(p: Path) -> object:
+    from .discrepancy.physics import load_config  # late: heavy, and imports this module
+
+    return load_config(str(p))
+
+
+RECORDING = OutputKind("recording", "a recording (a bag directory or a .mcap file)", (),
+                       _is_recording)
+#: A recording may also be a single .mcap file: ``name_fits`` is special-cased for it.
+MODEL = OutputKind("model", "a model file (.npz)", (".npz",), _loads(_model_loader))
+CONFIG = OutputKind("physics CONFIG", "a physics CONFIG file (.json)", (".json",), _loads(_config_loader))
+REPORT = OutputKind("report", "a report directory", (),
+                    lambda p: p.is_dir() and (p / REPORT_MARKER).is_file())
+
+
+def _name_fits(kind: OutputKind, path: Path) -> bool:
+    if kind is RECORDING and path.suffix.lower() == ".mcap":
+        return True
+    return kind.name_fits(path)
+
+
+def _inside(inner: Path, outer: Path) -> bool:
+    return inner == outer or outer in inner.parents
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Same file or directory: resolved paths, and the same inode (hard links, bind mounts)."""
+    if a.resolve() == b.resolve():
+        return True
+    with contextlib.suppress(OSError):
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    return False
+
+
+def check_output(path: str | os.PathLike[str], kind: OutputKind, *, force: bool = False,
+                 inputs: Iterable[str | os.PathLike[str] | None] = (), option: str = "-o") -> Path:
+    """Refuse (BadInputError, one line naming ``option`` and the path) an output that breaks the
+    rule of this module; returns the path. Call it before any work, so that a wrong path costs
+    nothing; ``atomic_output`` applies the same-kind rule again when it replaces."""
+    final = Path(path)
+    where = f"{option} {final}"
+    if not str(path):
+        raise BadInputError(f"{option}: an output path is required")
+    if not _name_fits(kind, final):
+        if kind.suffixes:
+            raise BadInputError(f"{where}: must be {kind.what}: the name must end in {' or '.join(kind.suffixes)}")
+        raise BadInputError(f"{where}: must be {kind.what}, but '{final.suffix}' names another kind of file")
+    parent = final.parent
+    if not parent.is_dir():
+        raise BadInputError(f"{where}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise BadInputError(f"{where}: directory {parent} is not writable")
+    resolved = final.resolve()
+    for src in inputs:
+        if src is None or not str(src):
+            continue
+        s = Path(src)
+        if _same(final, s) or _inside(resolved, s.resolve()) or _inside(s.resolve(), resolved):
+            raise BadInputError(f"{where}: is (or holds, or lies inside) the input {s} of this command; "
+                                "an output never replaces an input")
+    if final.exists() or final.is_symlink():
+        if not force:
+            raise OutputExistsError(f"{final}: already exists (use --force to replace it)")
+        _check_replaceable(final, kind, where)
+    return final
+
+
+def _check_replaceable(final: Path, kind: OutputKind, where: str) -> None:
+    if final.is_symlink() or not kind.holds(final):
+        found = "a symbolic link" if final.is_symlink() else describe_path(final)
+        raise BadInputError(f"{where}: exists and is {found}, not {kind.what} this tool wrote; "
+                            "--force only replaces the same kind of output, so it is left as it is")
+
+
+def check_outputs(outputs: Sequence[tuple[str | os.PathLike[str] | None, OutputKind, str]], *,
+                  force: bool, inputs: Iterable[str | os.PathLike[str] | None] = ()) -> None:
+    """``check_output`` for each (path, kind, option) given (None = option not used), and no
+    two outputs of one command on the same path (or one inside the other)."""
+    given = [(Path(p), k, o) for p, k, o in outputs if p is not None]
+    ins = list(inputs)
+    for path, kind, option in given:
+        check_output(path, kind, force=force, inputs=ins, option=option)
+    for i, (a, _, oa) in enumerate(given):
+        for b, _, ob in given[i + 1:]:
+            if _inside(a.resolve(), b.resolve()) or _inside(b.resolve(), a.resolve()):
+                raise BadInputError(f"{oa} {a} and {ob} {b}: two outputs of one command on the same path")
 
 
 def _remove(path: Path) -> None:
@@ -20,14 +204,17 @@ def _remove(path: Path) -> None:
 
 
 @contextlib.contextmanager
-def atomic_output(path: str | os.PathLike[str], force: bool = False) -> Iterator[Path]:
+def atomic_output(path: str | os.PathLike[str], force: bool = False,
+                  kind: OutputKind | None = None) -> Iterator[Path]:
     """Yield a staging path with the final name; move it to ``path`` when the block succeeds.
 
     The staging path lives in a hidden directory beside ``path`` and has the same base name,
     so writers that derive inner file names from it (a rosbag2 directory names its .mcap
     after itself) produce the same files as a direct write. On any exception
     (KeyboardInterrupt included) the staging directory is removed and an existing ``path``
-    stays untouched. An existing ``path`` is refused unless ``force``.
+    stays untouched. An existing ``path`` is refused unless ``force``, and with ``kind`` also
+    unless it is that kind of output (checked again at the rename: what the user owns is
+    never replaced, even if it appeared during the work).
     """
     final = Path(path)
     if final.exists() and not force:
@@ -37,6 +224,8 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False) -> Iterator
         raise BadInputError(f"{final}: directory {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise BadInputError(f"{final}: directory {parent} is not writable")
+    if kind is not None and (final.exists() or final.is_symlink()):
+        _check_replaceable(final, kind, str(final))
     stage = parent / f".{final.name}.partial-{os.getpid()}"
     _remove(stage)
     try:  # mkdir inside: a Ctrl-C right after it must still remove the staging directory
@@ -46,7 +235,9 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False) -> Iterator
         if not tmp.exists():
             raise RuntimeError(f"{final}: nothing was written")
         backup = stage / f"{final.name}.old"
-        if final.exists():
+        if final.exists() or final.is_symlink():
+            if kind is not None:
+                _check_replaceable(final, kind, str(final))
             os.replace(final, backup)
         try:
             os.replace(tmp, final)
@@ -56,3 +247,15 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False) -> Iterator
             raise
     finally:
         _remove(stage)
+
+
+@contextlib.contextmanager
+def report_output(path: str | os.PathLike[str], force: bool = False) -> Iterator[Path]:
+    """A report directory written whole: yields an empty staging directory (with the marker
+    that makes it replaceable by the next report) that replaces ``path`` when the block
+    succeeds, so no file of an earlier report (a stale PNG) survives and a failure keeps it."""
+    with atomic_output(path, force=force, kind=REPORT) as tmp:
+        tmp.mkdir()
+        (tmp / REPORT_MARKER).write_text("written by bldc-propulsion; --force replaces this directory whole\n",
+                                         encoding="utf-8")
+        yield tmp

@@ -12,7 +12,7 @@ import contextlib
 import math
 import os
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -24,7 +24,7 @@ from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlu
 from rosbags.typesys import Stores, get_typestore
 
 from . import contract as c
-from .atomic import atomic_output
+from .atomic import RECORDING, atomic_output
 from .errors import BagError, one_line
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -48,11 +48,39 @@ def is_recording(path: str | os.PathLike[str]) -> bool:
     )
 
 
-class Recording:
-    """A rosbag2 recording opened for streaming reads; use as a context manager."""
+#: Topics one vehicle shares between its motors (one pack, one battery filter): with a
+#: namespace they are read from it when it has them, else from the root (interfaces.md).
+SHARED_TOPICS: tuple[str, ...] = (c.TOPIC_BATTERY_ADC, c.TOPIC_BATTERY_VOLTAGE)
+#: Most topic names a missing-topic message lists.
+_LIST_TOPICS = 12
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+
+def check_namespace(namespace: str | None) -> str | None:
+    """``motor0``, ``/motor0`` or ``motor0/`` -> ``motor0``; None or '' -> None (the root)."""
+    if namespace is None:
+        return None
+    ns = namespace.strip().strip("/")
+    if not ns:
+        return None
+    if any(not part or not (part[0].isalpha() or part[0] == "_")
+           or not all(ch.isalnum() or ch == "_" for ch in part) for part in ns.split("/")):
+        raise BagError(f"--namespace {namespace}: not a ROS namespace (letters, digits, _ and /, "
+                       "each part starting with a letter)")
+    return ns
+
+
+class Recording:
+    """A rosbag2 recording opened for streaming reads; use as a context manager.
+
+    With ``namespace`` (one motor of a vehicle's recording, e.g. ``motor0``) every topic a
+    caller names (``pwm``) is read from the namespace (``/motor0/pwm``), the battery topics
+    from the namespace if present there, else from the root; callers keep using the contract's
+    names, and ``raw``/``messages`` report those names.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], namespace: str | None = None) -> None:
         self.path = Path(path)
+        self.namespace = check_namespace(namespace)
         if not self.path.exists():
             raise BagError(f"{self.path}: no such recording")
         if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
@@ -102,22 +130,53 @@ class Recording:
         return int(self._reader.message_count)
 
     def topics(self) -> dict[str, str]:
-        """Topic name (without leading slash) -> message type."""
+        """Every topic of the recording (without leading slash, whatever the namespace) -> type."""
         return {name: conns[0].msgtype for name, conns in self._conns.items()}
 
+    def resolve(self, topic: str) -> str:
+        """The recording's name (bare) of a contract topic, under this recording's namespace."""
+        name = c.bare(topic)
+        if self.namespace is None:
+            return name
+        inside = f"{self.namespace}/{name}"
+        if inside not in self._conns and name in SHARED_TOPICS and name in self._conns:
+            return name
+        return inside
+
+    def namespaces_with(self, topic: str) -> list[str]:
+        """Namespaces under which the recording has ``topic`` (e.g. ['motor0', 'motor1'])."""
+        name = c.bare(topic)
+        return sorted(t[: -len(name) - 1] for t in self._conns if t.endswith("/" + name))
+
+    def missing_error(self, topics: Sequence[str]) -> BagError:
+        """BagError for contract topics of which none is recorded: names them (as looked up),
+        lists what the recording has, and suggests --namespace when they are under one."""
+        names = [f"/{self.resolve(t)}" for t in topics]
+        what = (f"topic {names[0]} is missing" if len(names) == 1 else
+                f"neither {names[0]} nor {names[1]} is recorded" if len(names) == 2 else
+                f"none of the input topics ({', '.join(names)}) is recorded")
+        have = sorted(f"/{t}" for t in self._conns)
+        listed = ", ".join(have[:_LIST_TOPICS]) + (f", ... ({len(have)} topics)" if len(have) > _LIST_TOPICS else "")
+        hint = ""
+        spaces = sorted({ns for t in topics for ns in self.namespaces_with(t)} - {self.namespace or ""})
+        if spaces:
+            hint = (f"; it has {c.bare(topics[0])} under namespace(s) {', '.join(spaces)}: "
+                    f"give --namespace {spaces[0]}")
+        return BagError(f"{self.path}: {what} (the recording has {listed or 'no topics'}){hint}")
+
     def count(self, topic: str) -> int:
-        return sum(conn.msgcount for conn in self._conns.get(c.bare(topic), []))
+        return sum(conn.msgcount for conn in self._conns.get(self.resolve(topic), []))
 
     def has(self, topic: str, msgtype: str | None = None) -> bool:
-        conns = self._conns.get(c.bare(topic))
+        conns = self._conns.get(self.resolve(topic))
         return bool(conns) and (msgtype is None or conns[0].msgtype == msgtype)
 
     def require(self, topic: str, msgtype: str) -> list[Any]:
         """Connections of ``topic``; BagError naming the file and topic if absent or mistyped."""
-        name = c.bare(topic)
+        name = self.resolve(topic)
         conns = self._conns.get(name)
         if not conns:
-            raise BagError(f"{self.path}: topic /{name} is missing")
+            raise self.missing_error([topic])
         found = {conn.msgtype for conn in conns}
         if found != {msgtype}:
             raise BagError(
@@ -132,7 +191,8 @@ class Recording:
         With ``tolerant`` a damaged part ends the stream and is recorded in ``read_error``
         instead of raising, so that callers can keep what was readable.
         """
-        conns = [conn for t in topics for conn in self._conns.get(c.bare(t), [])]
+        logical = {self.resolve(t): c.bare(t) for t in topics}
+        conns = [conn for name in logical for conn in self._conns.get(name, [])]
         if not conns:
             return
         it = self._reader.messages(connections=conns)
@@ -154,7 +214,32 @@ class Recording:
                     return
                 raise BagError(msg) from None
             self._last_ns = ns
-            yield c.bare(conn.topic), ns, conn, data
+            bare = c.bare(conn.topic)
+            yield logical.get(bare, bare), ns, conn, data
+
+    def topic_stats(self) -> list[TopicStats]:
+        """Per topic of the recording (all namespaces): type, messages, rate and gaps, from the
+        message times alone (nothing decoded; a damaged part ends the scan, see read_error)."""
+        times: dict[str, list[int]] = {name: [] for name in self._conns}
+        saved, self.namespace = self.namespace, None  # every topic under its own name
+        try:
+            for name, ns, _, _ in self.raw(list(self._conns), tolerant=True):
+                times[name].append(ns)
+        finally:
+            self.namespace = saved
+        out = []
+        for name, ts in sorted(times.items()):
+            t = (np.asarray(ts, dtype=np.int64) - self.t0_ns) * 1e-9
+            dt = np.diff(t)
+            span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+            period = float(np.median(dt)) if len(dt) else math.nan
+            big = dt > max(GAP_FACTOR * period, MIN_GAP_S) if len(dt) else np.zeros(0, dtype=bool)
+            out.append(TopicStats(
+                topic="/" + name, msgtype=self._conns[name][0].msgtype, count=len(t),
+                first_s=float(t[0]) if len(t) else math.nan, last_s=float(t[-1]) if len(t) else math.nan,
+                rate_hz=(len(t) - 1) / span if span > 0 else math.nan,
+                gaps=int(np.count_nonzero(big)), max_gap_s=float(dt.max()) if len(dt) else math.nan))
+        return out
 
     def _done_s(self, conns: list[Any]) -> str:
         ns = getattr(self, "_last_ns", None)
@@ -196,6 +281,26 @@ class Recording:
         self.require(topic, c.FLOAT32_ARRAY)
         for _, ts, msg in self.messages([topic]):
             yield ts, np.asarray(msg.data, dtype=np.float32)
+
+
+#: A pause between two messages of one topic counts as a gap when it is longer than
+#: GAP_FACTOR x the topic's median period and MIN_GAP_S (PWM is sent on change: 50 Hz typical).
+GAP_FACTOR = 5.0
+MIN_GAP_S = 0.1
+
+
+@dataclass
+class TopicStats:
+    """What ``ros2 bag info`` says of one topic, plus gaps (times in s from the recording start)."""
+
+    topic: str
+    msgtype: str
+    count: int
+    first_s: float
+    last_s: float
+    rate_hz: float  #: mean message rate between the first and last message
+    gaps: int  #: pauses longer than GAP_FACTOR x the median period (and MIN_GAP_S)
+    max_gap_s: float  #: longest pause between two messages
 
 
 @dataclass
@@ -300,9 +405,10 @@ class _Float64:
     data: float
 
 
-def open_recording(path: str | os.PathLike[str]) -> Recording:
-    """Open a rosbag2 directory (MCAP or SQLite3) or a single .mcap file for reading."""
-    return Recording(path)
+def open_recording(path: str | os.PathLike[str], namespace: str | None = None) -> Recording:
+    """Open a rosbag2 directory (MCAP or SQLite3) or a single .mcap file for reading; with
+    ``namespace``, one motor of a vehicle's recording (see Recording)."""
+    return Recording(path, namespace)
 
 
 class BagWriter:
@@ -332,12 +438,23 @@ class BagWriter:
         self._writer: Writer | None = None
         self.messages_written = 0
 
+    @property
+    def single_file(self) -> bool:
+        """``path`` ends in .mcap: write one MCAP file there, not a bag directory."""
+        return self.path.suffix.lower() == ".mcap"
+
     def __enter__(self) -> BagWriter:
-        self._stage = atomic_output(self.path, force=self.force)
+        if self.single_file and self.storage != "mcap":
+            raise BagError(f"{self.path}: a single .mcap file cannot hold {self.storage} storage "
+                           "(give a directory name)")
+        self._stage = atomic_output(self.path, force=self.force, kind=RECORDING)
         tmp = self._stage.__enter__()
         try:
             plugin = StoragePlugin.MCAP if self.storage == "mcap" else StoragePlugin.SQLITE3
-            self._writer = Writer(tmp, version=9, storage_plugin=plugin)
+            # a single .mcap is written as a bag directory beside the staged name, then moved
+            self._tmp = tmp
+            self._bag_dir = tmp.with_name(tmp.stem + ".bag") if self.single_file else tmp
+            self._writer = Writer(self._bag_dir, version=9, storage_plugin=plugin)
             if self.storage == "mcap":
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
@@ -358,6 +475,12 @@ class BagWriter:
         except Exception as close_exc:
             if exc is None:
                 exc_type, exc, tb = type(close_exc), close_exc, close_exc.__traceback__
+        if exc is None and self.single_file:
+            try:
+                (mcap,) = self._bag_dir.glob("*.mcap")
+                os.replace(mcap, self._tmp)
+            except BaseException as move_exc:
+                exc_type, exc, tb = type(move_exc), move_exc, move_exc.__traceback__
         result = self._stage.__exit__(exc_type, exc, tb)
         if exc is not None and exc_type is not None and not result:
             if exc_type.__module__.startswith("rosbags"):

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from . import contract as c
-from .atomic import atomic_output
+from .atomic import MODEL, atomic_output, describe_path
 from .errors import ModelError, one_line
 
 FORMAT_VERSION = 1
@@ -203,13 +203,57 @@ def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> di
     return meta
 
 
+#: Share of the time outside the training range from which commands warn (below: a blip, e.g.
+#: the filtered voltage at a recording's first sample).
+RANGE_WARN_FRACTION = 0.01
+
+
+@dataclass
+class RangeReport:
+    """How much of a recording the model saw only by extrapolation (inputs clipped to the
+    training range ``input_min..input_max``, as the estimator clips them)."""
+
+    where: str  #: the recording
+    fraction: float  #: share of the time with any input outside the range
+    by_input: dict[str, float]  #: share of the time per input (inputs that left it only)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"fraction": self.fraction, "by_input": self.by_input}
+
+    def warning(self) -> str | None:
+        """One line for stderr when the share is worth saying (>= RANGE_WARN_FRACTION)."""
+        if self.fraction < RANGE_WARN_FRACTION:
+            return None
+        each = ", ".join(f"{n} {100 * f:.1f} %" for n, f in self.by_input.items())
+        return (f"{self.where}: inputs outside the model's training range {100 * self.fraction:.1f} % of the "
+                f"time ({each}); predictions there are extrapolations (inputs clipped) and not to be trusted")
+
+
+def range_report(model: NetworkModel, X: np.ndarray, where: str) -> RangeReport:
+    """RangeReport of raw inputs ``X`` (rows: time, columns: ``model.input_names``); rows with
+    an unknown (NaN) input are not counted."""
+    X = np.asarray(X, dtype=float)
+    ok = np.all(np.isfinite(X), axis=1)
+    X = X[ok]
+    if not len(X):
+        return RangeReport(where, 0.0, {})
+    out = (X < model.input_min) | (X > model.input_max)
+    per = out.mean(axis=0)
+    return RangeReport(where, float(out.any(axis=1).mean()),
+                       {n: float(f) for n, f in zip(model.input_names, per) if f > 0})
+
+
 def load_model(path: str | os.PathLike[str]) -> NetworkModel:
     """Read and validate a model file (never unpickles anything)."""
     p = Path(path)
     if not p.exists():
         raise ModelError(f"{p}: no such model file")
     if p.is_dir():
-        raise ModelError(f"{p}: is a directory, not a model file")
+        raise ModelError(f"{p}: is {describe_path(p)}, not a model file")
+    with open(p, "rb") as fh:
+        if fh.read(4) != b"PK\x03\x04":  # say what the file is, before numpy talks of pickles
+            raise ModelError(f"{p}: is {describe_path(p)}, not a model .npz file (the zip archive "
+                             "`bldc-propulsion train` writes)")
     try:
         npz = np.load(p, allow_pickle=False)
     except Exception as exc:  # a damaged zip raises many types (struct.error, NotImplementedError, ...)
@@ -258,7 +302,7 @@ def save_model(model: NetworkModel, path: str | os.PathLike[str], force: bool = 
     """Write the model atomically; refuses an existing file unless ``force`` (OutputExistsError)."""
     arrays = model._arrays()
     _check(arrays, "model")
-    with atomic_output(path, force=force) as tmp:
+    with atomic_output(path, force=force, kind=MODEL) as tmp:
         # a file object: np.savez would append ".npz" to a bare temporary name
         with open(tmp, "wb") as fh:
             np.savez(fh, **arrays)

@@ -19,14 +19,14 @@ import os
 from typing import Any
 
 from . import contract as c
+from .atomic import RECORDING, check_output
 from .bagio import BagWriter, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
 from .core.tachometer import TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
-from .errors import BagError
-from .model import load_model
+from .model import RangeReport, load_model
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
 VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
@@ -41,10 +41,20 @@ def replay_bag(
     force: bool = False,
     battery: BatteryFilterConfig | None = None,
     tachometer: TachometerConfig | None = None,
+    namespace: str | None = None,
 ) -> dict[str, Any]:
-    """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``)."""
+    """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
+
+    With ``namespace`` (one motor of a vehicle's recording) the outputs are written as the
+    quadrotor launch publishes them: under the namespace, ``battery/voltage`` at the root."""
+    check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
     model = load_model(model_path) if model_path else fallback_model()
-    with open_recording(in_path) as rec:
+    with open_recording(in_path, namespace) as rec:
+        ns = rec.namespace
+
+        def topic_out(topic: str) -> str:
+            return topic if ns is None or topic == c.TOPIC_BATTERY_VOLTAGE else f"{ns}/{topic}"
+
         inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
         if has_voltage:
@@ -54,9 +64,10 @@ def replay_bag(
             if rec.has(topic):
                 rec.require(topic, msgtype)
         if not inputs:
-            raise BagError(
-                f"{in_path}: none of the input topics (/pwm, /battery/adc, /tachometer/adc) is recorded"
-            )
+            raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
+        motor = [c.TOPIC_PWM, c.TOPIC_TACH_ADC]
+        if not any(rec.has(t) for t in motor) and any(rec.namespaces_with(t) for t in motor):
+            raise rec.missing_error(motor)  # a vehicle's recording: only its battery is at the root
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         speed_out = SpeedOutput(tach)
@@ -67,19 +78,27 @@ def replay_bag(
         voltage_out = Ticker(VOLTAGE_RATE_HZ)
         next_diag: float | None = None
 
+        speed_topic, thrust_topic, voltage_topic, rotor_topic, rpm_topic = map(topic_out, (
+            c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
+            c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM))
+
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
 
             def timers_until(t: float) -> None:
+                """Outputs due up to t, emitted before an input at t is applied (as the nodes
+                do: a grid time equal to an input's time sees the state before it)."""
                 nonlocal next_diag
+                if t < predictions.next_s and (next_diag is None or t < next_diag):
+                    return
                 for tick in predictions.due(t):
                     p = est.predict(tick)
                     if p.ready:
-                        bag.write_float64(c.TOPIC_PREDICTED_SPEED, tick, p.speed_rad_s)
-                        bag.write_float64(c.TOPIC_PREDICTED_THRUST, tick, p.thrust_n)
+                        bag.write_float64(speed_topic, tick, p.speed_rad_s)
+                        bag.write_float64(thrust_topic, tick, p.thrust_n)
                 while next_diag is not None and next_diag <= t:
                     tach.check_timeout(next_diag)
                     statuses = [*filt.status(), *tach.status(), *est.status()]
-                    bag.write_diagnostics(c.TOPIC_DIAGNOSTICS, next_diag, statuses)
+                    bag.write_diagnostics(topic_out(c.TOPIC_DIAGNOSTICS), next_diag, statuses)
                     next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
 
             for topic, t, msg in rec.messages(inputs, tolerant=True):
@@ -94,7 +113,7 @@ def replay_bag(
                 elif topic == c.TOPIC_BATTERY_ADC:
                     v = filt.update(t, float(msg.data))
                     if v is not None and voltage_out.take(t):
-                        bag.write_battery_state(c.TOPIC_BATTERY_VOLTAGE, t, v)
+                        bag.write_battery_state(voltage_topic, t, v)
                         if not has_voltage:
                             est.update_voltage(t, v)
                 elif topic == c.TOPIC_BATTERY_VOLTAGE:
@@ -103,22 +122,28 @@ def replay_bag(
                     tach.process_batch(t, msg.data)
                     speed = speed_out.after_batch()
                     if speed is not None:
-                        bag.write_float64(c.TOPIC_ROTOR_SPEED, t, speed)
-                        bag.write_float64(c.TOPIC_ROTOR_RPM, t, speed * c.RAD_S_TO_RPM)
-                timers_until(t)
+                        bag.write_float64(rotor_topic, t, speed)
+                        bag.write_float64(rpm_topic, t, speed * c.RAD_S_TO_RPM)
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             timers_until(end)
             counts["messages_out"] = bag.messages_written
         tach.check_timeout(end)  # a tachometer silent until the end is lost, as the node's timer says
         statuses = [*filt.status(), *tach.status(), *est.status()]
+        n = max(est.predictions, 1)
+        ranged = None if est.is_fallback else RangeReport(
+            str(in_path), est.clipped / n, {k: v / n for k, v in est.clipped_by_input.items() if v})
+        warning = ranged.warning() if ranged else None
         return {
             "path": str(out_path),
             "input": str(in_path),
             "model": str(model_path) if model_path else None,
+            "namespace": ns,
             **counts,
             "messages_in_per_topic": per_topic_in,
             "duration_s": end,
             "read_error": rec.read_error,
+            "out_of_training_range": ranged.as_dict() if ranged else None,
+            "warnings": [warning] if warning else [],
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
                 for s in statuses

@@ -1,28 +1,35 @@
 #!/usr/bin/env bash
 # The main job end to end on the bundled sample bags: train -> replay -> evaluate -> discrepancy
 # (network and physics models).
-# Outputs go to demo/ (git-ignored); every step prints what it found.
+# Outputs go to demo/ (git-ignored); every step prints what it found; demo/index.html links
+# every report.
 source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
 BP=.venv/bin/bldc-propulsion
 OUT=demo
 mkdir -p "$OUT"
+# report folders of a demo run older than the report marker: the demo's own outputs, so cleared
+# (--force replaces only folders the tool marked as its reports)
+for d in "$OUT"/report_*; do
+    [ -d "$d" ] && [ ! -f "$d/.bldc-propulsion-report" ] && rm -rf -- "$d"
+done
 step() { printf '\n== %s\n' "$*"; }
+
+step "0. what the recordings hold (like ros2 bag info)"
+$BP info bags/chirp
 
 step "1. train the paper's 3-25-1 network (battery voltage, PWM, PWM through 0.25 s) with Levenberg-Marquardt"
 $BP train bags/staircase bags/triangle bags/staircase_half bags/triangle_half \
     --validation bags/validation -o $OUT/model.npz --report $OUT/report_train --force 2>$OUT/train.log
-tail -n 1 $OUT/train.log | sed 's/^/  last epoch: /'
 
 step "2. replay the chirp recording through the nodes' cores (what the ROS nodes would publish)"
 $BP replay bags/chirp -o $OUT/chirp_replay --model $OUT/model.npz --force
 
 step "3. evaluate on recordings the model never saw (chirp: error per command frequency band)"
-$BP evaluate --model $OUT/model.npz bags/chirp bags/discharge_a --report $OUT/report_eval
+$BP evaluate --model $OUT/model.npz bags/chirp bags/discharge_a --report $OUT/report_eval --force
 
 step "4. the paper's question: a model WITHOUT battery voltage, trained on full packs, measured on a half-empty one"
 $BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/model_no_voltage.npz \
     --inputs pwm,pwm_filtered --force 2>$OUT/train_no_voltage.log
-tail -n 1 $OUT/train_no_voltage.log | sed 's/^/  last epoch: /'
 $BP discrepancy --model $OUT/model_no_voltage.npz --measured bags/discharge_a \
     --holdout bags/discharge_b --max-effects 1 -o $OUT/model_found.npz --report $OUT/report_discrepancy --force
 
@@ -31,4 +38,16 @@ $BP discrepancy --physics --measured bags/staircase bags/validation --holdout ba
     --max-effects 4 -o $OUT/physics_found.json --report $OUT/report_physics --force 2>$OUT/physics.log
 grep -E "^step (4|5)" $OUT/physics.log | sed 's/^/  /'
 
-step "figures: $OUT/report_train/index.html $OUT/report_eval/index.html $OUT/report_discrepancy/index.html $OUT/report_physics/index.html"
+# one page that links every report
+{
+    printf '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>bldc_propulsion demo</title></head><body>\n'
+    printf '<h1>bldc_propulsion demo</h1>\n<ul>\n'
+    for r in report_train:"1. training (paper Figs. 1, 5-6, 12, 13)" \
+             report_eval:"3. evaluation on unseen recordings (error per command frequency band)" \
+             report_discrepancy:"4. discrepancy, network model without battery voltage" \
+             report_physics:"5. discrepancy, bench physics as the model"; do
+        printf '<li><a href="%s/index.html">%s</a></li>\n' "${r%%:*}" "${r#*:}"
+    done
+    printf '</ul>\n</body></html>\n'
+} > $OUT/index.html
+step "figures: $OUT/index.html (links $OUT/report_train, report_eval, report_discrepancy, report_physics)"

@@ -12,7 +12,7 @@ import pytest
 
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.errors import BadInputError, OutputExistsError
-from bldc_propulsion.training.command_import import add_import_arguments
+from bldc_propulsion.commands import import_csv as import_command
 from bldc_propulsion.training.import_csv import import_csv
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
@@ -124,15 +124,21 @@ def test_existing_output_refused_and_untouched(tmp_path: Path) -> None:
     with pytest.raises(OutputExistsError, match="out.bag"):
         import_csv(src, out)
     assert (out / "keep.txt").read_text() == "precious"
-    info = import_csv(src, out, force=True)
-    assert info["rows"] == 4 and not (out / "keep.txt").exists()
+    with pytest.raises(BadInputError, match="not a recording"):  # --force replaces recordings only
+        import_csv(src, out, force=True)
+    assert (out / "keep.txt").read_text() == "precious"
+    bag = tmp_path / "log_bag"
+    import_csv(src, bag)
+    info = import_csv(src, bag, force=True)
+    assert info["rows"] == 4
     assert not list(tmp_path.glob(".*partial*"))
 
 
 # --- command line --------------------------------------------------------------------------
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="import-csv")
-    add_import_arguments(p)
+    import_command.add_arguments(p)
+    p.set_defaults(run=import_command.run)
     return p
 
 

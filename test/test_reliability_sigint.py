@@ -20,6 +20,10 @@ from pathlib import Path
 
 import pytest
 
+from bldc_propulsion.model import save_model
+
+from _models import good_model
+
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
 PY = [sys.executable, "-m", "bldc_propulsion.cli"]
@@ -97,7 +101,7 @@ def _old_output(tmp_path: Path, command: str) -> Path:
     """A previous output under the final name: a model file or a bag directory."""
     if command == "train":
         out = tmp_path / "model.npz"
-        out.write_bytes(b"previous model, must survive")
+        save_model(good_model(), out)  # --force replaces only a model
     else:
         out = tmp_path / "out_bag"
         out.mkdir()

@@ -13,7 +13,7 @@ import pytest
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
-from bldc_propulsion.errors import BagError, ModelError, OutputExistsError
+from bldc_propulsion.errors import BadInputError, BagError, ModelError
 from bldc_propulsion.replay import replay_bag
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
@@ -106,8 +106,8 @@ def test_bad_inputs_are_clear_errors(bench, tmp_path):
     d, _ = bench
     with pytest.raises(BagError, match="no such recording"):
         replay_bag(tmp_path / "missing", tmp_path / "o1")
-    with pytest.raises(OutputExistsError):
-        replay_bag(d / "in", d / "in")
+    with pytest.raises(BadInputError, match="never replaces an input"):  # not even with force
+        replay_bag(d / "in", d / "in", force=True)
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"this is not a zip")
     with pytest.raises(ModelError, match="bad.npz"):

@@ -133,3 +133,11 @@ def test_index_references_every_figure_and_escapes_text(tmp_path: Path, signals:
     # rewriting the index replaces it
     report.write_index(tmp_path, "again", figures[:1])
     assert "again" in index.read_text(encoding="utf-8")
+
+
+def test_band_error_figure(tmp_path: Path) -> None:
+    """The per-band error as a figure (bars labelled with % of range), and a clear 'no bands'."""
+    bands = [{"low_hz": 0.0, "high_hz": 0.5, "samples": 900, "rmse_rad_s": 8.2, "rmse_percent_of_range": 1.66},
+             {"low_hz": 0.5, "high_hz": 1.0, "samples": 500, "rmse_rad_s": 19.0, "rmse_percent_of_range": 3.9}]
+    assert_png(report.fig_band_error(bands, tmp_path / "bands.png", recording="bags/chirp"))
+    assert_png(report.fig_band_error([], tmp_path / "none.png", recording="bags/staircase"))

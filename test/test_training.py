@@ -247,7 +247,7 @@ def test_existing_model_file_is_not_overwritten(trained, tmp_path):
 
 def test_reference_recordings_are_found_from_another_directory(bags, tmp_path, monkeypatch):
     """A model trained on relative paths still finds its training recordings elsewhere."""
-    from bldc_propulsion.discrepancy.command import reference_paths
+    from bldc_propulsion.commands.discrepancy import reference_paths
 
     monkeypatch.chdir(bags["s_full"].parent)
     train = load_all(["s_full"], "training")

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import contract as c
-from ..atomic import atomic_output
+from ..atomic import CONFIG, atomic_output
 from ..core.battery_filter import BatteryFilterConfig
 from ..errors import BadInputError
 from ..sim.bench import motor_response, resolve_effects
@@ -178,7 +178,7 @@ def load_config(path: str | None) -> PhysicsModel:
 
 def save_config(model: PhysicsModel, path: str, force: bool, provenance: dict[str, Any]) -> None:
     """Write the model as a CONFIG that ``load_config`` reads back (atomically)."""
-    with atomic_output(path, force=force) as tmp:
+    with atomic_output(path, force=force, kind=CONFIG) as tmp:
         tmp.write_text(json.dumps({**model.config(), "discrepancy": provenance}, indent=2) + "\n",
                        encoding="utf-8")
 

@@ -159,7 +159,7 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
     }
     if opts.report_dir:
         data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, found.windows,
-                                      hold_windows, data)
+                                      hold_windows, data, force=opts.report_force)
     lines = [f"physics model calibrated on the measured data: {constants_text(base)}"
              + f" (holdout RMSE {uncal_rmse:.2f} rad/s before calibration)", *summary_lines(data)]
     if named:

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
+from ..atomic import report_output
 from ..core import effect_features as ef
 from ..errors import BadInputError
 from ..training.dataset import Signals
@@ -70,6 +71,7 @@ class Options:
     alpha: float = ALPHA
     min_effect: float = MIN_EFFECT
     report_dir: str | None = None
+    report_force: bool = False  #: --force: an earlier report at report_dir may be replaced
     warm_start: bool = True  #: retrain from the base model's weights (see warm_start_weights)
 
 
@@ -589,7 +591,7 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
     }
     if opts.report_dir:
         data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_final, found.windows,
-                                      hold_windows, data)
+                                      hold_windows, data, force=opts.report_force)
     lines = summary_lines(data)
     return WorkflowResult(data, current, lines)
 
@@ -656,14 +658,20 @@ def summary_lines(data: dict[str, Any]) -> list[str]:
     return lines
 
 
-def write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
-                 windows: Sequence[rs.Window], hold_windows: Sequence[rs.Window], data: dict[str, Any]) -> str:
-    """Disagreement map and before/after figures (training/report.py) and an index.html."""
+def write_report(final: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
+                 windows: Sequence[rs.Window], hold_windows: Sequence[rs.Window], data: dict[str, Any],
+                 force: bool = False) -> str:
+    """Disagreement map and before/after figures (training/report.py) and an index.html,
+    written whole to ``final`` (atomic.report_output)."""
+    with report_output(final, force=force) as d:
+        _write_report(d, meas, hold_base, hold_final, hold_windows, data)
+    return str(final)
+
+
+def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
+                  hold_windows: Sequence[rs.Window], data: dict[str, Any]) -> None:
     from ..training import report as rp
 
-    if d.exists() and not d.is_dir():
-        raise BadInputError(f"--report {d}: exists and is not a directory")
-    d.mkdir(parents=True, exist_ok=True)
     figs = []
     pwm = np.concatenate([s.pwm for s in meas.signals])
     rate = np.concatenate([rs.pwm_rate(s.t, s.pwm) for s in meas.signals])
@@ -675,7 +683,7 @@ def write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet
     for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions)):
         name = f"before_after_{k}.png"
         spans = [(w.t_start_s, w.t_end_s) for w in hold_windows if w.path == s.path]
-        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans)
+        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans, recording=s.path)
         figs.append((name, f"{s.path}: model before and after adding {', '.join(data['named']) or 'nothing'}"))
     rows = [{"effect": k, "verdict": v["verdict"],
              "measured reduction": v["measured"]["mse_reduction"], "measured p": v["measured"]["p_value"],
@@ -687,4 +695,3 @@ def write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet
             "in windows after": data["holdout_rmse_in_windows_after"]}]
     rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs,
                    [("candidate effects (held-out scores)", rows), ("the gap", gap)])
-    return str(d)

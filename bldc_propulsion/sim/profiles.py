@@ -139,14 +139,22 @@ PROFILES: dict[str, Profile] = {
 }
 
 
+#: Longest simulated recording: the 20 kHz tachometer alone is 72 M samples per hour, and the
+#: simulator holds every stream in memory (about 1 GB per 30 min); longer runs go in parts.
+MAX_DURATION_S = 1800.0
+
+
 def check_duration(duration_s: float) -> float:
-    """A finite, positive duration (BadInputError otherwise)."""
+    """A finite duration in (0, MAX_DURATION_S] (BadInputError otherwise)."""
     try:
         d = float(duration_s)
     except (TypeError, ValueError):
         raise BadInputError(f"--duration {duration_s!r}: not a number") from None
     if not math.isfinite(d) or d <= 0.0:
         raise BadInputError(f"--duration {duration_s!r}: must be a finite number of seconds > 0")
+    if d > MAX_DURATION_S:
+        raise BadInputError(f"--duration {duration_s!r}: at most {MAX_DURATION_S:g} s (the simulator holds "
+                            "the whole 20 kHz recording in memory); simulate longer runs in parts")
     return d
 
 

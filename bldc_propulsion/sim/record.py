@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
+from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
 from ..errors import BadInputError
 from .bench import SimResult, simulate
@@ -74,8 +75,10 @@ def simulate_to_bag(
     force: bool = False,
 ) -> dict[str, Any]:
     """Simulate and record; returns what ``simulate --json`` prints."""
-    if os.path.exists(path) and not force:
-        raise BadInputError(f"{path}: already exists (use --force to replace it)")
+    check_output(path, RECORDING, force=force)
+    if storage != "mcap" and str(path).lower().endswith(".mcap"):
+        raise BadInputError(f"-o {path}: a single .mcap file holds MCAP storage only (give a "
+                            f"directory name for --storage {storage})")
     bench = params_with_overrides(BenchParams(), params or {})
     res = simulate(profile=profile, duration_s=duration_s, seed=seed, effects=effects, soc=soc,
                    params=bench)

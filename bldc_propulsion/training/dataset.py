@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import contract as c
-from ..bagio import open_recording
+from ..bagio import Recording, open_recording
 from ..core.battery_filter import BatteryFilter, BatteryFilterConfig
 from ..core.features import zero_order_hold
 from ..core.tachometer import TachometerConfig, TachometerDecoder
@@ -43,6 +43,7 @@ class Signals:
     current: np.ndarray | None = None  #: battery current (A) if recorded
     speed_source: str = ""
     voltage_source: str = ""
+    namespace: str | None = None  #: the motor's namespace in a vehicle's recording
     #: raw event streams, for features that need them (e.g. PWM command times)
     pwm_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
     voltage_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
@@ -65,7 +66,7 @@ def recording_sha256(path: str | os.PathLike[str]) -> str:
     return h.hexdigest()
 
 
-def decode_speed(rec, config: TachometerConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Speed samples (t, rad/s) from ``tachometer/adc`` through the tachometer core.
 
     Each 4-edge estimate is the mean speed over the last revolution, so it is placed at the
@@ -117,6 +118,33 @@ def _repeats(t: np.ndarray, v: np.ndarray) -> int:
     return int(np.count_nonzero((np.diff(t) <= 0) & (np.diff(v) != 0))) if len(t) > 1 else 0
 
 
+def read_voltage(rec: Recording, battery: BatteryFilterConfig | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+    """(t, filtered battery volts, source): ``battery/voltage`` when recorded, else
+    ``battery/adc`` through the battery filter (rejected samples dropped)."""
+    if rec.has(c.TOPIC_BATTERY_VOLTAGE):
+        volt_t, volt = rec.battery_voltages(c.TOPIC_BATTERY_VOLTAGE)
+        return volt_t, volt, "battery/voltage (recorded)"
+    if not rec.has(c.TOPIC_BATTERY_ADC):
+        raise rec.missing_error([c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_BATTERY_ADC])
+    adc_t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
+    _check_clock(rec.path, c.TOPIC_BATTERY_ADC, _repeats(adc_t, adc), len(adc_t))
+    v = BatteryFilter(battery or BatteryFilterConfig()).process(adc_t, adc)
+    ok = np.isfinite(v)
+    return adc_t[ok], v[ok], "battery/adc through the battery filter"
+
+
+def read_speed(rec: Recording, tachometer: TachometerConfig | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+    """(t, measured rotor speed rad/s, source): ``rotor/speed`` when recorded, else decoded
+    from ``tachometer/adc`` (the contract's rule for evaluate and discrepancy)."""
+    if rec.has(c.TOPIC_ROTOR_SPEED):
+        speed_t, speed = rec.scalars(c.TOPIC_ROTOR_SPEED)
+        return speed_t, speed, "rotor/speed (recorded)"
+    if not rec.has(c.TOPIC_TACH_ADC):
+        raise rec.missing_error([c.TOPIC_ROTOR_SPEED, c.TOPIC_TACH_ADC])
+    speed_t, speed = decode_speed(rec, tachometer)
+    return speed_t, speed, "tachometer/adc through the tachometer decoder"
+
+
 def load_signals(
     path: str | os.PathLike[str],
     *,
@@ -124,40 +152,26 @@ def load_signals(
     battery: BatteryFilterConfig | None = None,
     tachometer: TachometerConfig | None = None,
     need_speed: bool = True,
+    namespace: str | None = None,
 ) -> Signals:
-    """Read one recording and align its signals on a ``grid_rate_hz`` grid."""
-    with open_recording(path) as rec:
+    """Read one recording (one motor's topics with ``namespace``) and align its signals on a
+    ``grid_rate_hz`` grid."""
+    with open_recording(path, namespace) as rec:
         if rec.message_count == 0:
             raise BagError(f"{path}: recording is empty")
+        if not rec.has(c.TOPIC_PWM):
+            raise rec.missing_error([c.TOPIC_PWM])
         pwm_t, pwm = rec.scalars(c.TOPIC_PWM)
         _check_clock(path, c.TOPIC_PWM, _repeats(pwm_t, pwm), len(pwm_t))
         if len(pwm_t) < 2:
             raise BagError(f"{path}: topic /pwm has {len(pwm_t)} messages, need at least 2")
-        if rec.has(c.TOPIC_BATTERY_VOLTAGE):
-            volt_t, volt = rec.battery_voltages(c.TOPIC_BATTERY_VOLTAGE)
-            voltage_source = "battery/voltage (recorded)"
-        elif rec.has(c.TOPIC_BATTERY_ADC):
-            adc_t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
-            _check_clock(path, c.TOPIC_BATTERY_ADC, _repeats(adc_t, adc), len(adc_t))
-            filt = BatteryFilter(battery or BatteryFilterConfig())
-            v = filt.process(adc_t, adc)
-            ok = np.isfinite(v)
-            volt_t, volt = adc_t[ok], v[ok]
-            voltage_source = "battery/adc through the battery filter"
-        else:
-            raise BagError(f"{path}: neither /battery/voltage nor /battery/adc is recorded")
+        volt_t, volt, voltage_source = read_voltage(rec, battery)
         if len(volt_t) < 2:
             raise BagError(f"{path}: battery voltage has fewer than 2 valid samples")
         speed_t = speed = None
         speed_source = ""
-        if rec.has(c.TOPIC_ROTOR_SPEED):
-            speed_t, speed = rec.scalars(c.TOPIC_ROTOR_SPEED)
-            speed_source = "rotor/speed (recorded)"
-        elif rec.has(c.TOPIC_TACH_ADC):
-            speed_t, speed = decode_speed(rec, tachometer)
-            speed_source = "tachometer/adc through the tachometer decoder"
-        elif need_speed:
-            raise BagError(f"{path}: neither /rotor/speed nor /tachometer/adc is recorded")
+        if rec.has(c.TOPIC_ROTOR_SPEED) or rec.has(c.TOPIC_TACH_ADC) or need_speed:
+            speed_t, speed, speed_source = read_speed(rec, tachometer)
         thrust_t = thrust = None
         if rec.has(c.TOPIC_THRUST_MEASURED):
             thrust_t, thrust = rec.scalars(c.TOPIC_THRUST_MEASURED)
@@ -186,6 +200,7 @@ def load_signals(
         current=np.interp(grid, current_t, current) if current_t is not None and len(current_t) > 1 else None,
         speed_source=speed_source,
         voltage_source=voltage_source,
+        namespace=rec.namespace,
         pwm_events=(pwm_t, pwm),
         voltage_events=(volt_t, volt),
     )

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from ..model import NetworkModel
+from ..model import NetworkModel, RangeReport, range_report
 from .dataset import Signals
 from .train import features_of
 
@@ -18,9 +18,20 @@ from .train import features_of
 BANDS_HZ: tuple[tuple[float, float], ...] = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0))
 
 
-def predict_speed(model: NetworkModel, sig: Signals) -> np.ndarray:
-    """Predicted speed (rad/s) on the recording's grid, clipped to >= 0 as the estimator does."""
-    X = features_of(sig, model.input_names, model.feature_params())
+def model_inputs(model: NetworkModel, sig: Signals) -> np.ndarray:
+    """The model's raw inputs on the recording's grid (rows: time), NaN while unknown."""
+    return features_of(sig, model.input_names, model.feature_params())
+
+
+def input_range(model: NetworkModel, sig: Signals) -> RangeReport:
+    """How much of the recording lies outside the model's training range (model.range_report)."""
+    return range_report(model, model_inputs(model, sig), sig.path)
+
+
+def predict_speed(model: NetworkModel, sig: Signals, X: np.ndarray | None = None) -> np.ndarray:
+    """Predicted speed (rad/s) on the recording's grid, clipped to >= 0 as the estimator does;
+    inputs clipped to the training range, as the estimator clips them."""
+    X = model_inputs(model, sig) if X is None else X
     X = np.clip(X, model.input_min, model.input_max)
     return np.maximum(model.forward(X), 0.0)
 
@@ -62,6 +73,7 @@ class RecordingScore:
     speed_range_rad_s: float
     samples: int
     bands: list[dict[str, float]] = field(default_factory=list)
+    out_of_range: RangeReport | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -72,12 +84,14 @@ class RecordingScore:
             "speed_range_rad_s": self.speed_range_rad_s,
             "samples": self.samples,
             "bands": self.bands,
+            "out_of_training_range": self.out_of_range.as_dict() if self.out_of_range else None,
         }
 
 
 def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
     """Errors of one recording, and the prediction they were computed from."""
-    pred = predict_speed(model, sig)
+    X = model_inputs(model, sig)
+    pred = predict_speed(model, sig, X)
     err = pred - sig.speed
     ok = np.isfinite(err)
     rng = float(np.ptp(sig.speed[ok])) if ok.any() else 0.0
@@ -89,6 +103,7 @@ def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray
         max_error_rad_s=float(np.max(np.abs(err[ok]))),
         speed_range_rad_s=rng,
         samples=int(ok.sum()),
+        out_of_range=range_report(model, X, sig.path),
     )
     chirp, freq = is_chirp(sig.t, sig.pwm)
     if chirp:

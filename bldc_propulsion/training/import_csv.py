@@ -38,8 +38,9 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
+from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
-from ..errors import BadInputError, OutputExistsError
+from ..errors import BadInputError
 
 #: Added topic (not in the contract's tables): supply current in amperes.
 TOPIC_BATTERY_CURRENT = "battery/current"
@@ -262,15 +263,14 @@ def import_csv(
 
     ``pole_pairs`` (None: the electrical speed column is already shaft RPM, as the RCbenchmark
     software writes it) divides a raw commutation-RPM column. Raises ``BadInputError`` (one line
-    naming the file) on bad input and ``OutputExistsError`` if ``out_path`` exists without
-    ``force``; nothing is written then.
+    naming the file) on bad input and when ``out_path`` may not be written (atomic.check_output);
+    nothing is written then.
     """
     src, out = Path(csv_path), Path(out_path)
     if pole_pairs is not None and (isinstance(pole_pairs, bool) or int(pole_pairs) != pole_pairs
                                    or pole_pairs < 1):
         raise BadInputError(f"--pole-pairs {pole_pairs}: must be a positive integer")
-    if out.exists() and not force:
-        raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
+    check_output(out, RECORDING, force=force, inputs=[src])
     text = _read_text(src)
     table, used = _parse(src, text)
     t = table.time

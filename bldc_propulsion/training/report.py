@@ -99,6 +99,13 @@ def _figure(rows: int, cols: int, size: tuple[float, float], **kwargs: Any) -> t
     return fig, axes
 
 
+def _name_recording(fig: Figure, recording: str) -> None:
+    """Write the recording's name into the figure itself: a PNG copied out of its report still
+    says what data it shows."""
+    if recording:
+        fig.text(0.995, 0.003, f"recording: {recording}", ha="right", va="bottom", fontsize=7, color="0.3")
+
+
 # -- the paper's figures ---------------------------------------------------------------------
 
 
@@ -109,6 +116,7 @@ def fig_battery_filter(
     out: PathLike,
     pwm_t: Any = None,
     pwm: Any = None,
+    recording: str = "",
 ) -> Path:
     """Paper Fig. 1 (and Fig. 2 below it when ``pwm`` is given).
 
@@ -138,10 +146,11 @@ def fig_battery_filter(
         ax2.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
+    _name_recording(fig, recording)
     return _save(fig, out)
 
 
-def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike) -> Path:
+def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike, recording: str = "") -> Path:
     """Paper Figs. 5-6: PWM sweep and the angular speed it produces (start of rotation ~0.055)."""
     fig, axes = _figure(2, 1, (8.0, 5.6), sharex=True)
     _line(axes[0, 0], t, pwm, color="C1", lw=1.0)
@@ -154,6 +163,7 @@ def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike) -> Path:
     for ax in axes[:, 0]:
         ax.grid(alpha=0.3)
     fig.tight_layout()
+    _name_recording(fig, recording)
     return _save(fig, out)
 
 
@@ -233,7 +243,7 @@ def fig_validation(
     return _save(fig, out)
 
 
-def fig_prediction_scatter(measured: Any, predicted: Any, out: PathLike) -> Path:
+def fig_prediction_scatter(measured: Any, predicted: Any, out: PathLike, recording: str = "") -> Path:
     """Predicted vs measured speed with the identity line: bias and saturation show at a glance."""
     m, p = _pair(measured, predicted)
     fig, axes = _figure(1, 1, (5.2, 5.0))
@@ -258,6 +268,31 @@ def fig_prediction_scatter(measured: Any, predicted: Any, out: PathLike) -> Path
     ax.set_ylabel("predicted speed (rad/s)")
     ax.grid(alpha=0.3)
     fig.tight_layout()
+    _name_recording(fig, recording)
+    return _save(fig, out)
+
+
+def fig_band_error(bands: Sequence[dict[str, float]], out: PathLike, recording: str = "") -> Path:
+    """Speed error (RMSE) per band of command frequency: the paper's observation that the model
+    degrades as the command gets faster, as bars labelled with their share of the speed range."""
+    fig, axes = _figure(1, 1, (6.4, 3.8))
+    ax = axes[0, 0]
+    if bands:
+        labels = [f"{b['low_hz']:.1f}-{b['high_hz']:.1f}" for b in bands]
+        rmse = [float(b["rmse_rad_s"]) for b in bands]
+        bars = ax.bar(labels, rmse, color="C0")
+        for bar, b in zip(bars, bands):
+            ax.annotate(f"{b['rmse_percent_of_range']:.2f} %", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
+                        ha="center", va="bottom", fontsize=8)
+        ax.set_ylim(0, max(rmse) * 1.18 if max(rmse) > 0 else 1.0)
+    else:
+        _no_data(ax, "not a chirp-like recording: no frequency bands")
+    ax.set_xlabel("command frequency band (Hz)")
+    ax.set_ylabel("RMSE (rad/s)")
+    ax.set_title("speed error per command frequency (label: % of the speed range)", fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    _name_recording(fig, recording)
     return _save(fig, out)
 
 
@@ -364,6 +399,7 @@ def fig_before_after(
     after: Any,
     out: PathLike,
     windows: Iterable[tuple[float, float]] = (),
+    recording: str = "",
 ) -> Path:
     """Model error before vs after adding an effect, disagreement windows (t0, t1 in s) shaded.
 
@@ -404,6 +440,7 @@ def fig_before_after(
     axes[0, 0].set_title(f"model error before and after adding the effect ({n_windows} window(s) shaded)",
                          fontsize=10)
     fig.tight_layout()
+    _name_recording(fig, recording)
     return _save(fig, out)
 
 

@@ -184,9 +184,14 @@ def _source(sig: Signals) -> dict[str, str]:
     return {"path": sig.path, "abs_path": os.path.abspath(sig.path.split("#", 1)[0]), "sha256": sig.sha256}
 
 
-def load_all(paths: Sequence[str | os.PathLike[str]], what: str) -> list[Signals]:
-    """Load recordings; a recording listed twice (same content) is refused, not double-counted."""
-    out = [load_signals(p) for p in paths]
+def load_all(paths: Sequence[str | os.PathLike[str]], what: str, namespace: str | None = None) -> list[Signals]:
+    """Load recordings (one motor's topics with ``namespace``); a recording listed twice (same
+    content) is refused, not double-counted."""
+    return unique([load_signals(p, namespace=namespace) for p in paths], what)
+
+
+def unique(out: list[Signals], what: str) -> list[Signals]:
+    """``out`` unless a recording is in it twice (same content): BadInputError naming both."""
     seen: dict[str, str] = {}
     for s in out:
         if s.sha256 in seen:

@@ -1,4 +1,5 @@
-"""The `train` and `evaluate` subcommands: arguments, work, summaries."""
+"""`bldc-propulsion train`: the speed network from recordings (training/train.py), its
+summary and its report (the paper's Figs. 1, 5-6, 12, 13)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,22 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
-from ..cli import CommandResult, progress
-from ..errors import BadInputError, OutputExistsError
-from ..model import load_model, save_model
-from .dataset import Signals, load_signals
-from .evaluate import evaluate, predict_speed
-from .train import load_all, train_model
+from ..atomic import MODEL, REPORT, check_outputs, report_output
+from ..errors import BadInputError
+from ..model import save_model
+from ..training.dataset import Signals
+from ..training.evaluate import predict_speed
+from ..training.train import load_all, train_model
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+
+NAME = "train"
+HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt) from recordings"
+DESCRIPTION = (
+    "Train the paper's network (default 3-25-1: filtered battery voltage, PWM, PWM "
+    "through a 0.25 s lag) with Levenberg-Marquardt on the training recordings, stop "
+    "early on separate validation recordings, and save weights, scaling and "
+    "provenance to an .npz model file."
+)
 
 #: b of the nominal bench (12x4.5 propeller, CT ~0.105, rho 1.225, D 0.305 m): used when no
 #: recording has /thrust/measured and no --thrust-coefficient is given.
@@ -23,6 +34,8 @@ DEFAULT_THRUST_COEFFICIENT = 2.8e-5
 #: LM runs from different initial weights, best on validation kept (see train_model): on the
 #: bundled bags one run's chirp error below 0.5 Hz spans 1.7-5.4 % of the range over seeds.
 DEFAULT_RESTARTS = 5
+#: Most restarts: each is a whole LM training (seconds to minutes at the paper's size).
+MAX_RESTARTS = 50
 
 
 def _inputs(text: str) -> list[str]:
@@ -34,26 +47,28 @@ def _inputs(text: str) -> list[str]:
     return names
 
 
-def add_train_arguments(p: argparse.ArgumentParser) -> None:
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("train", nargs="+", metavar="TRAIN_BAG", help="training recordings")
     p.add_argument("--validation", nargs="+", required=True, metavar="BAG",
                    help="validation recordings (separate experiments; they stop the training)")
     p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
     p.add_argument("--inputs", type=_inputs, default=list(c.DEFAULT_INPUTS),
                    help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
-    p.add_argument("--hidden", type=int, default=c.PAPER_HIDDEN, help="hidden neurons (default 25)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the initial weights")
-    p.add_argument("--restarts", type=int, default=DEFAULT_RESTARTS,
+    p.add_argument("--hidden", type=HIDDEN, default=c.PAPER_HIDDEN, help="hidden neurons, 1..200 (default 25)")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of the initial weights")
+    p.add_argument("--restarts", type=number(int, 1, MAX_RESTARTS), default=DEFAULT_RESTARTS,
                    help=f"train from the initial weights of seeds SEED, SEED+1, ... and keep the one with "
                         f"the least validation cost (default {DEFAULT_RESTARTS})")
-    p.add_argument("--max-epochs", type=int, default=1000, help="epoch limit (default 1000)")
-    p.add_argument("--patience", type=int, default=6,
+    p.add_argument("--max-epochs", type=EPOCHS, default=1000, help="epoch limit (default 1000)")
+    p.add_argument("--patience", type=EPOCHS, default=6,
                    help="stop after this many epochs without validation improvement (default 6)")
-    p.add_argument("--thrust-coefficient", type=float, default=DEFAULT_THRUST_COEFFICIENT,
+    p.add_argument("--thrust-coefficient", type=number(float, 0.0, 1e-2, lo_open=True),
+                   default=DEFAULT_THRUST_COEFFICIENT,
                    help="b in thrust = b w^2 (N s^2/rad^2) when no recording has /thrust/measured")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing model file")
-    p.set_defaults(run=run_train)
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing model file (a model only) and report folder (one this tool made)")
+    add_namespace_argument(p)
 
 
 def _check_disjoint(train: list[str], validation: list[str]) -> None:
@@ -64,14 +79,14 @@ def _check_disjoint(train: list[str], validation: list[str]) -> None:
         )
 
 
-def run_train(args: argparse.Namespace) -> CommandResult:
+def run(args: argparse.Namespace) -> CommandResult:
     out = Path(args.output)
-    if out.exists() and not args.force:
-        raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
+    check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
+                  inputs=[*args.train, *args.validation])
     _check_disjoint(args.train, args.validation)
     progress(f"reading {len(args.train)} training and {len(args.validation)} validation recordings")
-    train = load_all(args.train, "training")
-    validation = load_all(args.validation, "validation")
+    train = load_all(args.train, "training", args.namespace)
+    validation = load_all(args.validation, "validation", args.namespace)
     by_hash = {s.sha256: s.path for s in train}
     for s in validation:
         if s.sha256 in by_hash:
@@ -90,8 +105,18 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
         patience=args.patience, progress=report_epoch, restarts=args.restarts,
     )
-    save_model(outcome.model, out, force=args.force)
     meta = outcome.model.metadata
+    runs = len(meta["restarts"])
+    if meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
+        raise BadInputError(
+            f"-o {out}: not written: no training run improved on its initial weights (validation "
+            f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
+            "validation recordings are the same bench and signals as the training ones "
+            "(`bldc-propulsion info`), or give more --restarts")
+    stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
+    warnings = [f"{stuck} of {runs} training runs never improved on their initial weights "
+                "(the kept run did)"] if stuck else []
+    save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
         "inputs": list(args.inputs),
@@ -111,7 +136,7 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         "restarts": meta["restarts"],
     }
     if args.report:
-        data["report"] = write_training_report(Path(args.report), outcome)
+        data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     fit = outcome.thrust
     text = "\n".join([
         f"trained {len(args.inputs)}-{args.hidden}-1 on {', '.join(args.inputs)}: "
@@ -124,54 +149,21 @@ def run_train(args: argparse.Namespace) -> CommandResult:
         + (f", residual {fit.residual_rms_n:.3f} N RMS)" if fit.residual_rms_n is not None else ")"),
         f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
     ])
-    return CommandResult(data, text)
+    data["warnings"] = warnings
+    return CommandResult(data, text, warnings=warnings)
 
 
-def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", required=True, help="model file (.npz) from `train`")
-    p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
-    p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
-    p.set_defaults(run=run_evaluate)
+# --- report ---------------------------------------------------------------------------------
+def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
+    """Figures of a training run, written whole to ``path`` (atomic.report_output)."""
+    with report_output(path, force=force) as d:
+        _training_report(d, outcome)
+    return str(path)
 
 
-def run_evaluate(args: argparse.Namespace) -> CommandResult:
-    model = load_model(args.model)
-    signals = [load_signals(p) for p in args.recordings]
-    rmse, scores, preds = evaluate(model, signals)
-    data: dict[str, Any] = {
-        "model": str(args.model),
-        "rmse_rad_s": rmse,
-        "recordings": [s.as_dict() for s in scores],
-    }
-    lines = [f"model {args.model}: overall RMSE {rmse:.2f} rad/s"]
-    for s in scores:
-        lines.append(
-            f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
-            f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
-        )
-        for b in s.bands:
-            lines.append(
-                f"      command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz: RMSE {b['rmse_rad_s']:.2f} rad/s "
-                f"({b['rmse_percent_of_range']:.2f} %)"
-            )
-    if args.report:
-        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores)
-        lines.append(f"  figures in {data['report']}")
-    return CommandResult(data, "\n".join(lines))
+def _training_report(d: Path, outcome: Any) -> None:
+    from ..training import report
 
-
-# --- reports -------------------------------------------------------------------------------
-def _report_dir(path: Path) -> Path:
-    if path.exists() and not path.is_dir():
-        raise BadInputError(f"{path}: --report must be a directory")
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
-def write_training_report(path: Path, outcome: Any) -> str:
-    from . import report
-
-    d = _report_dir(path)
     figs: list[tuple[str, str]] = []
     h = outcome.lm.history
     report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch,
@@ -181,10 +173,10 @@ def write_training_report(path: Path, outcome: Any) -> str:
     raw = _raw_battery(first)
     if raw is not None:
         report.fig_battery_filter(raw[0], raw[1], raw[2], d / "fig01_battery_filter.png",
-                                  pwm_t=first.t, pwm=first.pwm)
+                                  pwm_t=first.t, pwm=first.pwm, recording=first.path)
         figs.append(("fig01_battery_filter.png", f"Fig. 1-2: raw vs filtered battery voltage ({first.path})"))
     ramp = next((s for s in outcome.train if "triangle" in s.path or "ramp" in s.path), outcome.train[-1])
-    report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png")
+    report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png", recording=ramp.path)
     figs.append(("fig05_ramp.png", f"Figs. 5-6: PWM and measured speed ({ramp.path})"))
     for k, sig in enumerate(outcome.validation):
         pred = predict_speed(outcome.model, sig)
@@ -192,24 +184,6 @@ def write_training_report(path: Path, outcome: Any) -> str:
         report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
         figs.append((name, f"Fig. 13: predicted vs measured speed on validation recording {sig.path}"))
     report.write_index(d, "bldc_propulsion training report", figs)
-    return str(d)
-
-
-def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> str:
-    from . import report
-
-    d = _report_dir(path)
-    figs: list[tuple[str, str]] = []
-    for k, (sig, pred) in enumerate(zip(signals, preds)):
-        name = f"fig13_{k}.png"
-        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
-        figs.append((name, f"predicted vs measured speed: {sig.path}"))
-        name = f"scatter_{k}.png"
-        report.fig_prediction_scatter(sig.speed, pred, d / name)
-        figs.append((name, f"predicted vs measured: {sig.path}"))
-    rows = [{k: v for k, v in s.as_dict().items() if k != "bands"} for s in scores]
-    report.write_index(d, "bldc_propulsion evaluation report", figs, [("per recording", rows)])
-    return str(d)
 
 
 def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -217,10 +191,9 @@ def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | No
     from ..bagio import open_recording
     from ..core.battery_filter import BatteryFilterConfig
 
-    with open_recording(sig.path) as rec:
+    with open_recording(sig.path, sig.namespace) as rec:
         if not rec.has(c.TOPIC_BATTERY_ADC):
             return None
         t, adc = rec.scalars(c.TOPIC_BATTERY_ADC)
     ratio = BatteryFilterConfig().divider_ratio
     return t, adc * ratio, np.interp(t, *sig.voltage_events)
-

@@ -1,18 +1,21 @@
-"""The `discrepancy` subcommand: arguments, loading, and the summary for people and scripts."""
+"""`bldc-propulsion discrepancy`: arguments, loading, and the summary for people and scripts
+(the workflow itself is discrepancy/workflow.py and physics_workflow.py)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 from .. import contract as c
-from ..cli import CommandResult, progress
-from ..errors import BadInputError, OutputExistsError
-from ..training.train import load_all
-from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from ..atomic import CONFIG, MODEL, REPORT, check_outputs
+from ..errors import BadInputError
+from ..training.dataset import load_signals
+from ..training.evaluate import input_range
+from ..training.train import load_all, unique
+from ..discrepancy.workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 
 def _effects(text: str) -> list[str]:
@@ -20,6 +23,17 @@ def _effects(text: str) -> list[str]:
     if not names:
         raise argparse.ArgumentTypeError("at least one effect name")
     return names
+
+
+NAME = "discrepancy"
+HELP = "find where a model and measurements disagree, name the missing effect, add it"
+DESCRIPTION = (
+    "Run a model (trained network or bench physics) over measured recordings, find "
+    "where and when it disagrees with the measured speed, test which physical effect "
+    "explains the disagreement (battery_voltage, rotor_lag, input_delay, "
+    "esc_deadband, spin_down_asymmetry, motor_heating), add the best one to the "
+    "model, and show the error shrink on held-out recordings."
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -38,20 +52,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "from the model's metadata)")
     p.add_argument("--holdout", nargs="+", metavar="BAG",
                    help="recordings kept out of everything, for the before/after RMSE")
-    p.add_argument("--max-effects", type=int, default=3, help="most effects to add (default 3)")
+    p.add_argument("--max-effects", type=number(int, 1, len(c.EFFECTS)), default=3,
+                   help="most effects to add (default 3)")
     p.add_argument("--effects", type=_effects, metavar="NAME,...",
                    help="only consider these effects (default: all of " + ", ".join(c.EFFECTS) + ")")
-    p.add_argument("--alpha", type=float, default=ALPHA, help=f"significance level (default {ALPHA})")
-    p.add_argument("--min-reduction", type=float, default=MIN_EFFECT,
+    p.add_argument("--alpha", type=number(float, 0.0, 0.5, lo_open=True), default=ALPHA,
+                   help=f"significance level (default {ALPHA})")
+    p.add_argument("--min-reduction", type=number(float, 0.0, 1.0), default=MIN_EFFECT,
                    help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
-    p.add_argument("--hidden", type=int, help="hidden neurons of the retrained model (--model only; default: as the model)")
-    p.add_argument("--max-epochs", type=int, help="epoch limit of the retraining (--model only; default 300)")
-    p.add_argument("--seed", type=int, help="seed of the retraining (--model only; default 0)")
+    p.add_argument("--hidden", type=HIDDEN, help="hidden neurons of the retrained model (--model only; default: as the model)")
+    p.add_argument("--max-epochs", type=EPOCHS, help="epoch limit of the retraining (--model only; default 300)")
+    p.add_argument("--seed", type=SEED, help="seed of the retraining (--model only; default 0)")
     p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
     p.add_argument("-o", "--output", metavar="NEW",
                    help="save the model with the effect(s) added (.npz; with --physics a CONFIG .json)")
-    p.add_argument("--force", action="store_true", help="replace an existing output model")
-    p.set_defaults(run=run)
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing output of the same kind (a model / CONFIG written by this "
+                        "tool, a report folder it made)")
+    add_namespace_argument(p)
 
 
 def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
@@ -80,10 +98,24 @@ def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[An
     """The measured, reference and holdout recordings, read through the cores."""
     progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
              f"{len(args.holdout or [])} holdout recording(s)")
-    measured = load_all(args.measured, "measured")
-    reference = load_all(ref_paths, "reference") if ref_paths else []
-    holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    ns = args.namespace
+    measured = load_all(args.measured, "measured", ns)
+    # a model trained on the bench and measured on a vehicle: its reference recordings are read
+    # under the namespace where they have it, else at the root (bench recordings)
+    reference = unique([load_signals(p, namespace=ns if _has_namespace(p, ns) else None) for p in ref_paths],
+                       "reference")
+    holdout = load_all(args.holdout, "holdout", ns) if args.holdout else []
     return measured, reference, holdout
+
+
+def _has_namespace(path: str, namespace: str | None) -> bool:
+    """The recording has the motor topics under ``namespace`` (not only at the root)."""
+    from ..bagio import open_recording
+
+    if namespace is None:
+        return False
+    with open_recording(path, namespace) as rec:
+        return rec.has(c.TOPIC_PWM)
 
 
 def run(args: argparse.Namespace) -> CommandResult:
@@ -94,8 +126,10 @@ def run(args: argparse.Namespace) -> CommandResult:
         raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
     if not 0.0 < args.alpha < 1.0:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
-    if args.output and Path(args.output).exists() and not args.force:
-        raise OutputExistsError(f"{args.output}: already exists (use --force to replace it)")
+    check_outputs([(args.output, CONFIG if args.physics is not None else MODEL, "-o"),
+                   (args.report, REPORT, "--report")], force=args.force,
+                  inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
+                          args.model, args.physics])
     if args.physics is not None:
         return run_physics(args)
     model = load_model(args.model)
@@ -108,12 +142,16 @@ def run(args: argparse.Namespace) -> CommandResult:
             warnings.append(f"{len(missing)} of the model's training recordings not found "
                             f"(e.g. {missing[0]}); give --reference")
     measured, reference, holdout = _recordings(args, ref_paths)
+    ranges = [input_range(model, s) for s in [*measured, *holdout]]
+    warnings += [w for r in ranges if (w := r.warning())]
     opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
                    max_epochs=300 if args.max_epochs is None else args.max_epochs,
                    seed=0 if args.seed is None else args.seed, alpha=args.alpha,
-                   min_effect=args.min_reduction, report_dir=args.report)
+                   min_effect=args.min_reduction, report_dir=args.report,
+                   report_force=args.force)
     result = run_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
+    data["out_of_training_range"] = {r.where: r.as_dict() for r in ranges}
 
     def save() -> None:
         result.model.metadata["discrepancy"] = {
@@ -129,8 +167,8 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
     """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
-    from .physics import load_config, save_config
-    from .physics_workflow import run_physics_workflow
+    from ..discrepancy.physics import load_config, save_config
+    from ..discrepancy.physics_workflow import run_physics_workflow
 
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
         if value is not None:
@@ -138,7 +176,8 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
     model = load_config(args.physics)
     measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
-                   min_effect=args.min_reduction, report_dir=args.report)
+                   min_effect=args.min_reduction, report_dir=args.report,
+                   report_force=args.force)
     result = run_physics_workflow(model, measured, reference, holdout, opts, progress)
     data = result.data
 

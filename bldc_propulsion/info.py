@@ -1,0 +1,140 @@
+"""What a recording holds and what it can be used for (`bldc-propulsion info`, commands/info.py).
+
+In the spirit of ``ros2 bag info``, before any training: topics with types, counts, rates and
+gaps; the PWM and battery-voltage ranges; whether the tachometer decodes (the tachometer core,
+as every command decodes it); and which commands can use the recording. The reading is
+bagio's; "can it be used" is answered by loading it exactly as train/evaluate/discrepancy do,
+so the answer and its reason are theirs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from . import contract as c
+from .bagio import open_recording
+from .errors import BadInputError, one_line
+
+
+def _range(values: np.ndarray) -> dict[str, float] | None:
+    v = values[np.isfinite(values)]
+    return {"min": float(v.min()), "max": float(v.max())} if len(v) else None
+
+
+def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
+    """Everything ``info --json`` says of one recording (see the module's docstring)."""
+    from .training.dataset import load_signals, read_speed, read_voltage
+
+    with open_recording(path, namespace) as rec:
+        stats = rec.topic_stats()
+        out: dict[str, Any] = {
+            "path": str(path),
+            "namespace": rec.namespace,
+            "duration_s": rec.duration_s,
+            "messages": rec.message_count,
+            "damaged": rec.salvaged or rec.read_error,
+            "topics": [{"topic": s.topic, "type": s.msgtype, "count": s.count, "rate_hz": s.rate_hz,
+                        "gaps": s.gaps, "max_gap_s": s.max_gap_s} for s in stats],
+            "namespaces": rec.namespaces_with(c.TOPIC_PWM),
+            "pwm": None, "battery_voltage_v": None, "tachometer": None, "speed_rad_s": None,
+        }
+        problems: dict[str, str] = {}
+
+        def attempt(key: str, read: Any) -> None:
+            try:
+                read()
+            except BadInputError as exc:
+                problems[key] = one_line(exc)
+
+        def pwm() -> None:
+            out["pwm"] = _range(rec.scalars(c.TOPIC_PWM)[1]) if rec.has(c.TOPIC_PWM) else None
+
+        def voltage() -> None:
+            _, v, source = read_voltage(rec)
+            out["battery_voltage_v"] = {**(_range(v) or {}), "source": source}
+
+        def tach() -> None:
+            if rec.has(c.TOPIC_TACH_ADC):
+                _, v, _ = read_speed(_TachOnly(rec))
+                moving = v[v > 0]
+                out["tachometer"] = {"decodes": bool(len(moving)), "speeds": int(len(moving)),
+                                     "max_rad_s": float(moving.max()) if len(moving) else 0.0}
+
+        def speed() -> None:
+            _, v, source = read_speed(rec)
+            out["speed_rad_s"] = {**(_range(v) or {}), "source": source}
+
+        if not rec.salvaged:
+            for key, read in (("pwm", pwm), ("battery", voltage), ("tachometer", tach), ("speed", speed)):
+                attempt(key, read)
+        replay_inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
+    usable: dict[str, Any] = {}
+    usable["replay"] = True if replay_inputs else "none of /pwm, /battery/adc, /tachometer/adc is recorded"
+    try:
+        sig = load_signals(path, namespace=namespace)
+    except BadInputError as exc:
+        reason = one_line(exc).removeprefix(f"{path}: ")
+        usable.update(train=reason, evaluate=reason, discrepancy=reason)
+    else:
+        usable.update(evaluate=True, discrepancy=True)
+        speed_ok = np.isfinite(sig.speed)
+        usable["train"] = (True if np.ptp(sig.pwm) > 0 and speed_ok.any() and np.ptp(sig.speed[speed_ok]) > 0
+                           else "the PWM or the measured speed does not vary")
+    out["usable_for"] = [k for k in ("train", "evaluate", "discrepancy", "replay") if usable[k] is True]
+    out["not_usable"] = {k: v for k, v in usable.items() if v is not True}
+    out["problems"] = problems
+    return out
+
+
+class _TachOnly:
+    """A recording seen without ``rotor/speed``: read_speed then decodes the tachometer."""
+
+    def __init__(self, rec: Any) -> None:
+        self._rec = rec
+
+    def has(self, topic: str, msgtype: str | None = None) -> bool:
+        return c.bare(topic) != c.TOPIC_ROTOR_SPEED and self._rec.has(topic, msgtype)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rec, name)
+
+
+def _num(x: float | None, fmt: str) -> str:
+    return "-" if x is None or not math.isfinite(x) else format(x, fmt)
+
+
+def summary_text(info: dict[str, Any]) -> str:
+    """``ros2 bag info``-like lines for people."""
+    lines = [f"Recording:        {info['path']}" + (f" (namespace /{info['namespace']})" if info["namespace"] else ""),
+             f"Duration:         {info['duration_s']:.3f} s",
+             f"Messages:         {info['messages']}"]
+    if info["damaged"]:
+        lines.append(f"Damaged:          {info['damaged']}")
+    lines.append("Topics:")
+    width = max([len(t["topic"]) for t in info["topics"]] + [10])
+    for t in info["topics"]:
+        gaps = "no gaps" if not t["gaps"] else f"{t['gaps']} gap(s), longest {t['max_gap_s']:.3f} s"
+        lines.append(f"  {t['topic']:<{width}}  {t['type']:<34} {t['count']:>8} msgs  "
+                     f"{_num(t['rate_hz'], '8.1f')} Hz  {gaps}")
+    if info["namespaces"] and not info["namespace"]:
+        lines.append(f"Motors:           {', '.join('/' + n for n in info['namespaces'])} (use --namespace)")
+    p, v, tach, sp = info["pwm"], info["battery_voltage_v"], info["tachometer"], info["speed_rad_s"]
+    if p:
+        lines.append(f"PWM:              {p['min']:.4f} .. {p['max']:.4f}")
+    if v and "min" in v:
+        lines.append(f"Battery voltage:  {v['min']:.2f} .. {v['max']:.2f} V ({v['source']})")
+    if tach:
+        lines.append("Tachometer:       " + (f"decodes: {tach['speeds']} speeds, up to {tach['max_rad_s']:.0f} rad/s"
+                                              if tach["decodes"] else "does NOT decode (no speed from the edges)"))
+    if sp and "min" in sp:
+        lines.append(f"Measured speed:   {sp['min']:.0f} .. {sp['max']:.0f} rad/s ({sp['source']})")
+    lines.append(f"Usable for:       {', '.join(info['usable_for']) or 'nothing'}")
+    by_reason: dict[str, list[str]] = {}
+    for cmd, why in info["not_usable"].items():
+        by_reason.setdefault(why, []).append(cmd)
+    for why, cmds in by_reason.items():
+        lines.append(f"  not for {', '.join(cmds)}: {why}")
+    return "\n".join(lines)
