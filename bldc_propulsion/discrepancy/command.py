@@ -12,7 +12,7 @@ from .. import contract as c
 from ..cli import CommandResult, progress
 from ..errors import BadInputError, OutputExistsError
 from ..training.train import load_all
-from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from .workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, check_holdout, run_workflow
 
 
 def _effects(text: str) -> list[str]:
@@ -78,11 +78,11 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
 
 def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Any], list[Any], list[Any]]:
     """The measured, reference and holdout recordings, read through the cores."""
-    progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
-             f"{len(args.holdout or [])} holdout recording(s)")
     measured = load_all(args.measured, "measured")
     reference = load_all(ref_paths, "reference") if ref_paths else []
     holdout = load_all(args.holdout, "holdout") if args.holdout else []
+    check_holdout(holdout, measured, reference)  # before any output: the refusal is one line
+    progress(f"read {len(measured)} measured, {len(reference)} reference and {len(holdout)} holdout recording(s)")
     return measured, reference, holdout
 
 
