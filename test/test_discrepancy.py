@@ -104,13 +104,15 @@ SCENARIOS: dict[str, tuple[tuple[str, ...], list[Spec], list[Spec], list[Spec]]]
 
 
 def _bag(d: Path, name: str, kind: str, seed: int, effects: dict[str, float], soc: float = 1.0,
-         duration: float = DURATION_S) -> str:
+         duration: float = DURATION_S, params=None) -> str:
+    """A simulated recording (cached by path); ``params``: the bench (default nominal)."""
     path = d / name
     if not path.exists():
         if kind in PROFILES:
-            res = simulate(kind, duration, seed, effects=effects, soc=soc)
+            res = simulate(kind, duration, seed, effects=effects, soc=soc, params=params)
         else:
-            res = simulate(kind, duration, seed, effects=effects, soc=soc, pwm=command(kind, duration, seed))
+            res = simulate(kind, duration, seed, effects=effects, soc=soc, pwm=command(kind, duration, seed),
+                           params=params)
         write_sim_bag(res, path)
     return str(path)
 
@@ -133,22 +135,25 @@ def bags_dir(tmp_path_factory) -> Path:
 _CACHE: dict[tuple[str, int], Scenario] = {}
 
 
-def scenario(effect: str, d: Path, seed: int = 0) -> Scenario:
-    """Baseline (effect off) trained on steps + sweep + steps (+ extras); measured/holdout with it on."""
+def scenario(effect: str, d: Path, seed: int = 0, bench=None, strength: float = 1.0) -> Scenario:
+    """Baseline (effect off) trained on steps + sweep + steps (+ extras); measured/holdout with it
+    on at ``strength``; ``bench``: the simulator's constants (default nominal; see
+    sim.random_bench)."""
     if (effect, seed) in _CACHE:
         return _CACHE[(effect, seed)]
     from bldc_propulsion.model import save_model
 
     inputs, ref_extra, meas_spec, hold_spec = SCENARIOS[effect]
     off = {} if effect == "control" else {effect: 0.0}
+    on = {} if effect == "control" else {effect: strength}
     sub = d / (effect if seed == 0 else f"{effect}_seed{seed}")
     sub.mkdir(exist_ok=True)
-    ref = [_bag(sub, f"ref{k}_{kd}", kd, 100 + 100 * k + seed, off, soc, dur)
+    ref = [_bag(sub, f"ref{k}_{kd}", kd, 100 + 100 * k + seed, off, soc, dur, bench)
            for k, (kd, soc, dur) in enumerate([*REF, *ref_extra])]
-    val = [_bag(sub, "validation", "steps", 900 + seed, off, 1.0, DURATION_S / 2)]
-    meas = [_bag(sub, f"measured{k}_{kd}", kd, 500 + 10 * seed + k, {}, soc, dur)
+    val = [_bag(sub, "validation", "steps", 900 + seed, off, 1.0, DURATION_S / 2, bench)]
+    meas = [_bag(sub, f"measured{k}_{kd}", kd, 500 + 10 * seed + k, on, soc, dur, bench)
             for k, (kd, soc, dur) in enumerate(meas_spec)]
-    hold = [_bag(sub, f"holdout{k}_{kd}", kd, 600 + 10 * seed + k, {}, soc, dur)
+    hold = [_bag(sub, f"holdout{k}_{kd}", kd, 600 + 10 * seed + k, on, soc, dur, bench)
             for k, (kd, soc, dur) in enumerate(hold_spec)]
     R = [load_signals(p) for p in ref]
     out = train_model(R, [load_signals(p) for p in val], inputs=inputs, hidden=HIDDEN, seed=seed,
