@@ -3,12 +3,16 @@
 Same steps, data and summary as the network path (``workflow.py``), the model being a
 ``physics.PhysicsModel``:
 
-1. Calibrate Kv and CP on the measured recordings; residual r = measured - predicted.
+1. Reference first (with --reference): Kv, CP and the strengths of the CONFIG's effects fitted on
+   the reference recordings (``physics.fit_reference``); then Kv and CP calibrated on the measured
+   recordings; residual r = measured - predicted.
 2. Disagreement windows, whiteness and input cross-correlation tests, the condition map.
 3. Name: every effect that is off in the model is switched on (strength grid, constants
    recalibrated) and scored on held-out time blocks of the measured data and, separately
    calibrated, of the reference data; new / structural by ``workflow.classify``.
-4. Add: the best new effect at the strength fitted on all measured data (constants with it).
+4. Add: the best new effect at the strength fitted on all measured data (constants with it),
+   kept only if it improves held-out data (``acceptance.py``: the holdout, else step 3's per-fold
+   scores) and its strength did not end at a bound.
 5. Show: holdout RMSE before (the calibrated base) and after. Repeat from 3.
 """
 

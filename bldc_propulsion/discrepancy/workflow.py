@@ -21,8 +21,12 @@
    measured recordings, early-stopped on the measured recordings' last part, starting from the
    base model's own weights (the new input's at 0). An effect that maps the command before the
    ESC (the start level) replaces the model's command inputs by the mapped ones, weights carried over.
-5. Show: holdout RMSE before and after, overall and inside the holdout's disagreement windows.
-   Repeat from 2 with the new model until nothing new is significant or ``max_effects``.
+5. Keep or reject (``acceptance.py``): the retrained network is kept only if it beats the current
+   one on data it was not trained on (the holdout; else the measured recordings' early-stopping
+   tail) by ACCEPT_MIN_REDUCTION at p < alpha; the first rejection ends the loop, and every
+   candidate not added is reported as "considered, not added". Show: holdout RMSE before and
+   after, overall and inside the holdout's disagreement windows. Repeat from 2 with the new
+   model until nothing new is significant, a candidate is rejected, or ``max_effects``.
 """
 
 from __future__ import annotations
@@ -427,7 +431,6 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
 
     # step 1
     progress(f"step 1: running the model over {len(measured)} measured recording(s)")
-    base = model
     meas = run_model(model, measured)
     ref = run_model(model, reference) if reference else None
     hold_base = run_model(model, hold)
