@@ -63,7 +63,10 @@ def test_hidden_effect_on_a_drawn_bench(bags):
     data, _ = run(bags, "rotor_lag", True)
     assert data["named"][:1] == ["rotor_lag"], data["considered_not_added"]
     assert data["holdout_rmse_after"] <= 0.7 * data["holdout_rmse_before"]
-    assert data["reference_fit"] is not None and not data["reference_fit"]["at_bound"]
+    # 30 s reference recordings barely warm the winding: a heating strength fitted there may end
+    # at its bound, and that must be said (not silently used)
+    for hit in data["reference_fit"]["at_bound"]:
+        assert any(hit in w for w in data["warnings"]), (hit, data["warnings"])
 
 
 @pytest.mark.xfail(strict=True, reason="seed 101: rotor_lag strength fitted 0.47 vs 0.68 true in the nominal "
