@@ -1,23 +1,29 @@
 """Confusion table of `discrepancy --physics`: every hidden effect and the no-effect control.
 
-For each effect of the contract and each seed: the bench physics with every effect on except
-that one as the model (CONFIG), measured and holdout recordings of test/test_discrepancy.py's
-scenario for the effect (same commands and states of charge, recordings drawn from the seed)
-with all effects on. Control: the same, but the recordings lack the effect too (the model is
-then right), one effect per seed in turn; for battery_voltage all control recordings are on one
-pack charge (with the effect off the simulator's supply is stiff at the pack's starting voltage,
-so packs at different charges still differ in voltage: that IS the effect, and it is named). Prints the table (true effect x first named effect),
-the median holdout RMSE reduction and the median fitted strength (truth: 1).
+For each effect of the contract and each seed: a bench drawn from the seed (``sim.random_bench``:
+other constants, sometimes a bent throttle map or a two-RC pack; ``--nominal-bench``: the
+nominal one), the hidden effect at a drawn strength (0.5-2x; 1 on the nominal bench). The model
+(CONFIG) is the NOMINAL bench physics with every effect on except the hidden one. Reference
+recordings (test/test_discrepancy.py's REF and the scenario's extras) lack the effect; measured and
+holdout recordings (the scenario's commands and states of charge) have it. Control: reference,
+measured and holdout all lack the effect the model lacks (one effect per seed in turn); for
+battery_voltage all control recordings are on one pack charge (with the effect off the
+simulator's supply is stiff at each pack's own starting voltage, so packs at different charges
+would still differ in voltage: that IS the effect). Prints the table (true effect x first named),
+the holdout RMSE reduction and the fitted strength vs the truth in the nominal model's units
+(``random_bench.model_strength``), median [min, max] over seeds.
 
-    PYTHONPATH=. python experiments/physics_confusion.py --seeds 5
+    PYTHONPATH=. python experiments/physics_confusion.py --seeds 5 --jobs 2
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -28,64 +34,101 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
 
 
-def one_run(d: Path, effect: str, seed: int, control: bool) -> dict:
+def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str) -> dict:
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
     from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
     from bldc_propulsion.discrepancy.workflow import Options
+    from bldc_propulsion.sim import random_bench as rb
     from bldc_propulsion.training.dataset import load_signals
 
-    _, _, meas_spec, hold_spec = T.SCENARIOS[effect]
+    bench = rb.draw_bench(seed) if random_bench else None
+    strength = rb.draw_strength(effect, seed) if random_bench else 1.0
+    _, ref_extra, meas_spec, hold_spec = T.SCENARIOS[effect]
+    ref_spec = [*T.REF, *ref_extra]
     if control and effect == "battery_voltage":
         meas_spec = [(kd, 1.0, dur) for kd, _, dur in meas_spec]
         hold_spec = [(kd, 1.0, dur) for kd, _, dur in hold_spec]
-    rec_effects = {effect: 0.0} if control else {}
-    sub = d / f"{effect}_{seed}_{'control' if control else 'on'}"
+    off = {effect: 0.0}
+    on = off if control else {effect: strength}
+    sub = Path(tmp) / f"{effect}_{seed}_{'control' if control else 'on'}"
     sub.mkdir()
-    meas = [T._bag(sub, f"m{k}_{kd}", kd, 5000 + 100 * seed + k, rec_effects, soc, dur)
-            for k, (kd, soc, dur) in enumerate(meas_spec)]
-    hold = [T._bag(sub, f"h{k}_{kd}", kd, 6000 + 100 * seed + k, rec_effects, soc, dur)
-            for k, (kd, soc, dur) in enumerate(hold_spec)]
+
+    def bags(spec: list, tag: str, seed0: int, eff: dict) -> list:
+        return [load_signals(T._bag(sub, f"{tag}{k}_{kd}", kd, seed0 + 100 * seed + k, eff, soc, dur, bench))
+                for k, (kd, soc, dur) in enumerate(spec)]
+
+    ref = bags(ref_spec, "r", 4000, off)
+    meas = bags(meas_spec, "m", 5000, on)
+    hold = bags(hold_spec, "h", 6000, on)
     model = ph.PhysicsModel(ph.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
     t0 = time.perf_counter()
-    data = run_physics_workflow(model, [load_signals(p) for p in meas], [], [load_signals(p) for p in hold],
-                                Options(max_effects=2), lambda m: None).data
-    fitted = data["evidence"].get(effect, {}).get("fitted_parameters", {})
-    return {"effect": "control" if control else effect, "seed": seed,
+    data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
+    fitted = data["evidence"].get(effect, {}).get("fitted_parameters", {}) if not control else {}
+    truth = rb.model_strength(effect, strength, bench or ph.load_config(None).params)
+    return {"effect": "control" if control else effect, "hidden": effect, "seed": seed, "named": data["named"],
             "first": data["named"][0] if data["named"] else "(nothing)",
             "before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
-            "strength": fitted.get("strength", float("nan")), "seconds": time.perf_counter() - t0}
+            "strength": fitted.get("strength", float("nan")) if effect in data["named"] else float("nan"),
+            "truth": truth, "seconds": time.perf_counter() - t0}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    args = ap.parse_args(argv)
-    rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(args.seeds):
-            for effect in c.EFFECTS:
-                rows.append(one_run(Path(tmp), effect, seed, control=False))
-                print(rows[-1], file=sys.stderr, flush=True)
-            rows.append(one_run(Path(tmp), c.EFFECTS[seed % len(c.EFFECTS)], seed, control=True))
-            print(rows[-1], file=sys.stderr, flush=True)
+def print_table(rows: list[dict], effects: list[str]) -> None:
+    """The confusion table, holdout RMSE reduction and fitted strength / truth (median [min, max])."""
+    print(f"\n{len(rows)} runs, seeds {', '.join(map(str, sorted({r['seed'] for r in rows})))}")
     cols = [*c.EFFECTS, "(nothing)"]
     short = {"battery_voltage": "battery", "spin_down_asymmetry": "spin_down", "motor_heating": "heating",
              "esc_deadband": "deadband"}
     print("true \\ first named   " + " ".join(f"{short.get(x, x):>11s}" for x in cols) + "  correct")
-    for true in [*c.EFFECTS, "control"]:
+    for true in [*effects, "control"]:
         mine = [r for r in rows if r["effect"] == true]
         want = "(nothing)" if true == "control" else true
         counts = [sum(r["first"] == x for r in mine) for x in cols]
         ok = sum(r["first"] == want for r in mine)
         print(f"{true:20s} " + " ".join(f"{n:11d}" for n in counts) + f"  {ok}/{len(mine)}")
-    print("median holdout RMSE reduction / fitted strength (truth 1):")
-    for true in [*c.EFFECTS, "control"]:
+    print("holdout RMSE reduction, median [min, max] over seeds; fitted strength / truth (nominal model's "
+          "units), median [min, max], where the effect was named")
+    for true in [*effects, "control"]:
         mine = [r for r in rows if r["effect"] == true]
-        red = np.median([100 * (1 - r["after"] / r["before"]) for r in mine])
-        st = np.nanmedian([r["strength"] for r in mine]) if true != "control" else float("nan")
-        print(f"  {true:20s} {red:5.1f} %" + (f"   strength {st:.2f}" if np.isfinite(st) else ""))
-    print(f"{len(rows)} runs, workflow {sum(r['seconds'] for r in rows):.0f} s in total")
+        red = [100 * (1 - r["after"] / r["before"]) for r in mine]
+        ratio = [r["strength"] / r["truth"] for r in mine if np.isfinite(r["strength"])]
+        line = f"  {true:20s} {np.median(red):5.1f} % [{min(red):.1f}, {max(red):.1f}]"
+        if ratio:
+            within = sum(abs(x - 1.0) <= 0.3 for x in ratio)
+            line += (f"   strength/truth {np.median(ratio):.2f} [{min(ratio):.2f}, {max(ratio):.2f}], "
+                     f"{within}/{len(ratio)} within 30 %")
+        if true == "control":
+            line += f"   false names: {sum(len(r['named']) for r in mine)}"
+        print(line)
+    right = sum(r["first"] == ("(nothing)" if r["effect"] == "control" else r["effect"]) for r in rows)
+    print(f"named right first: {right}/{len(rows)}; {len(rows)} runs, workflow "
+          f"{sum(r['seconds'] for r in rows):.0f} s in total", flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed+seeds-1")
+    ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--effects", default=",".join(c.EFFECTS))
+    args = ap.parse_args(argv)
+    effects = [e for e in args.effects.split(",") if e]
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    print(f"{'nominal' if args.nominal_bench else 'randomized'} benches, seeds {seeds.start}-{seeds.stop - 1}")
+    jobs = [(e, s, ctl) for s in seeds
+            for e, ctl in [*((e, False) for e in effects), (c.EFFECTS[s % len(c.EFFECTS)], True)]]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        futs = [pool.submit(one_run, e, s, ctl, not args.nominal_bench, tmp) for e, s, ctl in jobs]
+        for f in futs:
+            r = f.result()
+            rows.append(r)
+            print(f"{r['effect']:20s} seed {r['seed']}: named {r['named'] or 'nothing'}; holdout "
+                  f"{r['before']:.1f} -> {r['after']:.1f} rad/s; strength {r['strength']:.2f} (truth "
+                  f"{r['truth']:.2f}) ({r['seconds']:.0f} s)", file=sys.stderr, flush=True)
+            if len(rows) % (len(effects) + 1) == 0:  # a seed complete: the table so far
+                print_table(rows, effects)
     return 0
 
 

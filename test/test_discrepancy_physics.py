@@ -219,7 +219,10 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
     # "a 16.8 V supply that sags to 13.7 V at ~10 A": the voltage is what the model lacks
     ("rcbenchmark_steps_90percent", "battery_voltage"),
     # "optical RPM shows a slow coast-down (ESC without active braking)"
-    ("rcbenchmark_step_coastdown_16v_10in", "spin_down_asymmetry"),
+    pytest.param("rcbenchmark_step_coastdown_16v_10in", "spin_down_asymmetry", marks=pytest.mark.xfail(
+        strict=True, reason="held-out acceptance (issue 11): after rotor_lag, spin_down_asymmetry scores 64 % "
+        "(geometric mean over held-out blocks, p = 0.008) but the held-out blocks' total RMSE rises 23.05 -> "
+        "24.92 rad/s with it (one 18 s log at 4 Hz, no holdout), so it is considered, not added")),
 ])
 def test_real_logs_name_what_their_benches_are_known_for(log, expected, tmp_path):
     """What the logs' own documentation says of their benches is what the workflow finds,

@@ -364,3 +364,46 @@ def test_inertia_and_thrust_coefficient_plausible() -> None:
     assert p.thrust_coefficient == pytest.approx(
         p.propeller_ct * p.air_density_kg_m3 * p.propeller_diameter_m**4 / (4 * math.pi**2))
     assert 2.0e-5 < p.thrust_coefficient < 4.0e-5
+
+
+# --- randomized benches (sim.random_bench) ---------------------------------------------------
+def test_drawn_benches_span_the_stated_ranges_and_repeat_per_seed() -> None:
+    from bldc_propulsion.sim import random_bench as rb
+
+    nominal = BenchParams()
+    draws = [rb.draw_bench(seed) for seed in range(40)]
+    assert rb.draw_bench(3) == draws[3] and draws[3] != draws[4]
+    kv = np.array([p.motor_kv_rpm_per_v for p in draws]) / nominal.motor_kv_rpm_per_v
+    inertia = np.array([p.rotor_inertia_kg_m2 for p in draws]) / nominal.rotor_inertia_kg_m2
+    start = np.array([PWM_STOP + p.esc_deadband_pwm for p in draws])
+    delay = np.array([p.esc_input_delay_s for p in draws])
+    assert 0.85 <= kv.min() < 0.93 and 1.07 < kv.max() <= 1.15
+    assert 0.7 <= inertia.min() < 0.85 and 1.15 < inertia.max() <= 1.3
+    assert 0.052 <= start.min() < 0.054 and 0.056 < start.max() <= 0.058
+    assert 0.020 <= delay.min() < 0.030 and 0.050 < delay.max() <= 0.060
+    # structure: some benches bend the throttle map, some have a two-RC pack, some neither
+    assert 5 < sum(p.esc_throttle_exponent != 1.0 for p in draws) < 35
+    assert 5 < sum(p.battery_polarisation2_resistance_ohm > 0 for p in draws) < 35
+    for p in draws:  # the OCV curve keeps rising with charge
+        assert np.all(np.diff(p.battery_cell_ocv_v) > 0)
+    s = [rb.draw_strength("rotor_lag", k) for k in range(40)]
+    assert 0.5 <= min(s) < 0.7 and 1.4 < max(s) <= 2.0
+    assert all(0.5 <= rb.draw_strength("spin_down_asymmetry", k) <= 1.0 for k in range(40))
+
+
+def test_bent_throttle_map_and_second_rc_change_the_physics() -> None:
+    """exponent > 1 lowers the mid-throttle speed, not the full-throttle one; a second RC branch
+    sags the terminal voltage further under sustained load."""
+    bent = params_with_overrides(BenchParams(), {"esc_throttle_exponent": 1.2})
+    lin_mid, bent_mid = (step(PWM_STOP, 0.075, 0.0, 3.0, params=p).truth_speed[-1] for p in (BenchParams(), bent))
+    lin_full, bent_full = (step(PWM_STOP, PWM_FULL, 0.0, 3.0, params=p).truth_speed[-1] for p in (BenchParams(), bent))
+    assert bent_mid < lin_mid - 10.0 and bent_full == pytest.approx(lin_full, abs=0.5)
+    two_rc = params_with_overrides(BenchParams(), {"battery_polarisation2_resistance_ohm": 0.03,
+                                                   "battery_polarisation2_time_constant_s": 60.0})
+    one, two = (simulate("constant", 60.0, 1, params=p) for p in (BenchParams(), two_rc))
+    assert two.truth_voltage[-1] < one.truth_voltage[-1] - 0.05
+    # a drawn bench simulates, and is another bench (not the nominal speeds)
+    from bldc_propulsion.sim import random_bench as rb
+
+    other = step(PWM_STOP, 0.08, 0.0, 3.0, params=rb.draw_bench(1)).truth_speed[-1]
+    assert abs(other - step(PWM_STOP, 0.08, 0.0, 3.0).truth_speed[-1]) > 5.0

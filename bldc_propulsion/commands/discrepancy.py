@@ -14,7 +14,8 @@ from ..errors import BadInputError
 from ..training.dataset import load_signals
 from ..training.evaluate import input_range
 from ..training.train import load_all, unique
-from ..discrepancy.workflow import ALPHA, MIN_EFFECT, Options, check_effect_names, run_workflow
+from ..discrepancy.workflow import (
+    ALPHA, MIN_EFFECT, Options, check_effect_names, check_holdout, run_workflow)
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 
@@ -105,6 +106,7 @@ def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[An
     reference = unique([load_signals(p, namespace=ns if _has_namespace(p, ns) else None) for p in ref_paths],
                        "reference")
     holdout = load_all(args.holdout, "holdout", ns) if args.holdout else []
+    check_holdout(holdout, measured, reference)  # before any output: the refusal is one line
     return measured, reference, holdout
 
 

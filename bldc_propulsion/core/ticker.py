@@ -31,6 +31,11 @@ class Ticker:
     def started(self) -> bool:
         return self._next is not None
 
+    @property
+    def next_s(self) -> float:
+        """The next grid time (inf before the grid starts): a cheap 'anything due?' test."""
+        return math.inf if self._next is None else self._next
+
     def due(self, t: float) -> list[float]:
         """Grid times <= t not yet emitted (oldest first); a jump over max_backlog_s is skipped."""
         nxt = self._next

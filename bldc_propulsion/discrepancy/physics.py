@@ -63,7 +63,11 @@ STRENGTH_GRID: dict[str, tuple[float, ...]] = {
     "spin_down_asymmetry": (0.5, 1.0),
     "motor_heating": (0.5, 1.0, 2.0),
 }
-STRENGTH_MAX = {name: (1.0 if name == "spin_down_asymmetry" else 4.0) for name in c.EFFECTS}
+#: Upper bounds of a fitted strength: 6x nominal covers a bench with twice the nominal dead time,
+#: inertia or start threshold and an effect twice as strong; spin-down's 1 is physical (all braking
+#: removed), not a limit of the fit, so a fit there is no bound hit (PHYSICAL_MAX).
+STRENGTH_MAX = {name: (1.0 if name == "spin_down_asymmetry" else 6.0) for name in c.EFFECTS}
+PHYSICAL_MAX = frozenset({"spin_down_asymmetry"})
 #: Least held-out SSE per sample ((rad/s)^2) in the score's log ratios.
 SSE_FLOOR = 1e-6
 #: Top-level keys of a physics CONFIG file (``discrepancy``: provenance, written by -o, ignored).
@@ -260,6 +264,37 @@ def calibrate_base(model: PhysicsModel, data: Data) -> Fit:
     cal = np.log(np.array(list(fit.model.constants().values())))
     return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)),
                                log_range=0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT)
+
+
+def fit_reference(model: PhysicsModel, data: Data) -> Fit:
+    """Reference first: Kv, CP (wide range) and the strength of every effect the CONFIG switches
+    on, fitted to the reference recordings: what the model needs to agree with its own data
+    (structural), before the measured data are asked what they need beyond it."""
+    on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0)
+    return calibrate(model, data, np.array(list(model.constants().values())), LOG_RANGE_BASE, on, max_nfev=60)
+
+
+def at_bounds(fit: Fit) -> list[str]:
+    """The fitted quantities of ``fit`` that ended at a bound of their range, in words."""
+    out = []
+    consts = fit.model.constants()
+    for (name, value), a, span in zip(consts.items(), fit.anchor, fit.log_range):
+        if abs(abs(math.log(value / a)) - span) < 1e-3:
+            out.append(f"{name} {value:.4g} (range {a * math.exp(-span):.4g}-{a * math.exp(span):.4g})")
+    for name in fit.free:
+        hit = strength_at_bound(name, fit.model.effects[name])
+        if hit:
+            out.append(hit)
+    return out
+
+
+def strength_at_bound(name: str, strength: float) -> str | None:
+    """'<name> strength s at its bound' when a fitted strength ended on 0 or STRENGTH_MAX (spin-down's
+    1 is physical, not a bound of the fit)."""
+    top = STRENGTH_MAX[name]
+    if strength <= 1e-3 or (strength >= top - 1e-3 and name not in PHYSICAL_MAX):
+        return f"{name} strength {strength:.3g} at its bound ({'0' if strength <= 1e-3 else f'{top:g}'})"
+    return None
 
 
 def recalibrate(fit: Fit, model: PhysicsModel, data: Data, free: Sequence[str] | None = None) -> Fit:

@@ -3,25 +3,33 @@
 Same steps, data and summary as the network path (``workflow.py``), the model being a
 ``physics.PhysicsModel``:
 
-1. Calibrate Kv and CP on the measured recordings; residual r = measured - predicted.
+1. Reference first (with --reference): Kv, CP and the strengths of the CONFIG's effects fitted on
+   the reference recordings (``physics.fit_reference``); then Kv and CP calibrated on the measured
+   recordings; residual r = measured - predicted.
 2. Disagreement windows, whiteness and input cross-correlation tests, the condition map.
 3. Name: every effect that is off in the model is switched on (strength grid, constants
    recalibrated) and scored on held-out time blocks of the measured data and, separately
    calibrated, of the reference data; new / structural by ``workflow.classify``.
-4. Add: the best new effect at the strength fitted on all measured data (constants with it).
+4. Add: the best new effect at the strength fitted on all measured data (constants with it),
+   kept only if it improves held-out data (``acceptance.py``: the holdout, else step 3's per-fold
+   scores) and its strength did not end at a bound.
 5. Show: holdout RMSE before (the calibrated base) and after. Repeat from 3.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .. import contract as c
 from ..training.dataset import Signals
+from . import acceptance as acc
 from . import physics as ph
-from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, check_effect_names, classify,
+from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, check_effect_names, check_holdout, classify,
                        explained_mse, find_disagreement, gap_fields, shared_fields, summary_lines, windows_of,
                        write_report)
 
@@ -60,13 +68,30 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
         warnings.append("no --holdout recordings: before/after RMSE is on the measured recordings, "
                         "which the constants and strengths were fitted on (optimistic)")
     hold = list(holdout) if holdout else list(measured)
+    check_holdout(holdout, measured, reference)
     meas_data = ph.Data.of(measured, "measured")
     ref_data = ph.Data.of(reference, "reference") if reference else None
 
     # step 1
     model = model.with_supply(measured)
-    progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
     uncal_rmse = _rmse(predictions(model, hold).residuals)
+    reference_fit: dict[str, Any] | None = None
+    if ref_data is not None:
+        # reference first: what the model needs to agree with its own data is structural; only
+        # what the measured data need beyond it can be new
+        on = [n for n in c.EFFECTS if model.effects[n] > 0.0]
+        progress(f"step 1: reference first: {', '.join([*ph.CALIBRATED, *on])} fitted on "
+                 f"{len(reference)} reference recording(s)")
+        rf = ph.fit_reference(model, ref_data)
+        model = rf.model
+        bounds = ph.at_bounds(rf)
+        reference_fit = {"constants": rf.model.constants(), "strengths": {n: rf.model.effects[n] for n in on},
+                         "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))), "at_bound": bounds}
+        progress(f"  reference fit: {constants_text(model)}; strengths "
+                 + (", ".join(f"{n} {model.effects[n]:.2f}" for n in on) or "none")
+                 + f"; RMSE {reference_fit['rmse_rad_s']:.2f} rad/s")
+        warnings += [f"reference fit: {b}: the fit is not a basis for a verdict on it" for b in bounds]
+    progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
     cur = ph.calibrate_base(model, meas_data)
     cur_ref = ph.calibrate_base(model, ref_data) if ref_data else None
     base = cur.model
@@ -75,6 +100,7 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
     meas = predictions(base, measured)
     ref = predictions(cur_ref.model, reference) if cur_ref else None
     hold_base = predictions(base, hold)
+    hold_cur = hold_base
 
     # step 2
     found = find_disagreement(meas, ref, progress)
@@ -91,12 +117,14 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
         progress(f"step 3: switching on {len(cands)} effect(s) one at a time, scored on held-out time blocks")
         round_ev: dict[str, Any] = {}
         fits: dict[str, list[ph.Fit]] = {}
+        scores: dict[str, Any] = {}
         best: tuple[float, str] | None = None
         for name in cands:
             grid = ph.STRENGTH_GRID[name]
             fits[name] = ph.effect_fits(cur, name, meas_data)
             m = ph.score(cur, fits[name], grid, meas_data)
             r = ph.score(cur_ref, ph.effect_fits(cur_ref, name, ref_data), grid, ref_data) if cur_ref else None
+            scores[name] = m
             verdict = classify(m, r, opts.alpha, opts.min_effect)
             strength = m.params["strength"]
             round_ev[name] = {
@@ -124,34 +152,52 @@ def run_physics_workflow(model: ph.PhysicsModel, measured: Sequence[Signals], re
             progress("  no new effect is significant")
             break
         name = best[1]
-        cur = ph.fit_strength(cur, name, meas_data, fits[name])
+        trial = ph.fit_strength(cur, name, meas_data, fits[name])
+        hold_new = predictions(trial.model, hold)
+        if holdout:
+            judged = acc.judge(name, hold, hold_cur.predictions, hold_new.predictions, "holdout", opts.alpha)
+        else:
+            # step 3's score refits the constants per fold: its blocks are held out of the fit
+            judged = acc.from_score(name, scores[name], "held-out blocks of the measured data (step 3)",
+                                    opts.alpha)
+        strength = trial.model.effects[name]
+        bound = ph.strength_at_bound(name, strength)
+        if bound:
+            judged = dataclasses.replace(judged, at_bound=bound)
+        evidence[name].update(feature=ph.describe(name, strength, trial.model.params),
+                              fitted_parameters={"strength": strength, **trial.model.constants()},
+                              acceptance=judged.as_json())
+        iterations[-1].update(proposed=name, parameters=evidence[name]["fitted_parameters"],
+                              holdout_rmse_rad_s=_rmse(hold_new.residuals), acceptance=judged.as_json())
+        progress(f"  proposed: {evidence[name]['sentence']}")
+        progress(f"step 4: fitted {ph.describe(name, strength, trial.model.params)}; constants "
+                 f"{constants_text(trial.model)}")
+        progress(f"step 5: {judged.describe()}")
+        if not judged.accepted:
+            break
+        cur = trial
         if cur_ref is not None:
             cur_ref = ph.recalibrate(cur_ref, cur_ref.model.with_effect(name, cur.model.effects[name]), ref_data,
                                      cur.free)
-        strength = cur.model.effects[name]
         named.append(name)
-        evidence[name].update(named=True, feature=ph.describe(name, strength, cur.model.params),
-                              fitted_parameters={"strength": strength, **cur.model.constants()})
-        hold_new = predictions(cur.model, hold)
-        iterations[-1].update(named=name, parameters=evidence[name]["fitted_parameters"],
-                              holdout_rmse_rad_s=_rmse(hold_new.residuals))
-        progress(f"  named: {evidence[name]['sentence']}")
-        progress(f"step 4: added {ph.describe(name, strength, cur.model.params)}; constants now "
-                 f"{constants_text(cur.model)}")
-        progress(f"step 5: holdout RMSE {_rmse(hold_base.residuals):.2f} -> {_rmse(hold_new.residuals):.2f} rad/s")
+        evidence[name]["named"] = True
+        iterations[-1]["named"] = name
+        hold_cur = hold_new
 
     # step 5: the gap
-    hold_final = predictions(cur.model, hold) if named else hold_base
+    hold_final = hold_cur
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
+        "considered_not_added": acc.considered(evidence, named),
         **gap_fields(hold_base, hold_final, hold_masks),
         "holdout_rmse_uncalibrated": uncal_rmse,
         **shared_fields(hold, found, hold_windows, reference, measured, opts, in_sample),
         "evidence": evidence,
         "iterations": iterations,
+        "reference_fit": reference_fit,
         "calibrated_base": base.config(),
         "physics": cur.model.config(),
         "warnings": warnings,

@@ -21,8 +21,12 @@
    measured recordings, early-stopped on the measured recordings' last part, starting from the
    base model's own weights (the new input's at 0). An effect that maps the command before the
    ESC (the start level) replaces the model's command inputs by the mapped ones, weights carried over.
-5. Show: holdout RMSE before and after, overall and inside the holdout's disagreement windows.
-   Repeat from 2 with the new model until nothing new is significant or ``max_effects``.
+5. Keep or reject (``acceptance.py``): the retrained network is kept only if it beats the current
+   one on data it was not trained on (the holdout; else the measured recordings' early-stopping
+   tail) by ACCEPT_MIN_REDUCTION at p < alpha; the first rejection ends the loop, and every
+   candidate not added is reported as "considered, not added". Show: holdout RMSE before and
+   after, overall and inside the holdout's disagreement windows. Repeat from 2 with the new
+   model until nothing new is significant, a candidate is rejected, or ``max_effects``.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from ..errors import BadInputError
 from ..training.dataset import Signals
 from ..training.evaluate import predict_speed
 from ..training.train import features_of, train_model
+from . import acceptance as acc
 from . import effects as fx
 from . import residuals as rs
 from . import scoring as sc
@@ -324,6 +329,35 @@ def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signal
     return pack(W1, b1, W2, b2)
 
 
+def check_holdout(holdout: Sequence[Signals], measured: Sequence[Signals], reference: Sequence[Signals]) -> None:
+    """The holdout must be data nothing is fitted on: refused (one line) when it overlaps the
+    measured or the reference recordings; BadInputError too when it is too short to block."""
+    if holdout:
+        acc.check_holdout_disjoint(holdout, measured=measured, reference=reference)
+        sc.make_blocks([s.duration_s for s in holdout], "holdout")
+
+
+def network_acceptance(effect: str, hold_cur: DataSet, hold_new: DataSet, have_holdout: bool, meas_cur: DataSet,
+                       meas_new: DataSet, score: sc.Score, opts: Options) -> acc.Acceptance:
+    """Does the retrained network beat the current one on data it was not trained on: the
+    holdout; without one, the measured recordings' last VALIDATION_FRACTION (early stopping only),
+    or, when that is too short to block, step 3's held-out blocks."""
+    if have_holdout:
+        return acc.judge(effect, hold_cur.signals, hold_cur.predictions, hold_new.predictions, "holdout", opts.alpha)
+    tails, before, after = [], [], []
+    for s, pb, pa in zip(meas_cur.signals, meas_cur.predictions, meas_new.predictions):
+        cut = s.t[0] + (1.0 - VALIDATION_FRACTION) * (s.t[-1] - s.t[0])
+        sel = s.t >= cut
+        tails.append(slice_signals(s, cut, s.t[-1], "validation"))
+        before.append(pb[sel])
+        after.append(pa[sel])
+    try:
+        return acc.judge(effect, tails, before, after, f"the measured recordings' last "
+                         f"{100 * VALIDATION_FRACTION:.0f} % (early stopping only, not trained on)", opts.alpha)
+    except BadInputError:
+        return acc.from_score(effect, score, "held-out blocks of the measured data (step 3)", opts.alpha)
+
+
 # --- the loop ------------------------------------------------------------------------------------
 @dataclass
 class WorkflowResult:
@@ -395,13 +429,14 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
         warnings.append("no --holdout recordings: before/after RMSE is on the measured recordings, "
                         "which the new model was trained on (optimistic)")
     hold = list(holdout) if holdout else list(measured)
+    check_holdout(holdout, measured, reference)
 
     # step 1
     progress(f"step 1: running the model over {len(measured)} measured recording(s)")
-    base = model
     meas = run_model(model, measured)
     ref = run_model(model, reference) if reference else None
     hold_base = run_model(model, hold)
+    hold_cur = hold_base
     speed_scale = max(float(model.output_max), 1.0)
 
     # step 2
@@ -555,32 +590,41 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
             params = dyn_params
         else:
             params = fitted_params(cur_meas, cand, speed_scale) if len(cand.grid) > 1 else {}
-        named.append(cand.effect)
-        evidence[cand.effect]["named"] = True
         evidence[cand.effect]["fitted_parameters"] = params
-        progress(f"  named: {round_ev[cand.effect]['sentence']}")
+        progress(f"  proposed: {round_ev[cand.effect]['sentence']}")
         progress(f"step 4: adding {cand.effect} as input '{cand.input_name}' {params or ''}")
         new_model = retrain(current, cand, params, reference, measured, opts, progress, ref_params)
-        added_inputs.append(cand.input_name)
         hold_new = run_model(new_model, hold)
+        meas_new = run_model(new_model, measured)
+        judged = network_acceptance(cand.effect, hold_cur, hold_new, bool(holdout), cur_meas, meas_new,
+                                     s_own[cand.effect], opts)
+        evidence[cand.effect]["acceptance"] = judged.as_json()
         iterations[-1].update({
-            "named": cand.effect, "input": cand.input_name, "parameters": params,
-            "holdout_rmse_rad_s": _rmse(hold_new.residuals),
+            "proposed": cand.effect, "input": cand.input_name, "parameters": params,
+            "holdout_rmse_rad_s": _rmse(hold_new.residuals), "acceptance": judged.as_json(),
         })
-        progress(f"step 5: holdout RMSE {_rmse(hold_base.residuals):.2f} -> {_rmse(hold_new.residuals):.2f} rad/s")
-        current = new_model
+        progress(f"step 5: {judged.describe()}")
+        if not judged.accepted:
+            # the best candidate does not help data it was not fitted on: weaker ones will not either
+            break
+        named.append(cand.effect)
+        evidence[cand.effect]["named"] = True
+        iterations[-1]["named"] = cand.effect
+        added_inputs.append(cand.input_name)
+        current, hold_cur = new_model, hold_new
         if len(named) >= opts.max_effects:
             break
-        cur_meas = run_model(current, measured)
+        cur_meas = meas_new
         cur_ref = run_model(current, reference) if reference else None
 
     # step 5: the gap
-    hold_final = run_model(current, hold) if current is not base else hold_base
+    hold_final = hold_cur
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     structural = [x for x in structural if x["effect"] not in named]
     data: dict[str, Any] = {
         "named": named,
         "structural": structural,
+        "considered_not_added": acc.considered(evidence, named),
         **gap_fields(hold_base, hold_final, hold_masks),
         **shared_fields(hold, found, hold_windows, reference, measured, opts, in_sample_holdout),
         "evidence": evidence,
@@ -634,10 +678,17 @@ def summary_lines(data: dict[str, Any]) -> list[str]:
         lines.append("new effect(s) found in the measured data: " + ", ".join(data["named"]))
         for name in data["named"]:
             lines.append("  " + data["evidence"][name]["sentence"])
+            kept = data["evidence"][name].get("acceptance")
+            if kept:
+                lines.append(f"    added because on {kept['source']}: RMSE {kept['rmse_before_rad_s']:.2f} -> "
+                             f"{kept['rmse_after_rad_s']:.2f} rad/s, {100 * kept['mse_reduction']:.1f} % of the mean "
+                             f"squared error ({kept['blocks_improved']} of {kept['blocks']} blocks better, "
+                             f"p = {kept['p_value']:.2g})")
     else:
-        lines.append("no new effect is significant in the measured data: nothing named")
+        lines.append("no effect improves data it was not fitted on: nothing named")
     for s in data["structural"]:
         lines.append("structural (also on the reference data): " + s["sentence"])
+    lines += acc.considered_lines([x for x in data.get("considered_not_added", []) if x["verdict"] != "structural"])
     lines.append(f"{len(data['windows'])} disagreement window(s) in the measured data "
                  f"(smoothed |residual| > {data['window_threshold_rad_s']:.1f} rad/s)")
     for w in data["windows"][:5]:
@@ -693,5 +744,12 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
     gap = [{"holdout RMSE before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
             "in windows before": data["holdout_rmse_in_windows_before"],
             "in windows after": data["holdout_rmse_in_windows_after"]}]
+    added = [{"effect": k, **{f"held-out {x}": v for x, v in data["evidence"][k]["acceptance"].items()}}
+             for k in data["named"] if data["evidence"][k].get("acceptance")]
+    skipped = [{"effect": x["effect"], "why": x["why"], "held-out MSE reduction": x["measured_mse_reduction"],
+                "p": x["p_value"], "reference MSE reduction": x["reference_mse_reduction"],
+                "tried on held-out data": (x["acceptance"] or {}).get("mse_reduction")}
+               for x in data.get("considered_not_added", [])]
     rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs,
-                   [("candidate effects (held-out scores)", rows), ("the gap", gap)])
+                   [("candidate effects (held-out scores)", rows), ("added: the held-out figure that kept each", added),
+                    ("considered, not added", skipped), ("the gap", gap)])

@@ -136,10 +136,12 @@ def pack_ocv(p: BenchParams, soc: np.ndarray | float) -> np.ndarray:
     return p.battery_cells * np.interp(soc, p.battery_cell_soc, p.battery_cell_ocv_v)
 
 
-def _duty(level: np.ndarray, threshold: float) -> np.ndarray:
-    """ESC throttle map: no drive below the start threshold, linear to full duty at PWM_FULL."""
+def _duty(level: np.ndarray, threshold: float, exponent: float = 1.0) -> np.ndarray:
+    """ESC throttle map: no drive below the start threshold, then (linear map)**exponent to full
+    duty at PWM_FULL (exponent 1: linear)."""
     lv = np.clip(level, PWM_STOP, PWM_FULL)
-    return np.clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    x = np.clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    return x if exponent == 1.0 else x**exponent
 
 
 def _esc_duty(p: BenchParams, eff: dict[str, float], cmd_t: np.ndarray, cmd: np.ndarray,
@@ -150,7 +152,7 @@ def _esc_duty(p: BenchParams, eff: dict[str, float], cmd_t: np.ndarray, cmd: np.
     idx = np.searchsorted(cmd_t, t - delay + 1e-9, side="right") - 1
     level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
     threshold = PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
-    return _duty(level, threshold)
+    return _duty(level, threshold, p.esc_throttle_exponent)
 
 
 def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float,
@@ -186,6 +188,8 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     sup = None if supply_v is None else (v_ref + sbv * (np.asarray(supply_v, dtype=float) - v_ref)).tolist()
     r1 = p.battery_polarisation_resistance_ohm
     e1 = math.exp(-dt / p.battery_polarisation_time_constant_s)
+    r2 = p.battery_polarisation2_resistance_ohm
+    e2 = math.exp(-dt / p.battery_polarisation2_time_constant_s)
     q_c = p.battery_capacity_c
     keep = 1.0 - eff["spin_down_asymmetry"]  # fraction of negative (braking) current allowed
     jr = eff["rotor_lag"] * p.rotor_inertia_kg_m2
@@ -205,6 +209,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     temp = t_amb
     soc = soc0
     vp = 0.0
+    vp2 = 0.0
     out_w = [0.0] * n
     out_ib = [0.0] * n
     out_v = [0.0] * n
@@ -219,7 +224,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
             else:
                 j = int(x)
                 voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
-            veff = v0 + sbv * (voc - vp - v0)
+            veff = v0 + sbv * (voc - vp - vp2 - v0)
         else:
             veff = sup[k] + rs_eff * ib_lp
         rw = rw0 * (1.0 + alpha * (temp - t_ref))
@@ -249,7 +254,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
         ib = d * i
         out_w[k] = w
         out_ib[k] = ib
-        out_v[k] = v0 + sbv * (voc - vp - rs * ib - v0) if sup is None else veff - rs_eff * ib
+        out_v[k] = v0 + sbv * (voc - vp - vp2 - rs * ib - v0) if sup is None else veff - rs_eff * ib
         ib_lp += a_lp * (ib - ib_lp)
         out_temp[k] = temp
         out_soc[k] = soc
@@ -261,6 +266,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
         elif soc > 1.0:
             soc = 1.0
         vp = vp * e1 + r1 * ib * (1.0 - e1)
+        vp2 = vp2 * e2 + r2 * ib * (1.0 - e2)
         w = wn
     return {
         "speed": np.asarray(out_w),

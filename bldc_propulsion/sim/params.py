@@ -36,6 +36,10 @@ class BenchParams:
     # one RC polarisation branch: the slow (tens of s) recovery of a LiPo after a load step
     battery_polarisation_resistance_ohm: float = 0.015
     battery_polarisation_time_constant_s: float = 30.0
+    # an optional second, slower RC branch (0 ohm: the one-RC pack above); randomized benches
+    # switch it on to give the pack a structure the one-RC model lacks
+    battery_polarisation2_resistance_ohm: float = 0.0
+    battery_polarisation2_time_constant_s: float = 300.0
 
     # --- battery voltage at the ADC -------------------------------------------------------
     # battery V per ADC V: the paper's filter (1) has DC gain 2*4.9975e-4/(1-0.9995) = 1.999
@@ -60,6 +64,10 @@ class BenchParams:
     # dead time at effect strength 1: up to one 20 ms frame before the pulse is read, plus the
     # ESC's input averaging/throttle filtering (~1 frame) -> 40 ms
     esc_input_delay_s: float = 0.040
+    # shape of the throttle map above the start threshold: duty = x ** exponent with x the
+    # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
+    # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
+    esc_throttle_exponent: float = 1.0
 
     # --- AXI 2212/34 outrunner (Model Motors datasheet) -----------------------------------
     motor_kv_rpm_per_v: float = 710.0  # datasheet: 710 rpm/V
@@ -140,6 +148,7 @@ class BenchParams:
 _MAY_BE_ZERO = frozenset({
     "battery_series_resistance_ohm",
     "battery_polarisation_resistance_ohm",
+    "battery_polarisation2_resistance_ohm",
     "battery_modulation_ohm",
     "adc_noise_v",
     "adc_resolution_v",
