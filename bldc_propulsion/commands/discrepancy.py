@@ -97,8 +97,6 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
 
 def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Any], list[Any], list[Any]]:
     """The measured, reference and holdout recordings, read through the cores."""
-    progress(f"reading {len(args.measured)} measured, {len(ref_paths)} reference and "
-             f"{len(args.holdout or [])} holdout recording(s)")
     ns = args.namespace
     measured = load_all(args.measured, "measured", ns)
     # a model trained on the bench and measured on a vehicle: its reference recordings are read
@@ -107,6 +105,8 @@ def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[An
                        "reference")
     holdout = load_all(args.holdout, "holdout", ns) if args.holdout else []
     check_holdout(holdout, measured, reference)  # before any output: the refusal is one line
+    progress(f"read {len(measured)} measured, {len(reference)} reference and "
+             f"{len(holdout)} holdout recording(s)")
     return measured, reference, holdout
 
 
