@@ -127,7 +127,7 @@ def replay_bag(
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             timers_until(end)
             counts["messages_out"] = bag.messages_written
-        tach.check_timeout(end)  # a tachometer silent until the end is lost, as the node's timer says
+        tach.check_timeout(end)  # a tachometer silent until the end: its status says so
         statuses = [*filt.status(), *tach.status(), *est.status()]
         n = max(est.predictions, 1)
         ranged = None if est.is_fallback else RangeReport(

@@ -27,17 +27,15 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from typing import Any
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
-from bldc_propulsion.errors import BadInputError, one_line
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
-from bldc_propulsion.nodes.common import events_executor, spin
+from bldc_propulsion.nodes.common import (
+    Plan, events_executor, on_events, run_node, single_threaded)
 from bldc_propulsion.nodes.params import namespaces
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
@@ -73,41 +71,22 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     return options
 
 
+def plan_for(executor: str) -> Plan:
+    """Which executor spins which node for ``--executor`` (the battery filter is nodes[0])."""
+    if executor == 'events':
+        return on_events
+    if executor == 'single':
+        return single_threaded
+    return lambda nodes: [(SingleThreadedExecutor(), nodes[1:]), (events_executor(), nodes[:1])]
+
+
 def main(args: list[str] | None = None) -> int:
     argv = sys.argv if args is None else args
     options = parse_args(remove_ros_args(args=argv)[1:])
-    rclpy.init(args=argv)
-    nodes: list[Node] = []
-    executors: list[Any] = []
-    try:
-        nodes = build_nodes(options.motors, message_info=options.executor != 'events')
-        if options.executor == 'mixed':
-            battery = events_executor()
-            battery.add_node(nodes[0])
-            executors.append(battery)
-            threading.Thread(target=spin, args=(battery,), name='battery_filter', daemon=True).start()
-            main_executor = SingleThreadedExecutor()
-            motor_nodes = nodes[1:]
-        else:
-            main_executor = (events_executor() if options.executor == 'events'
-                             else SingleThreadedExecutor())
-            motor_nodes = nodes
-        executors.append(main_executor)
-        for node in motor_nodes:
-            main_executor.add_node(node)
-        spin(main_executor)
-    except BadInputError as e:
-        print(f'propulsion_all: {one_line(e, 400)}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        for executor in executors:
-            executor.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(
+        'propulsion_all',
+        lambda: build_nodes(options.motors, message_info=options.executor != 'events'),
+        argv, plan_for(options.executor))
 
 
 if __name__ == '__main__':

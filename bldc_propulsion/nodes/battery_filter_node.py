@@ -27,7 +27,7 @@ from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConf
 from bldc_propulsion.core.status import counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.nodes.common import (
-    declare_parameters, diagnostic_array, events_executor, input_qos, now_s, run_node, to_stamp)
+    declare_parameters, diagnostic_array, input_qos, now_s, on_events, run_node, to_stamp)
 from bldc_propulsion.nodes.params import (
     BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -89,7 +89,7 @@ def battery_state(t_s, volts):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(BATTERY_FILTER, BatteryFilterNode, args, events_executor)
+    return run_node(BATTERY_FILTER, BatteryFilterNode, args, on_events)
 
 
 if __name__ == '__main__':

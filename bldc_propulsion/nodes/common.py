@@ -7,6 +7,7 @@ without ROS; this module only puts those values into messages.
 from __future__ import annotations
 
 import sys
+import threading
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
@@ -98,9 +99,23 @@ def spin(executor: Any) -> None:
         executor.spin_once(timeout_sec=0.1)
 
 
+#: Which executor spins which nodes: the first pair on the calling thread, the others each on
+#: a thread of its own (propulsion_all's mixed mode).
+Plan = Callable[[list[Node]], list[tuple[Any, list[Node]]]]
+
+
+def single_threaded(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
+    """Every node on one single-threaded executor (hands callbacks the message info)."""
+    return [(SingleThreadedExecutor(), nodes)]
+
+
+def on_events(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
+    """Every node on the EventsExecutor (no message info; cheapest)."""
+    return [(events_executor(), nodes)]
+
+
 def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
-             args: list[str] | None = None, executor_factory: Callable[[], Any] | None = None,
-             ) -> int:
+             args: list[str] | None = None, plan: Plan = single_threaded) -> int:
     """The one ``main`` of every node executable: init, build, spin, one-line errors.
 
     Exit status 0 on Ctrl-C or shutdown, 2 on a bad parameter or model (one line on stderr,
@@ -108,20 +123,26 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
     """
     rclpy.init(args=args)
     nodes: list[Node] = []
-    executor = (executor_factory or SingleThreadedExecutor)()
+    executors: list[Any] = []
     try:
         built = build()
         nodes = list(built) if isinstance(built, (list, tuple)) else [built]
-        for node in nodes:
-            executor.add_node(node)
-        spin(executor)
+        pairs = plan(nodes)
+        for executor, members in pairs:
+            executors.append(executor)
+            for node in members:
+                executor.add_node(node)
+        for executor, _ in pairs[1:]:
+            threading.Thread(target=spin, args=(executor,), daemon=True).start()
+        spin(pairs[0][0])
     except BadInputError as e:
         print(f"{name}: {one_line(e, 400)}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        executor.shutdown()
+        for executor in executors:
+            executor.shutdown()
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
