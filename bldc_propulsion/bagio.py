@@ -217,6 +217,78 @@ class Recording:
             bare = c.bare(conn.topic)
             yield logical.get(bare, bare), ns, conn, data
 
+    def bulk(self, topics: Sequence[str]) -> Bulk | None:
+        """Every message of ``topics`` at once, in the order :meth:`raw` yields them, decoded
+        to arrays (Float64 -> its ``data``, BatteryState -> its ``voltage``, Float32MultiArray
+        -> a float32 array per message); None when only :meth:`raw` can read the recording
+        exactly (damaged or salvaged, split into several files, compressed per message,
+        unchunked MCAP, another message type): the caller then streams with :meth:`messages`.
+
+        MCAP: the chunks rosbags' reader would read (the same chunk selection and time bounds,
+        decompressed and CRC-checked by rosbags' own ``decompress``), their messages located
+        through the chunks' message index records (the MCAP specification has one per channel
+        and chunk) and ordered as rosbags' merge orders them: by time, then chunk offset, then
+        position in the chunk. SQLite3: the rows of rosbags' own query. Decoding matches
+        :meth:`_decode` value for value.
+        """
+        if self.salvaged is not None:
+            return None
+        names = [self.resolve(t) for t in topics]
+        logical = [c.bare(t) for t in topics]
+        conns = [conn for name in names for conn in self._conns.get(name, [])]
+        kinds = {conn.msgtype for conn in conns}
+        if not conns or not kinds <= {c.FLOAT64, c.FLOAT32_ARRAY, c.BATTERY_STATE}:
+            return None
+        code_of_topic = {f"/{name}": k for k, name in enumerate(names)}
+        try:
+            rows = _bulk_rows(self._reader, conns, code_of_topic)
+        except Exception:  # anything unexpected: the streaming path decides what it means
+            return None
+        if rows is None:
+            return None
+        code, ns, payload = rows
+        values: dict[str, Any] = {}
+        for k, (name, topic) in enumerate(zip(names, logical)):
+            sel = np.flatnonzero(code == k)
+            msgtype = self._conns[name][0].msgtype if name in self._conns else c.FLOAT64
+            values[topic] = self._decode_bulk(payload, sel, msgtype, name)
+        return Bulk(topics=logical, code=code, ns=ns, values=values)
+
+    def _decode_bulk(self, payload: _Payload, sel: np.ndarray, msgtype: str, name: str) -> Any:
+        """Messages ``sel`` of ``payload``, decoded as :meth:`_decode` decodes them."""
+        start, length = payload.start[sel], payload.length[sel]
+        n = len(sel)
+        if msgtype == c.FLOAT64:
+            vals = np.zeros(n)
+            ok = length == 12
+            if ok.any():
+                head = payload.gather(start[ok], 12)
+                good = (head[:, :4] == np.frombuffer(_CDR_LE, dtype=np.uint8)).all(axis=1)
+                vals[np.flatnonzero(ok)[good]] = head[good, 4:].copy().view("<f8").reshape(-1)
+                ok[np.flatnonzero(ok)[~good]] = False
+            for i in np.flatnonzero(~ok).tolist():
+                vals[i] = float(self._decode(payload.bytes(start[i], length[i]), _Conn(msgtype), name).data)
+            return vals
+        if msgtype == c.BATTERY_STATE:
+            return np.array([float(self._decode(payload.bytes(a, m), _Conn(msgtype), name).voltage)
+                             for a, m in zip(start.tolist(), length.tolist())])
+        # Float32MultiArray without layout dims: a 16-byte head (CDR header, 0 dims,
+        # data_offset, count), then the floats; anything else through the typestore
+        out: list[np.ndarray] = []
+        if n == 0:
+            return out
+        head = payload.gather(start, 16, min_length=length)
+        count = head[:, 12:16].copy().view("<u4").reshape(-1).astype(np.int64)
+        plain = ((head[:, :8] == np.frombuffer(_CDR_LE + bytes(4), dtype=np.uint8)).all(axis=1)
+                 & (length == 16 + 4 * count))
+        raw = payload.raw
+        for a, m, k, ok in zip(start.tolist(), length.tolist(), count.tolist(), plain.tolist()):
+            if ok:
+                out.append(np.frombuffer(raw, dtype="<f4", count=k, offset=a + 16))
+            else:
+                out.append(np.asarray(self._decode(payload.bytes(a, m), _Conn(msgtype), name).data))
+        return out
+
     def topic_stats(self) -> list[TopicStats]:
         """Per topic of the recording (all namespaces): type, messages, rate and gaps, from the
         message times alone (nothing decoded; a damaged part ends the scan, see read_error)."""
@@ -281,6 +353,130 @@ class Recording:
         self.require(topic, c.FLOAT32_ARRAY)
         for _, ts, msg in self.messages([topic]):
             yield ts, np.asarray(msg.data, dtype=np.float32)
+
+
+@dataclass
+class Bulk:
+    """Messages of several topics read at once (:meth:`Recording.bulk`), in stream order."""
+
+    topics: list[str]  #: contract names; message k is of topic ``topics[code[k]]``
+    code: np.ndarray  #: (n,) int, topic index of each message
+    ns: np.ndarray  #: (n,) int64, bag time of each message
+    values: dict[str, Any]  #: per topic, its messages decoded in order (see Recording.bulk)
+
+
+@dataclass
+class _Conn:
+    msgtype: str
+
+
+_UINT32 = struct.Struct("<I")
+
+
+@dataclass
+class _Payload:
+    """Raw CDR of many messages: message k is ``raw[start[k]:start[k] + length[k]]``."""
+
+    raw: bytes
+    start: np.ndarray
+    length: np.ndarray
+
+    def bytes(self, start: int, length: int) -> bytes:
+        return self.raw[start:start + length]
+
+    def gather(self, start: np.ndarray, width: int, min_length: np.ndarray | None = None) -> np.ndarray:
+        """(len(start), width) uint8: the first ``width`` bytes of each message (zeros past
+        the end of a message shorter than that, when ``min_length`` gives the lengths)."""
+        u8 = np.frombuffer(self.raw, dtype=np.uint8)
+        idx = start[:, None] + np.arange(width)
+        if min_length is None:
+            return u8[idx]
+        inside = np.arange(width) < min_length[:, None]
+        return np.where(inside, u8[np.where(inside, idx, 0)], 0).astype(np.uint8)
+
+
+def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int]
+               ) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
+    """(topic code, bag time ns, raw CDR) of every message of ``conns``, in the order rosbags'
+    ``Reader.messages`` yields them; None where that order or content cannot be reproduced."""
+    from rosbags.rosbag2.reader import DirectoryReader
+    from rosbags.rosbag2.storage_mcap import McapReader
+    from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+    storage = reader.storage
+    if isinstance(storage, DirectoryReader):
+        if storage.metadata.compression_mode or len(storage.storages) != 1:
+            return None
+        storage = storage.storages[0]
+    want = {(conn.topic, conn.msgtype) for conn in conns}
+    ids = {x.id: code_of_topic[x.topic] for x in storage.connections if (x.topic, x.msgtype) in want}
+    if not ids:
+        return None
+    if isinstance(storage, Sqlite3Reader):
+        by_id = {x.id: x for x in storage.connections}
+        rows = list(storage.messages([by_id[i] for i in ids]))
+        code = np.fromiter((ids[conn.id] for conn, _, _ in rows), dtype=np.int64, count=len(rows))
+        ns = np.fromiter((t for _, t, _ in rows), dtype=np.int64, count=len(rows))
+        length = np.fromiter((len(d) for _, _, d in rows), dtype=np.int64, count=len(rows))
+        start = np.concatenate(([0], np.cumsum(length)[:-1])) if len(rows) else length
+        return code, ns, _Payload(b"".join(d for _, _, d in rows), start, length)
+    if not isinstance(storage, McapReader) or not storage.chunks:
+        return None
+    return _mcap_rows(storage, ids)
+
+
+def _mcap_rows(storage: Any, ids: dict[int, int]) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
+    from rosbags.rosbag2.storage_mcap import decompress
+
+    bio = storage.bio
+    bufs: list[bytes] = []
+    parts: list[tuple[np.ndarray, ...]] = []
+    base = 0
+    for chunk in storage.chunks:
+        if not any(chunk.channel_count.get(cid, 0) for cid in ids):
+            continue  # rosbags skips chunks whose index lists none of the channels
+        bio.seek(chunk.chunk_start_offset + 9 + 24)
+        (crc,) = _UINT32.unpack(bio.read(4))
+        bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
+        compressed = bio.read(chunk.compressed_size)
+        if len(compressed) != chunk.compressed_size:
+            return None
+        buf = decompress(compressed, chunk.compression, chunk.uncompressed_size, crc)
+        index_at = chunk.chunk_start_offset + chunk.chunk_length
+        bio.seek(index_at)
+        index = bio.read(chunk.message_index_length)
+        u8 = np.frombuffer(buf, dtype=np.uint8)
+        for cid, code in ids.items():
+            where = chunk.message_index_offsets.get(cid)
+            if where is None:
+                continue
+            at = where - index_at
+            op, _, rec_cid, nbytes = struct.unpack_from("<BQHI", index, at)
+            if op != 0x07 or rec_cid != cid or nbytes % 16:
+                return None
+            pairs = np.frombuffer(index, dtype="<u8", count=nbytes // 8, offset=at + 15).reshape(-1, 2)
+            t, off = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+            if len(off) and (off.max() + 31 > len(buf)):
+                return None
+            head = u8[off[:, None] + np.arange(31)]
+            size = head[:, 1:9].copy().view("<u8").reshape(-1).astype(np.int64)
+            if not ((head[:, 0] == 0x05).all() and (size >= 22).all()
+                    and (head[:, 9:11].copy().view("<u2").reshape(-1) == cid).all()
+                    and (head[:, 23:31].copy().view("<u8").reshape(-1).astype(np.int64) == t).all()
+                    and (off + 9 + size <= len(buf)).all()):
+                return None  # the index does not point at this channel's messages
+            keep = (t >= chunk.message_start_time) & (t < chunk.message_end_time + 1)
+            t, off, size = t[keep], off[keep], size[keep]
+            parts.append((t, np.full(len(t), chunk.chunk_start_offset, dtype=np.int64), off,
+                          np.full(len(t), code, dtype=np.int64), base + off + 31, size - 22))
+        bufs.append(buf)
+        base += len(buf)
+    if not parts:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), _Payload(b"", np.zeros(0, np.int64), np.zeros(0, np.int64))
+    t, chunk_off, off, code, start, length = (np.concatenate(p) for p in zip(*parts))
+    # rosbags: each chunk sorted by time (stable, file order), chunks merged on (time, chunk offset)
+    order = np.lexsort((off, chunk_off, t))
+    return code[order], t[order], _Payload(b"".join(bufs), start[order], length[order])
 
 
 #: A pause between two messages of one topic counts as a gap when it is longer than
