@@ -633,6 +633,11 @@ class BagWriter:
         self._stage: contextlib.AbstractContextManager[Path] | None = None
         self._writer: Writer | None = None
         self.messages_written = 0
+        #: append MCAP message records directly (the bytes rosbags' McapWriter.write makes,
+        #: tested) instead of through Writer.write: 10x less time per message
+        self.fast_mcap = True
+        self._mcap: Any = None
+        self._by_topic: dict[tuple[str, str], Any] = {}
 
     @property
     def single_file(self) -> bool:
@@ -654,6 +659,7 @@ class BagWriter:
             if self.storage == "mcap":
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
+            self._mcap = _fast_mcap(self._writer) if self.fast_mcap else None
         except BaseException as exc:
             self._stage.__exit__(type(exc), exc, exc.__traceback__)
             raise
@@ -699,7 +705,13 @@ class BagWriter:
 
     def write_raw(self, topic: str, msgtype: str, t: float, data: bytes) -> None:
         assert self._writer is not None
-        self._writer.write(self._conn(topic, msgtype), self._ns(t), data)
+        conn = self._by_topic.get((topic, msgtype))
+        if conn is None:
+            conn = self._by_topic[(topic, msgtype)] = self._conn(topic, msgtype)
+        if self._mcap is None:
+            self._writer.write(conn, self._ns(t), data)
+        else:
+            _mcap_write(self._writer, self._mcap, conn.id, self.t0_ns + int(round(t * 1e9)), data)
         self.messages_written += 1
 
     def write_msg(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
@@ -719,6 +731,44 @@ class BagWriter:
 
     def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "") -> None:
         self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix))
+
+
+_MCAP_MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log/publish time
+
+
+def _fast_mcap(writer: Writer) -> Any:
+    """rosbags' MCAP storage writer, if its message writing is the one _mcap_write repeats."""
+    try:
+        from rosbags.rosbag2.storage_mcap import McapWriter
+    except ImportError:
+        return None
+    storage = getattr(writer, "storage", None)
+    if (type(storage) is not McapWriter or writer.compression_mode == CompressionMode.MESSAGE
+            or not all(hasattr(storage, a) for a in ("chunk", "channel_stats", "message_start_time",
+                                                      "message_end_time", "close_chunk"))
+            or not all(hasattr(writer, a) for a in ("counts", "min_timestamp", "max_timestamp"))):
+        return None
+    return storage
+
+
+def _mcap_write(writer: Writer, st: Any, cid: int, ts: int, data: bytes) -> None:
+    """What ``Writer.write`` and ``McapWriter.write`` do (rosbags 0.11), with one struct pack
+    per message and no checks (the connection is BagWriter's own)."""
+    writer.counts[cid] += 1
+    writer.min_timestamp = min(ts, writer.min_timestamp)
+    writer.max_timestamp = max(ts, writer.max_timestamp)
+    st.message_start_time = min(ts, st.message_start_time)
+    st.message_end_time = max(ts, st.message_end_time)
+    st.channel_stats[cid] += 1
+    chunk = st.chunk
+    chunk.message_start_time = min(ts, chunk.message_start_time)
+    chunk.message_end_time = max(ts, chunk.message_end_time)
+    bio = chunk.bio
+    chunk.msgs[cid].append((ts, bio.tell()))
+    bio.write(_MCAP_MESSAGE.pack(0x05, 22 + len(data), cid, 0, ts, ts))
+    bio.write(data)
+    if bio.tell() > 2**20:
+        st.close_chunk()
 
 
 # --- message construction (Jazzy definitions through the rosbags typestore) ---------------
