@@ -171,7 +171,7 @@ class _Nodes:
             self.est.update_voltage(t, v)
 
     def tach_batch(self, t: float, samples: Any) -> None:
-        self.tach.process_batch(t, samples)
+        self.tach.process_batch(t, samples, result=False)
         speed = self.speed_out.after_batch()
         if speed is not None:
             self.bag.write_float64(self.rotor_topic, t, speed)
@@ -228,6 +228,7 @@ class _Nodes:
                 events += zip(where, [0] * len(where), vals.tolist())
             elif topic == c.TOPIC_TACH_ADC:
                 events += zip(where, [2] * len(where), vals)
+                self.tach.expect(vals)  # their level trackers are computed many at a time
             elif topic == c.TOPIC_BATTERY_VOLTAGE:
                 events += zip(where, [3] * len(where), vals.tolist())
             elif topic == c.TOPIC_BATTERY_ADC:
