@@ -708,11 +708,38 @@ class BagWriter:
         conn = self._by_topic.get((topic, msgtype))
         if conn is None:
             conn = self._by_topic[(topic, msgtype)] = self._conn(topic, msgtype)
-        if self._mcap is None:
-            self._writer.write(conn, self._ns(t), data)
-        else:
-            _mcap_write(self._writer, self._mcap, conn.id, self.t0_ns + int(round(t * 1e9)), data)
         self.messages_written += 1
+        st = self._mcap
+        if st is None:
+            self._writer.write(conn, self._ns(t), data)
+            return
+        # what Writer.write and McapWriter.write do (rosbags 0.11), without their checks (the
+        # connection is this writer's own) and with one struct pack per message
+        ts = self.t0_ns + int(round(t * 1e9))
+        cid = conn.id
+        w = self._writer
+        w.counts[cid] += 1
+        if ts < w.min_timestamp:
+            w.min_timestamp = ts
+        if ts > w.max_timestamp:
+            w.max_timestamp = ts
+        if ts < st.message_start_time:
+            st.message_start_time = ts
+        if ts > st.message_end_time:
+            st.message_end_time = ts
+        st.channel_stats[cid] += 1
+        chunk = st.chunk
+        if ts < chunk.message_start_time:
+            chunk.message_start_time = ts
+        if ts > chunk.message_end_time:
+            chunk.message_end_time = ts
+        bio = chunk.bio
+        at = bio.tell()
+        chunk.msgs[cid].append((ts, at))
+        bio.write(_MCAP_MESSAGE.pack(0x05, 22 + len(data), cid, 0, ts, ts))
+        bio.write(data)
+        if at + 31 + len(data) > 2**20:
+            st.close_chunk()
 
     def write_msg(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
         self.write_raw(topic, msgtype, t, bytes(TYPESTORE.serialize_cdr(msg, msgtype)))
@@ -737,7 +764,7 @@ _MCAP_MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequ
 
 
 def _fast_mcap(writer: Writer) -> Any:
-    """rosbags' MCAP storage writer, if its message writing is the one _mcap_write repeats."""
+    """rosbags' MCAP storage writer, if its message writing is the one BagWriter.write_raw repeats."""
     try:
         from rosbags.rosbag2.storage_mcap import McapWriter
     except ImportError:
@@ -749,26 +776,6 @@ def _fast_mcap(writer: Writer) -> Any:
             or not all(hasattr(writer, a) for a in ("counts", "min_timestamp", "max_timestamp"))):
         return None
     return storage
-
-
-def _mcap_write(writer: Writer, st: Any, cid: int, ts: int, data: bytes) -> None:
-    """What ``Writer.write`` and ``McapWriter.write`` do (rosbags 0.11), with one struct pack
-    per message and no checks (the connection is BagWriter's own)."""
-    writer.counts[cid] += 1
-    writer.min_timestamp = min(ts, writer.min_timestamp)
-    writer.max_timestamp = max(ts, writer.max_timestamp)
-    st.message_start_time = min(ts, st.message_start_time)
-    st.message_end_time = max(ts, st.message_end_time)
-    st.channel_stats[cid] += 1
-    chunk = st.chunk
-    chunk.message_start_time = min(ts, chunk.message_start_time)
-    chunk.message_end_time = max(ts, chunk.message_end_time)
-    bio = chunk.bio
-    chunk.msgs[cid].append((ts, bio.tell()))
-    bio.write(_MCAP_MESSAGE.pack(0x05, 22 + len(data), cid, 0, ts, ts))
-    bio.write(data)
-    if bio.tell() > 2**20:
-        st.close_chunk()
 
 
 # --- message construction (Jazzy definitions through the rosbags typestore) ---------------
