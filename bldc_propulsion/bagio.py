@@ -12,8 +12,11 @@ import contextlib
 import math
 import os
 import struct
+import types
+from collections import defaultdict
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from io import BytesIO
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -775,7 +778,42 @@ def _fast_mcap(writer: Writer) -> Any:
                                                       "message_end_time", "close_chunk"))
             or not all(hasattr(writer, a) for a in ("counts", "min_timestamp", "max_timestamp"))):
         return None
+    storage.close_chunk = types.MethodType(_close_chunk, storage)
     return storage
+
+
+def _close_chunk(self: Any) -> None:
+    """``McapWriter.close_chunk`` (rosbags 0.11) with each message index record packed by numpy
+    instead of two Python calls per message (the same bytes: test_bagio compares the files)."""
+    from rosbags.rosbag2.storage_mcap import PendingChunk, write_record, write_string
+
+    chunk = self.chunk
+    size = chunk.bio.tell()
+    compressed = self.compressor(chunk.bio.getvalue())
+    rec = BytesIO()
+    rec.write(struct.pack("<QQQI", chunk.message_start_time, chunk.message_end_time, size, 0))
+    write_string(rec, self.compression)
+    rec.write(struct.pack("<Q", len(compressed)))
+    rec.write(compressed)
+    chunk_start = self.bio.tell()
+    write_record(self.bio, 0x06, rec)
+    chunk_end = self.bio.tell()
+    offsets: list[tuple[int, int]] = []
+    for cid, msgs in chunk.msgs.items():
+        offsets.append((cid, self.bio.tell()))
+        index = np.asarray(msgs, dtype="<u8").reshape(-1).tobytes()
+        self.bio.write(struct.pack("<BQHI", 0x07, 6 + len(index), cid, len(index)))
+        self.bio.write(index)
+    rec = BytesIO()
+    rec.write(struct.pack("<QQQQI", chunk.message_start_time, chunk.message_end_time, chunk_start,
+                          chunk_end - chunk_start, len(offsets) * 10))
+    for cid, offset in offsets:
+        rec.write(struct.pack("<HQ", cid, offset))
+    rec.write(struct.pack("<Q", self.bio.tell() - chunk_end))
+    write_string(rec, self.compression)
+    rec.write(struct.pack("<QQ", len(compressed), size))
+    self.chunks.append(rec)
+    self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
 
 
 # --- message construction (Jazzy definitions through the rosbags typestore) ---------------

@@ -172,7 +172,7 @@ def test_fast_mcap_writing_makes_the_files_rosbags_makes(tmp_path):
     """BagWriter appends MCAP message records itself: the same file bytes as rosbags' writer,
     across chunk boundaries (over 1 MiB), for every message kind, and single .mcap files."""
     rng = np.random.default_rng(5)
-    batches = rng.uniform(0, 5, (700, 200)).astype(np.float32)
+    batches = rng.uniform(0, 5, (700, 400)).astype(np.float32)  # 1.5 MB: two chunks
 
     def write(path, fast):
         bag = BagWriter(path)
@@ -197,3 +197,5 @@ def test_fast_mcap_writing_makes_the_files_rosbags_makes(tmp_path):
     assert [p.name for p in fast] == [p.name for p in slow] and len(fast) == 3
     for a, b in zip(fast, slow):
         assert a.read_bytes() == b.read_bytes(), a.name
+    with open_recording(tmp_path / "fast" / "f.mcap") as rec:
+        assert len(rec._reader.storage.chunks) == 2

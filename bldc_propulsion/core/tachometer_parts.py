@@ -15,7 +15,6 @@ are in clock samples (float, sub-sample), times in seconds.
 from __future__ import annotations
 
 import math
-import statistics
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -58,6 +57,16 @@ class TachOutput:
     edge_t: list[float] = field(default_factory=list)
     speed: list[float] = field(default_factory=list)
     all_edge_t: list[float] = field(default_factory=list)
+
+
+def _median(values: deque[float]) -> float:
+    """``statistics.median`` (the same arithmetic) without its generality, for a few numbers."""
+    data = sorted(values)
+    n = len(data)
+    if n % 2 == 1:
+        return data[n // 2]
+    i = n // 2
+    return (data[i - 1] + data[i]) / 2
 
 
 class SampleClock:
@@ -104,7 +113,7 @@ class SampleClock:
             self.rates.append(n / (t_last - self.last_batch_t) / self._rate_hz)
         if not self.rates:  # the first batch: no timing to compare yet
             return False
-        ratio = float(statistics.median(self.rates))  # 5 numbers: faster than np.median
+        ratio = float(_median(self.rates))  # 5 numbers: faster than np.median
         bad = abs(ratio - 1.0) > self._rate_tolerance
         starts = False
         if bad:
