@@ -51,6 +51,9 @@ def is_recording(path: str | os.PathLike[str]) -> bool:
     )
 
 
+#: Largest SQLite3 recording :meth:`Recording.bulk_windows` reads at once (MCAP goes by windows).
+BULK_SQLITE_MAX_BYTES = 512 * 2**20
+
 #: Topics one vehicle shares between its motors (one pack, one battery filter): with a
 #: namespace they are read from it when it has them, else from the root (interfaces.md).
 SHARED_TOPICS: tuple[str, ...] = (c.TOPIC_BATTERY_ADC, c.TOPIC_BATTERY_VOLTAGE)
@@ -220,12 +223,15 @@ class Recording:
             bare = c.bare(conn.topic)
             yield logical.get(bare, bare), ns, conn, data
 
-    def bulk(self, topics: Sequence[str]) -> Bulk | None:
+    def bulk(self, topics: Sequence[str], start_ns: int | None = None, stop_ns: int | None = None
+             ) -> Bulk | None:
         """Every message of ``topics`` at once, in the order :meth:`raw` yields them, decoded
         to arrays (Float64 -> its ``data``, BatteryState -> its ``voltage``, Float32MultiArray
         -> a float32 array per message); None when only :meth:`raw` can read the recording
         exactly (damaged or salvaged, split into several files, compressed per message,
         unchunked MCAP, another message type): the caller then streams with :meth:`messages`.
+        With ``start_ns``/``stop_ns``, only the messages of bag times in [start_ns, stop_ns)
+        (MCAP only: an SQLite3 recording is read whole, else None).
 
         MCAP: the chunks rosbags' reader would read (the same chunk selection and time bounds,
         decompressed and CRC-checked by rosbags' own ``decompress``), their messages located
@@ -244,7 +250,7 @@ class Recording:
             return None
         code_of_topic = {f"/{name}": k for k, name in enumerate(names)}
         try:
-            rows = _bulk_rows(self._reader, conns, code_of_topic)
+            rows = _bulk_rows(self._reader, conns, code_of_topic, start_ns, stop_ns)
         except Exception:  # anything unexpected: the streaming path decides what it means
             return None
         if rows is None:
@@ -256,6 +262,28 @@ class Recording:
             msgtype = self._conns[name][0].msgtype if name in self._conns else c.FLOAT64
             values[topic] = self._decode_bulk(payload, sel, msgtype, name)
         return Bulk(topics=logical, code=code, ns=ns, values=values)
+
+    def bulk_windows(self, topics: Sequence[str], window_s: float) -> Iterator[Bulk | None]:
+        """:meth:`bulk` over successive windows of ``window_s`` of bag time (MCAP; SQLite3 in one
+        window if its file is under BULK_SQLITE_MAX_BYTES), so memory stays bounded whatever
+        the recording's length. A None means that from there on only :meth:`messages` reads
+        the recording exactly (the caller starts again with it)."""
+        files = [self.path] if self.path.is_file() else [*self.path.glob("*.mcap"), *self.path.glob("*.db3")]
+        if any(f.suffix == ".db3" for f in files):
+            if sum(f.stat().st_size for f in files) > BULK_SQLITE_MAX_BYTES:
+                yield None
+                return
+            yield self.bulk(topics)
+            return
+        step = max(1, int(window_s * 1e9))
+        start = self.t0_ns
+        while True:
+            stop = start + step
+            last = stop >= self.end_ns
+            yield self.bulk(topics, start, None if last else stop)
+            if last:
+                return
+            start = stop
 
     def _decode_bulk(self, payload: _Payload, sel: np.ndarray, msgtype: str, name: str) -> Any:
         """Messages ``sel`` of ``payload``, decoded as :meth:`_decode` decodes them."""
@@ -398,7 +426,8 @@ class _Payload:
         return np.where(inside, u8[np.where(inside, idx, 0)], 0).astype(np.uint8)
 
 
-def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int]
+def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int],
+               start_ns: int | None = None, stop_ns: int | None = None
                ) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
     """(topic code, bag time ns, raw CDR) of every message of ``conns``, in the order rosbags'
     ``Reader.messages`` yields them; None where that order or content cannot be reproduced."""
@@ -416,6 +445,8 @@ def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int]
     if not ids:
         return None
     if isinstance(storage, Sqlite3Reader):
+        if start_ns is not None or stop_ns is not None:
+            return None  # equal timestamps: only the whole query's order is rosbags' order
         by_id = {x.id: x for x in storage.connections}
         rows = list(storage.messages([by_id[i] for i in ids]))
         code = np.fromiter((ids[conn.id] for conn, _, _ in rows), dtype=np.int64, count=len(rows))
@@ -425,10 +456,11 @@ def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int]
         return code, ns, _Payload(b"".join(d for _, _, d in rows), start, length)
     if not isinstance(storage, McapReader) or not storage.chunks:
         return None
-    return _mcap_rows(storage, ids)
+    return _mcap_rows(storage, ids, start_ns, stop_ns)
 
 
-def _mcap_rows(storage: Any, ids: dict[int, int]) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
+def _mcap_rows(storage: Any, ids: dict[int, int], start_ns: int | None, stop_ns: int | None
+               ) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
     from rosbags.rosbag2.storage_mcap import decompress
 
     bio = storage.bio
@@ -438,6 +470,9 @@ def _mcap_rows(storage: Any, ids: dict[int, int]) -> tuple[np.ndarray, np.ndarra
     for chunk in storage.chunks:
         if not any(chunk.channel_count.get(cid, 0) for cid in ids):
             continue  # rosbags skips chunks whose index lists none of the channels
+        if ((start_ns is not None and chunk.message_end_time < start_ns)
+                or (stop_ns is not None and chunk.message_start_time >= stop_ns)):
+            continue  # outside the window
         bio.seek(chunk.chunk_start_offset + 9 + 24)
         (crc,) = _UINT32.unpack(bio.read(4))
         bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
@@ -469,6 +504,10 @@ def _mcap_rows(storage: Any, ids: dict[int, int]) -> tuple[np.ndarray, np.ndarra
                     and (off + 9 + size <= len(buf)).all()):
                 return None  # the index does not point at this channel's messages
             keep = (t >= chunk.message_start_time) & (t < chunk.message_end_time + 1)
+            if start_ns is not None:
+                keep &= t >= start_ns
+            if stop_ns is not None:
+                keep &= t < stop_ns
             t, off, size = t[keep], off[keep], size[keep]
             parts.append((t, np.full(len(t), chunk.chunk_start_offset, dtype=np.int64), off,
                           np.full(len(t), code, dtype=np.int64), base + off + 31, size - 22))

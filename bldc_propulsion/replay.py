@@ -35,6 +35,12 @@ from .model import RangeReport, load_model
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
 VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
 DIAGNOSTICS_RATE_HZ = 1.0
+#: The bulk path reads MCAP recordings in windows of this much bag time (bounded memory)
+BULK_WINDOW_S = 60.0
+
+
+class _StreamingOnly(Exception):
+    """The recording can only be read exactly message by message (see Recording.bulk)."""
 
 
 def replay_bag(
@@ -55,11 +61,33 @@ def replay_bag(
 
     Two paths write the same messages (times, values and diagnostics bit for bit) and return
     the same summary. The reference (``reference=True``, and any recording that only the
-    streaming reader reads exactly: damaged, split into files, compressed per message) feeds
-    every message to the cores one at a time, as the nodes do. The default reads the input
-    topics in bulk (:meth:`Recording.bulk`), filters the battery samples in arrays and visits
-    only the sparse events in time order (PWM, tachometer batches, published voltages, timer
-    ticks); ``test/test_replay_fast.py`` checks it against the reference message by message."""
+    streaming reader reads exactly: damaged, split into files, compressed per message; the
+    bulk path then starts again with it) feeds every message to the cores one at a time, as
+    the nodes do. The default reads the input topics in bulk (:meth:`Recording.bulk_windows`,
+    ``BULK_WINDOW_S`` of recording at a time), filters the battery samples in arrays and
+    visits only the sparse events in time order (PWM, tachometer batches, published voltages,
+    timer ticks); ``test/test_replay_fast.py`` checks it against the reference message by
+    message."""
+    args = (in_path, out_path, model_path, force, battery, tachometer, namespace)
+    if not reference:
+        try:
+            return _replay(*args, reference=False)
+        except _StreamingOnly:  # nothing was written (the output is staged): the reference path
+            pass
+    return _replay(*args, reference=True)
+
+
+def _replay(
+    in_path: str | os.PathLike[str],
+    out_path: str | os.PathLike[str],
+    model_path: str | os.PathLike[str] | None,
+    force: bool,
+    battery: BatteryFilterConfig | None,
+    tachometer: TachometerConfig | None,
+    namespace: str | None,
+    *,
+    reference: bool,
+) -> dict[str, Any]:
     check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
@@ -86,11 +114,13 @@ def replay_bag(
         est = ThrustEstimator(model)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
             node = _Nodes(bag, filt, tach, est, topic_out, has_voltage)
-            bulk = None if reference else rec.bulk(inputs)
-            if bulk is None:
+            if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
-                node.run_bulk(bulk, rec.t0_ns)
+                for bulk in rec.bulk_windows(inputs, BULK_WINDOW_S):
+                    if bulk is None:  # only the streaming reader reads it exactly: start again
+                        raise _StreamingOnly
+                    node.run_bulk(bulk, rec.t0_ns)
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             node.timers_until(end)
             node.counts["messages_out"] = bag.messages_written
@@ -199,7 +229,8 @@ class _Nodes:
 
     # --- the bulk path ----------------------------------------------------------------------
     def run_bulk(self, bulk: Bulk, t0_ns: int) -> None:
-        """The same as :meth:`run_reference` over ``bulk``'s messages.
+        """The same as :meth:`run_reference` over ``bulk``'s messages (the next window of them:
+        state carries from one call to the next).
 
         Every message is a possible timer point (the first message at or after the next
         prediction or diagnostics time triggers them, and the tick times depend on which
@@ -214,11 +245,13 @@ class _Nodes:
             return
         times = ((bulk.ns - t0_ns) * 1e-9).tolist()  # as float((ns - t0) * 1e-9) per message
         code = bulk.code
-        self.counts["messages_in"] = n
+        self.counts["messages_in"] += n
         first = {int(k): int(np.argmax(code == k)) for k in np.unique(code)}
-        for k in sorted(first, key=first.__getitem__):
-            self.per_topic_in[bulk.topics[k]] = int(np.count_nonzero(code == k))
-        self.next_diag = times[0] + 1.0 / DIAGNOSTICS_RATE_HZ
+        for k in sorted(first, key=first.__getitem__):  # topics in order of first appearance
+            topic = bulk.topics[k]
+            self.per_topic_in[topic] = self.per_topic_in.get(topic, 0) + int(np.count_nonzero(code == k))
+        if self.next_diag is None:
+            self.next_diag = times[0] + 1.0 / DIAGNOSTICS_RATE_HZ
         # events: (message index, kind, value); the battery samples that publish are added below
         events: list[tuple[int, int, Any]] = []
         for k, topic in enumerate(bulk.topics):

@@ -98,11 +98,21 @@ def build_corpus(root: Path, duration_s: float = 8.0) -> dict[str, Path]:
     _write(bags["no_tach"], [s for s in streams if s[0] != c.TOPIC_TACH_ADC])
     bags["tach_only"] = root / "tach_only"
     _write(bags["tach_only"], [s for s in streams if s[0] == c.TOPIC_TACH_ADC])
+    # a chunk damaged in the middle of the recording: the bulk path gives way to the reference
+    bags["corrupt_chunk"] = root / "corrupt_chunk.mcap"
+    write_sim_bag(simulate("random_steps", 2.5 * duration_s, seed=42), bags["corrupt_chunk"])
+    data = bytearray(bags["corrupt_chunk"].read_bytes())
+    with open_recording(bags["corrupt_chunk"]) as rec:
+        chunks = rec._reader.storage.chunks
+        assert len(chunks) >= 3
+        mid = chunks[1].chunk_start_offset + chunks[1].chunk_length // 2
+    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
+    bags["corrupt_chunk"].write_bytes(bytes(data))
     # a truncated MCAP (replay keeps the readable part)
     src = next(bags["random_steps"].glob("*.mcap"))
     data = src.read_bytes()
     bags["truncated.mcap"] = root / "truncated.mcap"
-    bags["truncated.mcap"].write_bytes(data[: int(len(data) * 0.6)])
+    bags["truncated.mcap"].write_bytes(data[: int(len(data) * 0.8)])
     return bags
 
 
@@ -111,7 +121,7 @@ CASES: list[tuple[str, dict[str, Any]]] = [
     ("staircase", {}), ("chirp", {}), ("random_steps", {}), ("sqlite3", {}),
     ("single_file.mcap", {}), ("faults", {}), ("faults_sqlite3", {}), ("voltage", {}),
     ("voltage_and_adc", {}), ("vehicle", {"namespace": "motor1"}), ("no_tach", {}),
-    ("tach_only", {}), ("truncated.mcap", {}),
+    ("tach_only", {}), ("truncated.mcap", {}), ("corrupt_chunk", {}),
 ]
 
 

@@ -3,8 +3,9 @@
 Every output message (topic, bag time, CDR bytes) and the summary are compared on a corpus
 that reaches every branch of replay: profiles, MCAP and SQLite3, a single .mcap file, a
 vehicle recording with --namespace, battery/voltage inputs (with and without battery/adc),
-dropped and NaN tachometer batches, battery gaps and rejected samples, a truncated file
-(which only the reference path reads), and a trained model.
+dropped and NaN tachometer batches, battery gaps and rejected samples, a truncated file and
+a damaged chunk (which only the reference path reads), a trained model, and the bulk path
+in short windows.
 """
 
 from __future__ import annotations
@@ -50,8 +51,32 @@ def test_bulk_path_equals_reference(corpus, name, kw):
     assert differences(root / f"ref_{tag}", root / f"fast_{tag}", ref, fast) == []
 
 
-def test_bulk_read_is_used_where_it_can_be(corpus):
-    _, bags = corpus
+def test_bulk_read_is_used_where_it_can_be(corpus, monkeypatch):
+    import bldc_propulsion.replay as replay
+
+    root, bags = corpus
+
+    def no_reference(*args):
+        raise AssertionError("the reference path ran")
+
+    monkeypatch.setattr(replay._Nodes, "run_reference", no_reference)
+    for name in ("chirp", "sqlite3", "faults", "single_file.mcap"):
+        replay_bag(bags[name], root / f"used_{name}")
+    with pytest.raises(AssertionError, match="reference path ran"):  # damaged: streamed
+        replay_bag(bags["corrupt_chunk"], root / "used_corrupt")
     for name in ("chirp", "sqlite3", "single_file.mcap", "vehicle"):
         with open_recording(bags[name], "motor0" if name == "vehicle" else None) as rec:
             assert rec.bulk(["pwm", "battery/adc", "tachometer/adc"]) is not None, name
+
+
+@pytest.mark.parametrize("name", ["chirp", "faults", "vehicle", "corrupt_chunk"])
+def test_bulk_path_in_short_windows_equals_reference(corpus, name, monkeypatch):
+    """Windows of 0.7 s (instead of a minute): state carries across them exactly."""
+    import bldc_propulsion.replay as replay
+
+    root, bags = corpus
+    kw = {"namespace": "motor1"} if name == "vehicle" else {}
+    ref = replay_bag(bags[name], root / f"wref_{name}", reference=True, **kw)
+    monkeypatch.setattr(replay, "BULK_WINDOW_S", 0.7)
+    fast = replay_bag(bags[name], root / f"wfast_{name}", **kw)
+    assert differences(root / f"wref_{name}", root / f"wfast_{name}", ref, fast) == []
