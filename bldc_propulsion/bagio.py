@@ -4,6 +4,12 @@ Times handed to and from this module are float seconds relative to the recording
 message (``Recording.t0_ns``), so that 20 kHz sample times keep their precision; absolute
 nanoseconds are only used inside the bag. Everything streams: a recording is never loaded
 whole unless a caller asks for a whole topic.
+
+Two fast paths, for replay: ``Recording.bulk`` / ``bulk_windows`` read several topics a window
+at a time as arrays, in exactly the order and with exactly the values ``Recording.messages``
+gives (MCAP chunks read through their message indexes; SQLite3 through rosbags' own query),
+and ``BagWriter`` appends MCAP message records itself, making the bytes rosbags' writer makes.
+Both fall back on rosbags where they cannot be sure (see each docstring; tests compare them).
 """
 
 from __future__ import annotations
@@ -514,7 +520,8 @@ def _mcap_rows(storage: Any, ids: dict[int, int], start_ns: int | None, stop_ns:
         bufs.append(buf)
         base += len(buf)
     if not parts:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), _Payload(b"", np.zeros(0, np.int64), np.zeros(0, np.int64))
+        none = np.zeros(0, dtype=np.int64)
+        return none, none, _Payload(b"", none, none)
     t, chunk_off, off, code, start, length = (np.concatenate(p) for p in zip(*parts))
     # rosbags: each chunk sorted by time (stable, file order), chunks merged on (time, chunk offset)
     order = np.lexsort((off, chunk_off, t))
