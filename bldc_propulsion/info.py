@@ -26,7 +26,7 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 
 def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
-    from .training.dataset import load_signals, read_speed, read_voltage
+    from .recordings import load_signals, read_speed, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()

@@ -24,7 +24,7 @@ from bldc_propulsion.bagio import BagWriter, open_recording
 from bldc_propulsion.model import save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import _streams, write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 
 from _models import good_model
 
