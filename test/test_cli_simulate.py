@@ -64,6 +64,7 @@ def test_same_seed_same_bag_different_seed_different(tmp_path):
         (["--param", "warp_factor=9"], "warp_factor"),
         (["--duration", "-5"], "duration"),
         (["--soc", "1.5"], "soc"),
+        (["--namespace", "motor 1"], "--namespace motor 1: not a ROS namespace"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_no_bag(tmp_path, args, needle):
