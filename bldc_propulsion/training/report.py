@@ -415,16 +415,21 @@ def _fit_axes(ax: Any, t: np.ndarray, *series: np.ndarray) -> None:
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def before_after_figure(
+def fig_before_after(
     t: Any,
     measured: Any,
     before: Any,
     after: Any,
+    out: PathLike,
     windows: Iterable[tuple[float, float]] = (),
     recording: str = "",
-) -> Figure:
-    """The before/after figure (see ``fig_before_after``), not yet saved: its Axes carry the
-    lines, labels and limits that tests check."""
+) -> Path:
+    """Model error before vs after adding an effect, disagreement windows (t0, t1 in s) shaded.
+
+    Top: measured speed (a grey band the models are drawn over) and both models; bottom: both
+    errors with their RMSE, so the reader sees that the error shrank where the windows are and
+    did not grow elsewhere. The title and a footer name the recording.
+    """
     t_, m = _arr(t), _arr(measured)
     b, a = _arr(before), _arr(after)
     fig, axes = _figure(2, 1, (9.0, 6.0), sharex=True)
@@ -462,25 +467,7 @@ def before_after_figure(
                   f"({n_windows} window(s) shaded)", fontsize=10)
     fig.tight_layout()
     _name_recording(fig, recording)
-    return fig
-
-
-def fig_before_after(
-    t: Any,
-    measured: Any,
-    before: Any,
-    after: Any,
-    out: PathLike,
-    windows: Iterable[tuple[float, float]] = (),
-    recording: str = "",
-) -> Path:
-    """Model error before vs after adding an effect, disagreement windows (t0, t1 in s) shaded.
-
-    Top: measured speed (a grey band the models are drawn over) and both models; bottom: both
-    errors with their RMSE, so the reader sees that the error shrank where the windows are and
-    did not grow elsewhere. The title and a footer name the recording.
-    """
-    return _save(before_after_figure(t, measured, before, after, windows, recording), out)
+    return _save(fig, out)
 
 
 # -- index.html ------------------------------------------------------------------------------
