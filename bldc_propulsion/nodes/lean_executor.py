@@ -70,11 +70,8 @@ class LeanExecutor(SingleThreadedExecutor):
         if self._guard.handle.pointer in wait_set.get_ready_entities('guard_condition'):
             self._lean = None  # an entity was added or removed (or wake()): rebuild, poll
             self._next_poll_s = 0.0
-        for pointer in wait_set.get_ready_entities('timer'):
-            handle, callback = by_timer[pointer]
-            if handle.is_timer_ready():  # rcl may report a cancelled timer
-                handle.call_timer()
-                callback()
+        # Messages before timers: a timer that fires in the same wake-up as a late input then
+        # sees it (the estimator's timer emits grid times the inputs should have reached).
         for pointer in wait_set.get_ready_entities('subscription'):
             handle, callback, msg_type, raw, with_info = by_sub[pointer]
             while True:  # drain: every message queued since the last wake-up
@@ -85,3 +82,8 @@ class LeanExecutor(SingleThreadedExecutor):
                     callback(taken[0], taken[1])
                 else:
                     callback(taken[0])
+        for pointer in wait_set.get_ready_entities('timer'):
+            handle, callback = by_timer[pointer]
+            if handle.is_timer_ready():  # rcl may report a cancelled timer
+                handle.call_timer()
+                callback()
