@@ -15,8 +15,8 @@ the estimator from it instead of filtering ``battery/adc``.
 
 from __future__ import annotations
 
-import os
 import bisect
+import os
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from . import contract as c
 from .atomic import RECORDING, check_output
-from .bagio import BagWriter, Bulk, open_recording
+from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
@@ -92,10 +92,6 @@ def _replay(
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
         ns = rec.namespace
-
-        def topic_out(topic: str) -> str:
-            return topic if ns is None or topic == c.TOPIC_BATTERY_VOLTAGE else f"{ns}/{topic}"
-
         inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
         if has_voltage:
@@ -106,14 +102,13 @@ def _replay(
                 rec.require(topic, msgtype)
         if not inputs:
             raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
-        motor = [c.TOPIC_PWM, c.TOPIC_TACH_ADC]
-        if not any(rec.has(t) for t in motor) and any(rec.namespaces_with(t) for t in motor):
-            raise rec.missing_error(motor)  # a vehicle's recording: only its battery is at the root
+        if rec.motors_elsewhere():
+            raise rec.missing_error(MOTOR_TOPICS)  # a vehicle's recording: only its battery is at the root
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
-            node = _Nodes(bag, filt, tach, est, topic_out, has_voltage)
+            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage)
             if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
