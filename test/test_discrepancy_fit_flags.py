@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import dataclasses
+import html
 import json
 import re
 import sys
@@ -25,6 +26,7 @@ from bldc_propulsion import contract as c
 from bldc_propulsion.cli import build_parser
 from bldc_propulsion.commands import discrepancy as cmd
 from bldc_propulsion.discrepancy import physics as ph
+from bldc_propulsion.discrepancy.results import kept_text
 from bldc_propulsion.sim import BenchParams, params_with_overrides
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -101,9 +103,9 @@ def test_a_fit_far_from_the_config_is_flagged_and_no_basis_for_a_verdict(kv_bags
     assert not tried["acceptance"]["accepted"] and "not a basis for a verdict" in tried["why"]
     assert "motor_kv_rpm_per_v" in tried["acceptance"]["at_bound"]
     # the report carries the same flags, the same numbers
-    html = (report / "index.html").read_text()
-    assert "implausibly far from the CONFIG" in html
-    assert trial["text"] in html.replace("&#x27;", "'")
+    page = html.unescape((report / "index.html").read_text())
+    assert "implausibly far from the CONFIG" in page and f"<td>{trial['value']:.4g}</td>" in page
+    assert trial["text"] in page
 
 
 @pytest.fixture(scope="module")
@@ -142,5 +144,6 @@ def test_a_named_effect_has_one_fitted_value_everywhere(lag_bags, tmp_path):
     kept = ev["acceptance"]
     assert (f"RMSE {kept['rmse_before_rad_s']:.2f} -> {kept['rmse_after_rad_s']:.2f} rad/s" in text
             and f"needed >= {100 * kept['min_mse_reduction']:.0f} % and p < {kept['alpha']:g}" in text)
-    html = (report / "index.html").read_text()
-    assert f"rotor inertia {shown}" in html
+    page = html.unescape((report / "index.html").read_text())
+    assert f"rotor inertia {shown}" in page and f"<td>{strength:.3g}</td>" in page
+    assert kept_text(kept) in page and kept_text(kept) in text

@@ -276,14 +276,16 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
     gap = [{"holdout RMSE before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
             "in windows before": data["holdout_rmse_in_windows_before"],
             "in windows after": data["holdout_rmse_in_windows_after"]}]
+    # a named effect's fitted value and held-out figure as the summary states them (the same text)
     added = []
     for k in data["named"]:
         ev = data["evidence"][k]
         row: dict[str, Any] = {"effect": k, "feature": ev["feature"]}
         if ev.get("fitted_value"):
             row["fitted value"] = value_text(ev["fitted_value"])
-            row["strength"] = ev["fitted_value"]["strength"]
-        row.update({f"held-out {x}": v for x, v in (ev.get("acceptance") or {}).items()})
+            row["strength"] = f"{ev['fitted_value']['strength']:.3g}"
+        if ev.get("acceptance"):
+            row["held-out figure that kept it"] = kept_text(ev["acceptance"])
         added.append(row)
     skipped = [{"effect": x["effect"], "why": x["why"], "held-out MSE reduction": x["measured_mse_reduction"],
                 "p": x["p_value"], "reference MSE reduction": x["reference_mse_reduction"],
@@ -293,9 +295,11 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
               ("considered, not added", skipped), ("the gap", gap)]
     flags = data.get("fit_flags") or []
     if flags:
-        tables.append(("fits not a basis for a verdict (at a bound, or implausibly far from the CONFIG)",
-                       [{"fit": f["fit"], "quantity": f["quantity"], "fitted": f["value"], "CONFIG": f["config"],
-                         "range low": f["low"], "range high": f["high"], "why": f["why"]} for f in flags]))
+        tables.append(("fit flags: a fitted quantity at a bound of its range, or implausibly far from the CONFIG",
+                       [{"fit": f["fit"], "quantity": f["quantity"], "fitted": f"{f['value']:.4g}",
+                         "CONFIG": f"{f['config']:.4g}" + ("" if f["config_given"] else " (nominal, no CONFIG given)"),
+                         "why": f["why"], "not a basis for a verdict": f["not_a_basis_for_a_verdict"]}
+                        for f in flags]))
     if data.get("warnings"):
         tables.append(("warnings", [{"warning": w} for w in data["warnings"]]))
     rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs, tables)
