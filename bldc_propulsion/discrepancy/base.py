@@ -104,6 +104,8 @@ class ModelKind(Protocol):
     identifies_response: bool
     #: what the holdout-less before/after figure was fitted on (for the warning)
     fitted_on: str
+    #: the warning when there are no reference recordings
+    no_reference: str
 
     def start(self, measured: Sequence[Signals], reference: Sequence[Signals], hold: Sequence[Signals],
               progress: Progress) -> tuple[DataSet, DataSet | None, DataSet]:
