@@ -330,7 +330,7 @@ class FitFlag:
                 f"{'CONFIG' if self.stated else 'nominal (no CONFIG given)'} {self.config:.4g} ({self.why})")
 
     def consequence(self) -> str:
-        return ("the fit is not a basis for a verdict" if self.blocks else
+        return ("the fit is not a basis for a verdict on it" if self.blocks else
                 "another motor or propeller than the nominal bench, or the constant stands in for a missing "
                 "effect: give --physics a CONFIG of the bench to have it held against the verdicts")
 

@@ -176,13 +176,13 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         round_ev: dict[str, Evidence] = {}
         best: str | None = None
         for name in names:
-            sc_ = scores[name]
-            m, own, r = sc_.measured, sc_.measured_alone, sc_.reference
+            feature, m, own, r = scores[name].feature, scores[name].measured, scores[name].measured_alone, \
+                scores[name].reference
             verdict = classify(m, r, opts.alpha, opts.min_effect)
             if verdict == "new" and not (own.p_value < opts.alpha and own.fraction >= opts.min_effect):
                 verdict = "not significant"
-            ev = round_ev[name] = Evidence(name, verdict, m, own, r, sc_.feature,
-                                           sentence(name, sc_.feature, m, r, verdict, kind.noun), kind.noun)
+            ev = round_ev[name] = Evidence(name, verdict, m, own, r, feature,
+                                           sentence(name, feature, m, r, verdict, kind.noun), kind.noun)
             progress(f"  {name:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
                      + (f" alone {100 * own.fraction:6.1f} % (p {own.p_value:.2g})" if own is not m else "")
                      + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
@@ -215,9 +215,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
             judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
         ev.acceptance = judged
         ev.refit(trial.parameters, trial.feature, trial.value)
-        rounds[-1] = dataclasses.replace(rounds[-1], proposed=name, parameters=trial.parameters,
-                                         holdout_rmse=rmse(trial.hold.residuals), acceptance=judged,
-                                         extra=trial.extra)
+        rounds[-1] = Round(round_ev, name, trial.parameters, rmse(trial.hold.residuals), judged, extra=trial.extra)
         progress(f"step 5: {judged.describe()}")
         if not judged.accepted:
             # the best candidate does not help data it was not fitted on: weaker ones will not either
