@@ -16,7 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from ..training.dataset import Signals
+from ..recordings import Signals
 from . import acceptance as acc
 from . import scoring as sc
 

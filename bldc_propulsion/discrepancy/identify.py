@@ -24,7 +24,7 @@ import numpy as np
 
 from .. import contract as c
 from ..core import effect_features as ef
-from ..training.dataset import Signals
+from ..recordings import Signals
 
 # --- the dynamic family: which of lag, dead time, spin-down changed ---------------------------------
 #: Grids of the direct identification of the rotor's response (s).

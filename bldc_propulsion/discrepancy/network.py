@@ -28,7 +28,7 @@ import numpy as np
 from .. import contract as c
 from ..core import effect_features as ef
 from ..errors import BadInputError
-from ..training.dataset import Signals
+from ..recordings import Signals
 from ..training.evaluate import predict_speed
 from ..training.train import features_of, train_model
 from . import acceptance as acc

@@ -38,7 +38,7 @@ import numpy as np
 
 from .. import contract as c
 from ..errors import BadInputError
-from ..training.dataset import Signals
+from ..recordings import Signals
 from . import acceptance as acc
 from . import identify as idf
 from . import residuals as rs
