@@ -1,5 +1,5 @@
 """`bldc-propulsion discrepancy`: arguments, loading, and the summary for people and scripts
-(the workflow itself is discrepancy/workflow.py and physics_workflow.py)."""
+(the workflow itself is discrepancy/workflow.py, one loop for both model kinds)."""
 
 from __future__ import annotations
 
@@ -167,9 +167,9 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
-    """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
+    """``--physics [CONFIG]``: the bench physics as the model (see discrepancy/physics_kind.py)."""
     from ..discrepancy.physics import load_config, save_config
-    from ..discrepancy.physics_workflow import run_physics_workflow
+    from ..discrepancy.workflow import run_physics_workflow
 
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
         if value is not None:
