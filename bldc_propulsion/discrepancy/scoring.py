@@ -43,8 +43,9 @@ def make_blocks(durations: Sequence[float], what: str) -> list[int]:
     n_total = int(min(MAX_BLOCKS, np.floor(total / MIN_BLOCK_S)))
     if n_total < MIN_BLOCKS:
         raise BadInputError(
-            f"{what} recordings too short to hold out time blocks: {total:.1f} s in total, need at "
-            f"least {MIN_BLOCKS * MIN_BLOCK_S:.0f} s ({MIN_BLOCKS} blocks of {MIN_BLOCK_S:g} s)"
+            f"{what} recordings too short to hold out time blocks: {total:.2f} s usable in total "
+            f"(the time all signals cover), need at least {MIN_BLOCKS * MIN_BLOCK_S:.0f} s "
+            f"({MIN_BLOCKS} blocks of {MIN_BLOCK_S:g} s)"
         )
     length = total / n_total
     return [max(1, int(round(d / length))) if d >= MIN_BLOCK_S else 0 for d in durations]
