@@ -349,6 +349,11 @@ class Supply:
         return cls(float(v_ref), s, rs, gain)
 
 
+def held(sample_t: np.ndarray, sample_v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The latest sample at or before each time ``t`` (the first sample before it)."""
+    return sample_v[np.maximum(np.searchsorted(sample_t, t, side="right") - 1, 0)]
+
+
 def motor_response(
     params: PlantParams,
     effects: Mapping[str, float],
@@ -357,15 +362,17 @@ def motor_response(
     t_out: np.ndarray,
     v_ref: float,
     supply_tau_s: float = 0.0,
+    hold_supply: bool = False,
 ) -> np.ndarray:
     """Rotor speed (rad/s) at the times ``t_out``, driven by a recording's command events
     (t, level) and a measured supply voltage (t, V): the batch path of the physics model.
 
     The rotor starts at rest at the first command (or ``t_out[0]`` if earlier), steps of
-    ``params.sim_step_s``; the supply is linearly interpolated onto the steps (held before the
-    first and after the last sample); the speed is linearly interpolated onto ``t_out``.
-    ``v_ref`` and ``supply_tau_s``: see :class:`Supply`. ``core.plant_stream.PlantStream`` gives
-    the same numbers sample by sample.
+    ``params.sim_step_s``; the speed is linearly interpolated onto ``t_out``. The supply is
+    linearly interpolated onto the steps (held before the first and after the last sample), or
+    with ``hold_supply`` held from the latest sample at or before each step: what a stream knows
+    then, so ``core.plant_stream.PlantStream`` gives the same numbers sample by sample.
+    ``v_ref`` and ``supply_tau_s``: see :class:`Supply`.
     """
     eff = resolve_effects(effects)
     p = check_plant(params)
@@ -377,7 +384,8 @@ def motor_response(
     step_t = t0 + np.arange(n) * dt
     sup_t, sup_v = (np.asarray(a, dtype=float) for a in supply)
     sp = Supply.of(p, eff, v_ref, float(supply_tau_s))
-    source = (sp.v_ref + sp.strength * (np.interp(step_t, sup_t, sup_v) - sp.v_ref)).tolist()
+    volts = held(sup_t, sup_v, step_t) if hold_supply else np.interp(step_t, sup_t, sup_v)
+    source = (sp.v_ref + sp.strength * (volts - sp.v_ref)).tolist()
     duty = esc_duty(p, eff, cmd_t, cmd, step_t).tolist()
     step = make_step(p, eff, sp.source_resistance_ohm)
     rs, a_lp = sp.source_resistance_ohm, sp.lowpass_gain
