@@ -23,7 +23,8 @@ from bldc_propulsion.core.battery_filter import BatteryFilter  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
 from bldc_propulsion.core.plant_stream import PlantStream  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerDecoder  # noqa: E402
-from bldc_propulsion.model import NetworkModel  # noqa: E402
+from bldc_propulsion.contract import EFFECTS, INPUT_PHYSICS_SPEED  # noqa: E402
+from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel  # noqa: E402
 from bldc_propulsion.sim import BenchParams, simulate  # noqa: E402
 
 
@@ -67,7 +68,12 @@ def bench_estimator() -> None:
     rng = np.random.default_rng(0)
     net = NetworkModel(("battery_voltage", "pwm", "pwm_filtered"), [9.5, 0, 0], [12.6, 1, 1], 0.0, 650.0,
                        rng.normal(size=(25, 3)), rng.normal(size=25), rng.normal(size=25) / 25, 0.0)
-    for label, model in (("3-25-1 network", net), ("physics fallback", fallback_model())):
+    plant = PlantModel(BenchParams(sim_step_s=0.005), dict.fromkeys(EFFECTS, 1.0), 12.0)
+    residual = NetworkModel((INPUT_PHYSICS_SPEED, "pwm", "pwm_filtered"), [0, 0, 0], [650, 1, 1], -50.0, 50.0,
+                            rng.normal(size=(25, 3)), rng.normal(size=25), rng.normal(size=25) / 25, 0.0)
+    for label, model in (("3-25-1 network", net), ("physics fallback", fallback_model()),
+                         ("physics model, 5 ms steps", plant),
+                         ("hybrid: physics + 3-25-1", HybridModel(plant, residual))):
         n = 20000
 
         def run():

@@ -19,6 +19,7 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 | ``physics_names``, ``physics_values`` | (m,) unicode, (m,) float64 | physics, hybrid | every ``plant.PlantParams`` constant by name (SI) |
 | ``effect_names``, ``effect_strengths`` | (e,) unicode, (e,) float64 | physics, hybrid | every contract effect's strength (0 off, 1 nominal) |
 | ``supply_v`` | () float64 | physics, hybrid | the stiff supply (V) that battery_voltage strength 0 gives |
+| ``supply_tau_s`` | () float64 | physics, hybrid | the filter the voltage input comes through (s; 0: the terminal's) |
 
 Files are read with ``allow_pickle=False`` (a model file cannot run code) and validated
 completely; every problem is a ``ModelError("<path>: <field>: <what is wrong>")``.
@@ -45,7 +46,7 @@ READABLE_VERSIONS = (1, 2)
 NETWORK, PHYSICS, HYBRID = "network", "physics", "hybrid"
 KINDS = (NETWORK, PHYSICS, HYBRID)
 #: The input of a hybrid's network that is the physics part's predicted speed (rad/s).
-PHYSICS_SPEED = "physics_speed"
+PHYSICS_SPEED = c.INPUT_PHYSICS_SPEED
 #: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough, for when nothing is fitted
 NOMINAL_THRUST_COEFFICIENT = 2.8e-5
 
@@ -53,7 +54,8 @@ _FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s")
 _COMMON_KEYS = ("format_version", "kind", "thrust_coefficient", "metadata_json")
 _NETWORK_KEYS = ("input_names", "input_min", "input_max", "output_min", "output_max",
                  "W1", "b1", "W2", "b2", "pwm_tau_s")
-_PHYSICS_KEYS = ("physics_names", "physics_values", "effect_names", "effect_strengths", "supply_v")
+_PHYSICS_KEYS = ("physics_names", "physics_values", "effect_names", "effect_strengths", "supply_v",
+                 "supply_tau_s")
 #: The arrays of a file of each kind.
 KEYS: dict[str, tuple[str, ...]] = {
     NETWORK: _COMMON_KEYS + _NETWORK_KEYS,
@@ -157,11 +159,19 @@ class PlantModel:
     supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
     thrust_coefficient: float | None = None  #: b (N s^2/rad^2); None: the propeller's CT gives it
     metadata: dict[str, Any] = field(default_factory=dict)
+    #: time constant (s) of the filter the voltage input comes through: the battery filter's
+    #: (None), 0 for a supply measured directly (plant.Supply)
+    supply_tau_s: float | None = None
 
     def __post_init__(self) -> None:
         self.params = PlantParams(**{n: float(getattr(self.params, n)) for n in PLANT_FIELDS})
         self.effects = {str(k): float(v) for k, v in dict(self.effects).items()}
         self.supply_v = float(self.supply_v)
+        if self.supply_tau_s is None:
+            from .core.battery_filter import BatteryFilterConfig  # late: core imports this module
+
+            self.supply_tau_s = BatteryFilterConfig().tau_s
+        self.supply_tau_s = float(self.supply_tau_s)
         if self.thrust_coefficient is None:
             self.thrust_coefficient = self.params.thrust_coefficient
         self.thrust_coefficient = float(self.thrust_coefficient)
@@ -180,6 +190,7 @@ class PlantModel:
             "effect_names": np.array(list(self.effects), dtype=np.str_),
             "effect_strengths": np.array(list(self.effects.values()), dtype=np.float64),
             "supply_v": np.array(self.supply_v, dtype=np.float64),
+            "supply_tau_s": np.array(self.supply_tau_s, dtype=np.float64),
         }
 
     @classmethod
@@ -187,7 +198,30 @@ class PlantModel:
         """From validated arrays."""
         return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))),
                    dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]))),
-                   float(a["supply_v"]), thrust_coefficient, metadata)
+                   float(a["supply_v"]), thrust_coefficient, metadata, float(a["supply_tau_s"]))
+
+    # --- what the estimator and evaluate run (core/estimator.SpeedModel): one input, the speed
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return (PHYSICS_SPEED,)
+
+    @property
+    def input_min(self) -> np.ndarray:
+        return np.array([-np.inf])  # nothing to clip: the physics holds everywhere it is valid
+
+    @property
+    def input_max(self) -> np.ndarray:
+        return np.array([np.inf])
+
+    def feature_params(self) -> dict[str, dict[str, float]]:
+        """The ``physics_speed`` input's parameters: this model (core/plant_stream.STREAM_DEFAULTS)."""
+        from .core.plant_stream import stream_params  # late: core imports this module
+
+        return {PHYSICS_SPEED: stream_params(self.params, self.effects, self.supply_v, self.supply_tau_s)}  # type: ignore[arg-type]
+
+    def forward(self, X_raw: np.ndarray) -> np.ndarray:
+        """Speed (rad/s): the ``physics_speed`` input itself."""
+        return np.asarray(X_raw, dtype=float)[..., 0]
 
 
 @dataclass
@@ -215,6 +249,35 @@ class HybridModel:
 
     def _arrays(self) -> dict[str, np.ndarray]:
         return {**self.network._arrays(), **self.plant._physics_arrays(), "kind": np.array(HYBRID, dtype=np.str_)}
+
+    # --- what the estimator and evaluate run: the network's inputs; physics_speed is not clipped
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return self.network.input_names
+
+    @property
+    def physics_index(self) -> int:
+        return self.network.input_names.index(PHYSICS_SPEED)
+
+    @property
+    def input_min(self) -> np.ndarray:
+        out = self.network.input_min.copy()
+        out[self.physics_index] = -np.inf
+        return out
+
+    @property
+    def input_max(self) -> np.ndarray:
+        out = self.network.input_max.copy()
+        out[self.physics_index] = np.inf
+        return out
+
+    def feature_params(self) -> dict[str, dict[str, float]]:
+        return {**self.network.feature_params(), **self.plant.feature_params()}
+
+    def forward(self, X_raw: np.ndarray) -> np.ndarray:
+        """Speed (rad/s): the physics speed plus the network's correction."""
+        X = np.asarray(X_raw, dtype=float)
+        return X[..., self.physics_index] + self.network.forward(X)
 
 
 #: A model of any kind, as ``load_model`` returns it.
@@ -378,9 +441,11 @@ def _check_physics(a: Mapping[str, np.ndarray], fail: Fail) -> None:
         why = strength_problem(name, value)
         if why:
             fail(f"effect_strengths: {name} {why}")
-    _check_floats(a, {"supply_v": ()}, fail)
+    _check_floats(a, {"supply_v": (), "supply_tau_s": ()}, fail)
     if not float(a["supply_v"]) > 0:
         fail(f"supply_v {float(a['supply_v'])!r} must be a voltage > 0")
+    if not float(a["supply_tau_s"]) >= 0:
+        fail(f"supply_tau_s {float(a['supply_tau_s'])!r} must be >= 0")
 
 
 #: Share of the time outside the training range from which commands warn (below: a blip, e.g.
@@ -423,9 +488,9 @@ def range_report(model: NetworkModel, X: np.ndarray, where: str) -> RangeReport:
                        {n: float(f) for n, f in zip(model.input_names, per) if f > 0})
 
 
-def load_model(path: str | os.PathLike[str], kinds: Collection[str] = (NETWORK,)) -> Model:
+def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> Model:
     """Read and validate a model file (never unpickles anything); ModelError unless its kind is
-    one of ``kinds`` (the uses that run only networks keep the default)."""
+    one of ``kinds`` (the uses that only take networks say so)."""
     p = Path(path)
     if not p.exists():
         raise ModelError(f"{p}: no such model file")

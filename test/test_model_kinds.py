@@ -13,7 +13,7 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.errors import ModelError
 from bldc_propulsion.model import (
-    HYBRID, KINDS, PHYSICS, PHYSICS_SPEED, HybridModel, NetworkModel, PlantModel, load_model, save_model)
+    HYBRID, KINDS, NETWORK, PHYSICS, PHYSICS_SPEED, HybridModel, NetworkModel, PlantModel, load_model, save_model)
 from bldc_propulsion.plant import PLANT_FIELDS, PlantParams
 from bldc_propulsion.sim import BenchParams
 
@@ -101,7 +101,7 @@ def test_a_use_that_runs_networks_refuses_other_kinds(tmp_path):
     p = tmp_path / "phys.npz"
     save_model(plant_model(), p)
     with pytest.raises(ModelError, match=rf"^{p}: kind physics: a network model is needed here$"):
-        load_model(p)
+        load_model(p, kinds=(NETWORK,))
 
 
 def _physics_arrays(tmp_path: Path) -> dict[str, np.ndarray]:
@@ -139,6 +139,7 @@ def _with_value(a: dict[str, np.ndarray], key: str, name: str, value: float) -> 
     (lambda a: {**a, "effect_names": a["effect_names"][:-1], "effect_strengths": a["effect_strengths"][:-1]},
      "effect_names: missing motor_heating"),
     (lambda a: {**a, "supply_v": np.array(0.0)}, "supply_v 0.0 must be a voltage > 0"),
+    (lambda a: {**a, "supply_tau_s": np.array(-1.0)}, "supply_tau_s -1.0 must be >= 0"),
     (lambda a: {k: v for k, v in a.items() if k != "supply_v"}, "missing array(s) supply_v"),
 ])
 def test_bad_physics_file_is_one_line_naming_file_and_field(tmp_path, change, message):
@@ -174,14 +175,14 @@ def test_constructor_refuses_unphysical_constants():
         PlantModel(PlantParams(), {"rotor_lag": 1.0}, 12.0)
 
 
-def test_cli_refuses_a_physics_model_where_a_network_runs(tmp_path):
+def test_cli_discrepancy_model_refuses_a_physics_model(tmp_path):
     from test_discrepancy import cli
 
     p = tmp_path / "phys.npz"
     save_model(plant_model(), p)
-    proc = cli("evaluate", "--model", str(p), str(tmp_path / "nonexistent_bag"))
+    proc = cli("discrepancy", "--model", str(p), "--measured", str(tmp_path / "nonexistent_bag"))
     assert proc.returncode == 2
-    assert proc.stderr.strip().count("\n") == 0 and str(p) in proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and f"{p}: kind physics: a network model is needed" in proc.stderr
 
 
 def test_discrepancy_physics_writes_and_reads_a_model_file(tmp_path):

@@ -124,7 +124,7 @@ def _has_namespace(path: str, namespace: str | None) -> bool:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..model import load_model, save_model
+    from ..model import NETWORK, load_model, save_model
 
     check_effect_names(args.effects)
     if args.max_effects < 1:
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> CommandResult:
                           args.model, args.physics])
     if args.physics is not None:
         return run_physics(args)
-    model = load_model(args.model)
+    model = load_model(args.model, kinds=(NETWORK,))  # the workflow retrains a network's inputs
     warnings: list[str] = []
     if args.reference:
         ref_paths = list(args.reference)
@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
     """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
-    from ..discrepancy.physics import save_config
+    from ..discrepancy.physics import save_config, supply_tau_s
     from ..discrepancy.physics_workflow import run_physics_workflow
     from ..model import PlantModel, save_model
 
@@ -194,8 +194,8 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
                       "measured": [str(p) for p in args.measured]}
         if _is_npz(args.output):
             m = result.model
-            save_model(PlantModel(m.params, m.effects, m.supply_v, metadata={"discrepancy": provenance}),
-                       args.output, force=args.force)
+            save_model(PlantModel(m.params, m.effects, m.supply_v, metadata={"discrepancy": provenance},
+                                  supply_tau_s=supply_tau_s(measured[0])), args.output, force=args.force)
         else:
             save_config(result.model, args.output, args.force, provenance)
 

@@ -28,11 +28,52 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from ..contract import PWM_STOP
+from ..contract import EFFECTS, PWM_STOP
 from ..plant import (
-    FRAME_TOLERANCE_S, PlantParams, Supply, check_plant, dead_time_s, make_step, resolve_effects,
-    start_level, throttle,
+    FRAME_TOLERANCE_S, PLANT_FIELDS, PlantParams, Supply, check_plant, dead_time_s, make_step,
+    plant_problem, resolve_effects, start_level, strength_problem, throttle,
 )
+from .battery_filter import BatteryFilterConfig
+
+#: The parameters of a stream as one flat {name: float} (a model input's parameters,
+#: core/features.py): every plant constant, every effect's strength, the stiff supply (V) and the
+#: voltage input's filter time constant (s; the battery filter's by default).
+STREAM_DEFAULTS: dict[str, float] = {
+    **{n: float(getattr(PlantParams(), n)) for n in PLANT_FIELDS},
+    **{n: 1.0 for n in EFFECTS},
+    "supply_v": 12.0,
+    "supply_tau_s": BatteryFilterConfig().tau_s,
+}
+
+
+def stream_params(params: PlantParams, effects: Mapping[str, float], supply_v: float,
+                  supply_tau_s: float) -> dict[str, float]:
+    """A stream's parameters as one flat dict (see STREAM_DEFAULTS)."""
+    return {**{n: float(getattr(params, n)) for n in PLANT_FIELDS}, **{n: float(effects[n]) for n in EFFECTS},
+            "supply_v": float(supply_v), "supply_tau_s": float(supply_tau_s)}
+
+
+def split_params(d: Mapping[str, float]) -> tuple[PlantParams, dict[str, float], float, float]:
+    """Flat parameters -> (plant constants, effect strengths, supply_v, supply_tau_s)."""
+    return (PlantParams(**{n: d[n] for n in PLANT_FIELDS}), {n: d[n] for n in EFFECTS},
+            d["supply_v"], d["supply_tau_s"])
+
+
+def stream_problem(d: Mapping[str, float]) -> str | None:
+    """Why the flat parameters ``d`` (complete, as STREAM_DEFAULTS) make no stream, or None."""
+    bad = plant_problem(PlantParams(**{n: d[n] for n in PLANT_FIELDS}))
+    if bad:
+        return f"{bad[0]} {bad[1]}"
+    for n in EFFECTS:
+        why = strength_problem(n, d[n])
+        if why:
+            return f"{n} {why}"
+    if not d["supply_v"] > 0.0:
+        return f"supply_v {d['supply_v']!r} must be a voltage > 0"
+    if not d["supply_tau_s"] >= 0.0:
+        return f"supply_tau_s {d['supply_tau_s']!r} must be >= 0"
+    return None
+
 
 #: A prediction at t commits every step before t - LATE_S: inputs later than that are late.
 LATE_S = 0.5
@@ -46,6 +87,11 @@ class PlantStream:
     ``v_ref``, ``supply_tau_s``: how the voltage drives the plant (``plant.Supply``).
     The caller checks the samples (finite, plausible, time not going backwards per signal).
     """
+
+    @classmethod
+    def of(cls, d: Mapping[str, float]) -> "PlantStream":
+        """From flat, checked parameters (``stream_params``)."""
+        return cls(*split_params(d))
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], v_ref: float,
                  supply_tau_s: float) -> None:
@@ -93,8 +139,8 @@ class PlantStream:
         t, level = float(t), float(level)  # numpy scalars would make every step 3x slower
         if self._t0 is None:
             self._t0 = t
-        elif t <= self._committed_t() - self._delay + FRAME_TOLERANCE_S:
-            self.late_inputs += 1
+        elif self._k and t <= self._t0 + (self._k - 1) * self._dt - self._delay + FRAME_TOLERANCE_S:
+            self.late_inputs += 1  # a committed step should have seen it
         self._pt.append(t)
         self._pv.append(level)
         self._advance(t)
@@ -175,10 +221,12 @@ class PlantStream:
             ts = t0 + k * dt  # type: ignore[operator]
             x = ts - lead + FRAME_TOLERANCE_S
             if pi < n_p and pt[pi] <= x:
+                held = level
                 while pi < n_p and pt[pi] <= x:
                     level = pv[pi]
                     pi += 1
-                duty = throttle(level, threshold, exponent)
+                if level != held:  # a 50 Hz command repeats its level most of the time
+                    duty = throttle(level, threshold, exponent)
             while vi + 1 < n_v and vt[vi + 1] <= ts:
                 vi += 1
             prev = last
