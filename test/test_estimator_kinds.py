@@ -165,3 +165,23 @@ def test_cli_train_kind_physics_refuses_network_options(flag, bench_bags, tmp_pa
                *flag, "-o", str(tmp_path / "m.npz"))
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "--kind network" in proc.stderr
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_cli_train_kind_hybrid_starts_from_the_physics(bench_bags, tmp_path):
+    """The hybrid's network starts at output 0 and is early-stopped on validation: it can only
+    keep a correction that does not make the physics worse there."""
+    out = tmp_path / "hyb.npz"
+    proc = cli("train", *bench_bags["train"], "--validation", *bench_bags["validation"], "--kind", "hybrid",
+               "--hidden", "6", "--restarts", "2", "-o", str(out), "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["kind"] == "hybrid" and data["inputs"][0] == c.INPUT_PHYSICS_SPEED
+    from bldc_propulsion.model import HYBRID, load_model
+
+    m = load_model(out, kinds=(HYBRID,))
+    physics_val = m.metadata["physics"]["candidates"][0]["validation_rmse_rad_s"]
+    assert data["validation_rmse_rad_s"] <= physics_val + 0.05
+    assert c.INPUT_PHYSICS_SPEED not in m.network.metadata["feature_params"]
+    assert m.thrust_coefficient == pytest.approx(m.plant.thrust_coefficient)
+    sig = load_signals(bench_bags["test"][0])
+    assert np.sqrt(np.nanmean((predict_speed(m, sig) - truth_on(sig, bench_bags["test"][0])) ** 2)) < 10.0

@@ -4,6 +4,7 @@ summary and its report (the paper's Figs. 1, 5-6, 12, 13)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import numpy as np
 from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import save_model
+from ..model import HybridModel, save_model
 from ..training.dataset import Signals
 from ..training.evaluate import predict_speed
 from ..training.train import load_all, train_model
@@ -59,10 +60,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--validation", nargs="+", required=True, metavar="BAG",
                    help="validation recordings (separate experiments; they stop the training)")
     p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
-    p.add_argument("--kind", choices=("network", "physics"), default="network",
+    p.add_argument("--kind", choices=("network", "physics", "hybrid"), default="network",
                    help="network: the paper's n-H-1 network (default); physics: the bench's ESC, motor, "
                         "rotor and thermal physics, Kv, CP and the effects' strengths fitted by least "
-                        "squares, the ESC's braking chosen on the validation recordings")
+                        "squares, the ESC's braking chosen on the validation recordings; hybrid: that "
+                        "physics plus a network (inputs physics_speed and --inputs) trained on what it "
+                        "gets wrong")
     p.add_argument("--inputs", type=_inputs,
                    help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
     p.add_argument("--hidden", type=HIDDEN, help="hidden neurons, 1..200 (default 25)")
@@ -117,6 +120,17 @@ def run(args: argparse.Namespace) -> CommandResult:
 
     if args.kind == "physics":
         return _run_physics(args, out, train, validation)
+    plant, inputs, params = None, list(args.inputs), None
+    if args.kind == "hybrid":  # the physics first; the network learns what it gets wrong
+        from ..training.fit_physics import residual_signals, train_physics
+
+        physics = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
+        plant = physics.model
+        progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
+                 f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
+        inputs, params = [c.INPUT_PHYSICS_SPEED, *inputs], plant.feature_params()
+        signals = (train, validation)
+        train, validation = residual_signals(plant, train), residual_signals(plant, validation)
     run = [0]
 
     def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
@@ -126,25 +140,39 @@ def run(args: argparse.Namespace) -> CommandResult:
         progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
 
     outcome = train_model(
-        train, validation, inputs=args.inputs, hidden=args.hidden, seed=args.seed,
+        train, validation, inputs=inputs, hidden=args.hidden, seed=args.seed,
         thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
-        patience=args.patience, progress=report_epoch, restarts=args.restarts,
+        patience=args.patience, progress=report_epoch, restarts=args.restarts, feature_params=params,
+        start_at_zero=plant is not None,
     )
     meta = outcome.model.metadata
+    if plant is not None:  # the physics part's parameters live in its own arrays; b was fitted
+        meta["feature_params"].pop(c.INPUT_PHYSICS_SPEED, None)  # on the speed, not its residual
+        meta["physics"] = plant.metadata
+        meta["thrust_fit"] = plant.metadata["thrust_fit"]
+        outcome.model.thrust_coefficient = plant.thrust_coefficient
+        outcome = dataclasses.replace(outcome, model=HybridModel(plant, outcome.model), train=signals[0],
+                                      validation=signals[1], thrust=physics.thrust)
     runs = len(meta["restarts"])
-    if meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
+    warnings = []
+    if meta["best_epoch"] == 0 and plant is not None:  # its initial weights: the physics alone
+        warnings.append("the network did not improve on the physics on the validation recordings: "
+                        "the hybrid's correction is 0 (the physics model alone)")
+    elif meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
         raise BadInputError(
             f"-o {out}: not written: no training run improved on its initial weights (validation "
             f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
             "validation recordings are the same bench and signals as the training ones "
             "(`bldc-propulsion info`), or give more --restarts")
     stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
-    warnings = [f"{stuck} of {runs} training runs never improved on their initial weights "
-                "(the kept run did)"] if stuck else []
+    if stuck and not warnings:
+        warnings.append(f"{stuck} of {runs} training runs never improved on their initial weights "
+                        "(the kept run did)")
     save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
-        "inputs": list(args.inputs),
+        "kind": args.kind,
+        "inputs": inputs,
         "hidden": args.hidden,
         "epochs": meta["epochs"],
         "best_epoch": meta["best_epoch"],
@@ -164,7 +192,8 @@ def run(args: argparse.Namespace) -> CommandResult:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     fit = outcome.thrust
     text = "\n".join([
-        f"trained {len(args.inputs)}-{args.hidden}-1 on {', '.join(args.inputs)}: "
+        ("physics fitted, then " if plant is not None else "")
+        + f"trained {len(inputs)}-{args.hidden}-1 on {', '.join(inputs)}: "
         f"{meta['epochs']} epochs, best {meta['best_epoch']} ({meta['stop_reason']})"
         + (f"; seed {meta['best_seed']} had the least validation cost of {args.restarts} runs"
            if args.restarts > 1 else ""),

@@ -101,3 +101,9 @@ def train_physics(
     return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
                           best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k != "model"}
                                                           for d in candidates])
+
+
+def residual_signals(model: PlantModel, signals: Sequence[Signals]) -> list[Signals]:
+    """The recordings with the speed replaced by what ``model`` gets wrong (measured - physics):
+    the target of a hybrid's network."""
+    return [dataclasses.replace(s, speed=s.speed - predict_speed(model, s)) for s in signals]
