@@ -24,7 +24,7 @@ from pathlib import Path
 from bldc_propulsion import contract as c
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.training.evaluate import evaluate
 from bldc_propulsion.training.train import train_model
 

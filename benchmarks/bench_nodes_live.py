@@ -4,8 +4,10 @@ A simulated recording (default 40 s of random steps) is played at 1x on wall tim
 ``bldc_propulsion.nodes.player`` into a quadrotor's nodes: the battery filter at the root and the
 same motor streams into /motor0 .. /motor3, as quadrotor.launch.py starts them. CPU = the node
 processes' CPU time (from /proc) over the wall time of the playback, in % of one core. Lost =
-input messages published minus those the nodes counted (from their diagnostics). Prints figures;
-not a test.
+input messages published minus those the nodes counted (from their diagnostics). A consumer
+subscribes to each motor's predicted/thrust and rotor/speed, as a flight controller would, and
+counts what it gets; outputs nobody reads are not serialized by the nodes. Prints figures; not
+a test.
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...]
 """
@@ -30,6 +32,7 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from bldc_propulsion import contract as c  # noqa: E402
@@ -75,17 +78,28 @@ def one_motor() -> list[subprocess.Popen]:
             ("battery_filter_node", "tachometer_node", "thrust_estimator_node")]
 
 
+#: What a flight controller reads of each motor (the bench subscribes to these, so that the
+#: nodes publish them; outputs nobody reads are not serialized, see nodes.common.ScalarOutput).
+CONSUMED = (c.TOPIC_PREDICTED_THRUST, c.TOPIC_ROTOR_SPEED)
+
+
 class Diagnostics:
-    """The latest status values of every node, by status name."""
+    """The latest status values of every node, by status name; counts the consumed outputs."""
 
     def __init__(self, namespaces: list[str]) -> None:
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("bench_diagnostics", context=self.context)
         self.latest: dict[str, dict[str, str]] = {}
+        self.consumed = {out: 0 for out in CONSUMED}
         for ns in namespaces:
             topic = f"/{ns}/diagnostics" if ns else "/diagnostics"
             self.node.create_subscription(DiagnosticArray, topic, self.on_diag, 100)
+            for out in CONSUMED:
+                self.node.create_subscription(
+                    Float64, f"/{ns}/{out}" if ns else f"/{out}",
+                    lambda _msg, out=out: self.consumed.__setitem__(out, self.consumed[out] + 1),
+                    100)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.running = True
@@ -147,6 +161,7 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
     handled = sum(received.values()) + n * counts["battery/voltage"]
     cpu = sum(b - a for a, b in zip(cpu0, cpu1))
     return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),
+            "consumed": dict(diag.consumed),
             "us_per_input_message": 1e6 * cpu / max(handled, 1),
             "lost": lost, "received": received}
 
@@ -155,7 +170,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--modes", nargs="*", default=[
-        "one process (mixed)", "one process (events)", "separate processes"])
+        "one process (events)", "one process (single)", "separate processes"])
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
@@ -174,7 +189,7 @@ def main() -> int:
             r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp)
             print(f"quadrotor, {mode:<22} {r['processes']} process(es): CPU "
                   f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
-                  f"per input message, lost {r['lost']}")
+                  f"per input message, lost {r['lost']}, consumed {r['consumed']}")
         r = run(bag, one_motor(), [""], 5.0, counts, tmp)
         print(f"one motor at 5x: CPU {r['cpu_core_pct']:.1f} % of one core, lost {r['lost']}")
         t = time.perf_counter()

@@ -51,8 +51,17 @@ def is_recording(path: str | os.PathLike[str]) -> bool:
 #: Topics one vehicle shares between its motors (one pack, one battery filter): with a
 #: namespace they are read from it when it has them, else from the root (interfaces.md).
 SHARED_TOPICS: tuple[str, ...] = (c.TOPIC_BATTERY_ADC, c.TOPIC_BATTERY_VOLTAGE)
+#: A motor's own topics: a vehicle's recording has them under the motors' namespaces only.
+MOTOR_TOPICS: tuple[str, ...] = (c.TOPIC_PWM, c.TOPIC_TACH_ADC)
 #: Most topic names a missing-topic message lists.
 _LIST_TOPICS = 12
+
+
+def vehicle_topic(topic: str, namespace: str | None) -> str:
+    """Where a quadrotor records or publishes ``topic`` of the motor ``namespace``
+    (interfaces.md, "A quadrotor"): the pack's topics at the root, the rest under the motor."""
+    name = c.bare(topic)
+    return name if namespace is None or name in SHARED_TOPICS else f"{namespace}/{name}"
 
 
 def check_namespace(namespace: str | None) -> str | None:
@@ -147,6 +156,14 @@ class Recording:
         """Namespaces under which the recording has ``topic`` (e.g. ['motor0', 'motor1'])."""
         name = c.bare(topic)
         return sorted(t[: -len(name) - 1] for t in self._conns if t.endswith("/" + name))
+
+    def motors_elsewhere(self) -> list[str]:
+        """The namespaces that hold the motor topics when this recording's level (the root, or
+        the namespace given) has none of them: a vehicle's recording read without the right
+        --namespace; [] otherwise."""
+        if any(self.has(t) for t in MOTOR_TOPICS):
+            return []
+        return sorted({ns for t in MOTOR_TOPICS for ns in self.namespaces_with(t)} - {self.namespace or ""})
 
     def missing_error(self, topics: Sequence[str]) -> BagError:
         """BagError for contract topics of which none is recorded: names them (as looked up),

@@ -26,7 +26,7 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 
 def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
-    from .training.dataset import load_signals, read_speed, read_voltage
+    from .recordings import load_signals, read_speed, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()
@@ -71,18 +71,23 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
             for key, read in (("pwm", pwm), ("battery", voltage), ("tachometer", tach), ("speed", speed)):
                 attempt(key, read)
         replay_inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
+        out["motors_elsewhere"] = motors = rec.motors_elsewhere()
     usable: dict[str, Any] = {}
     usable["replay"] = True if replay_inputs else "none of /pwm, /battery/adc, /tachometer/adc is recorded"
-    try:
-        sig = load_signals(path, namespace=namespace)
-    except BadInputError as exc:
-        reason = one_line(exc).removeprefix(f"{path}: ")
-        usable.update(train=reason, evaluate=reason, discrepancy=reason)
+    if motors:  # a vehicle's recording read at the root: every command needs --namespace
+        reason = f"the motor topics are under {', '.join('/' + n for n in motors)}: give --namespace {motors[0]}"
+        usable.update(train=reason, evaluate=reason, discrepancy=reason, replay=reason)
     else:
-        usable.update(evaluate=True, discrepancy=True)
-        speed_ok = np.isfinite(sig.speed)
-        usable["train"] = (True if np.ptp(sig.pwm) > 0 and speed_ok.any() and np.ptp(sig.speed[speed_ok]) > 0
-                           else "the PWM or the measured speed does not vary")
+        try:
+            sig = load_signals(path, namespace=namespace)
+        except BadInputError as exc:
+            reason = one_line(exc).removeprefix(f"{path}: ")
+            usable.update(train=reason, evaluate=reason, discrepancy=reason)
+        else:
+            usable.update(evaluate=True, discrepancy=True)
+            speed_ok = np.isfinite(sig.speed)
+            usable["train"] = (True if np.ptp(sig.pwm) > 0 and speed_ok.any() and np.ptp(sig.speed[speed_ok]) > 0
+                               else "the PWM or the measured speed does not vary")
     out["usable_for"] = [k for k in ("train", "evaluate", "discrepancy", "replay") if usable[k] is True]
     out["not_usable"] = {k: v for k, v in usable.items() if v is not True}
     out["problems"] = problems
@@ -120,7 +125,8 @@ def summary_text(info: dict[str, Any]) -> str:
         lines.append(f"  {t['topic']:<{width}}  {t['type']:<34} {t['count']:>8} msgs  "
                      f"{_num(t['rate_hz'], '8.1f')} Hz  {gaps}")
     if info["namespaces"] and not info["namespace"]:
-        lines.append(f"Motors:           {', '.join('/' + n for n in info['namespaces'])} (use --namespace)")
+        lines.append(f"Motors:           {', '.join('/' + n for n in info['namespaces'])} "
+                     f"(read one with --namespace {info['namespaces'][0]})")
     p, v, tach, sp = info["pwm"], info["battery_voltage_v"], info["tachometer"], info["speed_rad_s"]
     if p:
         lines.append(f"PWM:              {p['min']:.4f} .. {p['max']:.4f}")

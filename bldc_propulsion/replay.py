@@ -20,7 +20,7 @@ from typing import Any
 
 from . import contract as c
 from .atomic import RECORDING, check_output
-from .bagio import BagWriter, open_recording
+from .bagio import MOTOR_TOPICS, BagWriter, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
@@ -51,10 +51,6 @@ def replay_bag(
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
         ns = rec.namespace
-
-        def topic_out(topic: str) -> str:
-            return topic if ns is None or topic == c.TOPIC_BATTERY_VOLTAGE else f"{ns}/{topic}"
-
         inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
         if has_voltage:
@@ -65,9 +61,8 @@ def replay_bag(
                 rec.require(topic, msgtype)
         if not inputs:
             raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
-        motor = [c.TOPIC_PWM, c.TOPIC_TACH_ADC]
-        if not any(rec.has(t) for t in motor) and any(rec.namespaces_with(t) for t in motor):
-            raise rec.missing_error(motor)  # a vehicle's recording: only its battery is at the root
+        if rec.motors_elsewhere():
+            raise rec.missing_error(MOTOR_TOPICS)  # a vehicle's recording: only its battery is at the root
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         speed_out = SpeedOutput(tach)
@@ -78,9 +73,9 @@ def replay_bag(
         voltage_out = Ticker(VOLTAGE_RATE_HZ)
         next_diag: float | None = None
 
-        speed_topic, thrust_topic, voltage_topic, rotor_topic, rpm_topic = map(topic_out, (
-            c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
-            c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM))
+        speed_topic, thrust_topic, voltage_topic, rotor_topic, rpm_topic, diag_topic = (
+            vehicle_topic(t, ns) for t in (c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
+                                           c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM, c.TOPIC_DIAGNOSTICS))
 
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
 
@@ -98,7 +93,7 @@ def replay_bag(
                 while next_diag is not None and next_diag <= t:
                     tach.check_timeout(next_diag)
                     statuses = [*filt.status(), *tach.status(), *est.status()]
-                    bag.write_diagnostics(topic_out(c.TOPIC_DIAGNOSTICS), next_diag, statuses)
+                    bag.write_diagnostics(diag_topic, next_diag, statuses)
                     next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
 
             for topic, t, msg in rec.messages(inputs, tolerant=True):

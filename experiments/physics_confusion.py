@@ -40,7 +40,7 @@ def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str)
     from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
     from bldc_propulsion.discrepancy.workflow import Options
     from bldc_propulsion.sim import random_bench as rb
-    from bldc_propulsion.training.dataset import load_signals
+    from bldc_propulsion.recordings import load_signals
 
     bench = rb.draw_bench(seed) if random_bench else None
     strength = rb.draw_strength(effect, seed) if random_bench else 1.0

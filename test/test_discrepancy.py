@@ -27,7 +27,7 @@ from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.profiles import PROFILES
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.training.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]

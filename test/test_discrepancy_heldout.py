@@ -18,7 +18,7 @@ from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.errors import BadInputError
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import _bag, cli  # noqa: E402
@@ -71,7 +71,7 @@ def test_judge_needs_margin_and_significance():
     """A 0.2 % change (the README's 26.33 -> 26.28 rad/s) is not enough; a real one is."""
     rng = np.random.default_rng(1)
     t = np.arange(0.0, 30.0, 0.01)
-    from bldc_propulsion.training.dataset import Signals
+    from bldc_propulsion.recordings import Signals
 
     truth = 300.0 + 100.0 * np.sin(t)
     y = truth + rng.normal(0.0, 5.0, len(t))

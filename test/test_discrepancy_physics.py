@@ -26,7 +26,7 @@ from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import BenchParams, params_with_overrides, simulate
 from bldc_propulsion.sim.bench import motor_response
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import SCENARIOS, _bag, cli, command  # noqa: E402

@@ -20,7 +20,7 @@ from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.sim import random_bench as rb
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import _bag  # noqa: E402

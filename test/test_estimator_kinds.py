@@ -17,7 +17,7 @@ from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel, save_model
 from bldc_propulsion.sim import BenchParams, simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.dataset import Signals, load_signals
+from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 
 sys.path.insert(0, str(Path(__file__).parent))

@@ -24,7 +24,7 @@ from bldc_propulsion.bagio import BagWriter, open_recording
 from bldc_propulsion.model import save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import _streams, write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_signals
 
 from _models import good_model
 
@@ -139,7 +139,7 @@ def test_info_says_what_a_bench_recording_holds(home, tmp_path):
     text = proc.stdout
     assert "/tachometer/adc" in text and "std_msgs/msg/Float32MultiArray" in text and "100.0 Hz" in text
     assert "Tachometer:       decodes" in text and "Usable for:       train, evaluate, discrepancy, replay" in text
-    assert "Motors:           /motor0, /motor1 (use --namespace)" in text
+    assert "Motors:           /motor0, /motor1 (read one with --namespace motor0)" in text
     proc = run("info", home / "bench", "--json", cwd=tmp_path)
     info = json.loads(proc.stdout)["recordings"][0]
     topics = {t["topic"]: t for t in info["topics"]}
@@ -165,3 +165,75 @@ def test_info_finds_gaps_and_says_why_a_recording_is_not_usable(tmp_path):
     assert pwm["gaps"] == 1 and abs(pwm["max_gap_s"] - 2.02) < 0.01
     assert info["usable_for"] == ["replay"]
     assert "neither /rotor/speed nor /tachometer/adc" in info["not_usable"]["train"]
+
+
+def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
+    """`simulate --namespace motor3` writes what a quadrotor records of motor 3 (interfaces.md:
+    its topics under /motor3, /battery/adc at the root); `info` without --namespace says which
+    one to give, and train, evaluate and replay with it give exactly the numbers of the same
+    seeds recorded on the bench."""
+    bags = {(kind, ns): tmp_path / f"{kind}_{ns or 'bench'}" for kind in ("train", "val") for ns in ("motor3", None)}
+
+    def simulate(key):
+        kind, ns = key
+        seed = {"train": "71", "val": "72"}[kind]
+        return run("simulate", "--profile", "random_steps", "--duration", "6", "--seed", seed, "-o", bags[key],
+                   "--json", *(["--namespace", ns] if ns else []), cwd=tmp_path)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for proc in pool.map(simulate, bags):
+            assert proc.returncode == 0, proc.stderr
+    vehicle, bench = bags["train", "motor3"], bags["train", None]
+    with open_recording(vehicle) as v, open_recording(bench) as b:
+        assert set(v.topics()) == {t if t == c.TOPIC_BATTERY_ADC else f"motor3/{t}" for t in b.topics()}
+    with open_recording(vehicle, "motor3") as v, open_recording(bench) as b:
+        for topic in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_THRUST_MEASURED):
+            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic))), topic
+    proc = run("info", vehicle, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "--namespace motor3" in proc.stdout and "Usable for:       nothing" in proc.stdout
+    info = json.loads(run("info", vehicle, "--json", cwd=tmp_path).stdout)["recordings"][0]
+    assert info["usable_for"] == [] and info["not_usable"]["train"].endswith("give --namespace motor3")
+
+    train = ["--hidden", "3", "--restarts", "1", "--max-epochs", "5", "--json"]
+    ns = ["--namespace", "motor3"]
+    cases = {
+        "train vehicle": ["train", vehicle, "--validation", bags["val", "motor3"], "-o", tmp_path / "v.npz", *train, *ns],
+        "train bench": ["train", bench, "--validation", bags["val", None], "-o", tmp_path / "b.npz", *train],
+        "train vehicle, no namespace": ["train", vehicle, "--validation", bags["val", "motor3"],
+                                        "-o", tmp_path / "none.npz", *train],
+    }
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values())))
+    fitted = {}
+    for name in ("train vehicle", "train bench"):
+        assert procs[name].returncode == 0, procs[name].stderr
+        fitted[name] = json.loads(procs[name].stdout)
+    for key in ("epochs", "train_cost", "validation_cost"):
+        assert fitted["train vehicle"][key] == fitted["train bench"][key], key
+    mv, mb = np.load(tmp_path / "v.npz"), np.load(tmp_path / "b.npz")
+    for key in ("W1", "b1", "W2", "b2", "input_min", "input_max", "output_min", "output_max"):
+        assert np.array_equal(mv[key], mb[key]), key
+    bad = procs["train vehicle, no namespace"]
+    assert bad.returncode == 2 and "give --namespace motor3" in bad.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "none.npz").exists()
+
+    model = tmp_path / "b.npz"
+    cases = {
+        "evaluate vehicle": ["evaluate", "--model", model, vehicle, "--json", *ns],
+        "evaluate bench": ["evaluate", "--model", model, bench, "--json"],
+        "replay vehicle": ["replay", vehicle, "-o", tmp_path / "rv", "--model", model, "--json", *ns],
+        "replay bench": ["replay", bench, "-o", tmp_path / "rb", "--model", model, "--json"],
+    }
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values())))
+    for proc in procs.values():
+        assert proc.returncode == 0, proc.stderr
+    ev, eb = (json.loads(procs[f"evaluate {k}"].stdout) for k in ("vehicle", "bench"))
+    assert ev["rmse_rad_s"] == eb["rmse_rad_s"] and np.isfinite(eb["rmse_rad_s"])
+    assert ev["recordings"][0]["max_error_rad_s"] == eb["recordings"][0]["max_error_rad_s"]
+    with open_recording(tmp_path / "rv", "motor3") as v, open_recording(tmp_path / "rb") as b:
+        assert "motor3/predicted/speed" in v.topics() and "battery/voltage" in v.topics()
+        for topic in (c.TOPIC_ROTOR_SPEED, c.TOPIC_PREDICTED_SPEED):
+            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic))), topic
+        assert all(np.array_equal(x, y) for x, y in zip(v.battery_voltages(), b.battery_voltages()))

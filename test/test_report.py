@@ -141,3 +141,45 @@ def test_band_error_figure(tmp_path: Path) -> None:
              {"low_hz": 0.5, "high_hz": 1.0, "samples": 500, "rmse_rad_s": 19.0, "rmse_percent_of_range": 3.9}]
     assert_png(report.fig_band_error(bands, tmp_path / "bands.png", recording="bags/chirp"))
     assert_png(report.fig_band_error([], tmp_path / "none.png", recording="bags/staircase"))
+
+
+def test_before_after_shows_measured_before_and_after_distinctly(
+        tmp_path: Path, signals: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch) -> None:
+    """The before/after figure (issue 12: the measured line was hidden under the models): three
+    distinct lines, measured a wider band beneath the models so that a model that matches it
+    exactly leaves it visible, a legend naming all three, the recording named, axes that fit
+    the data (not the shaded windows), and errors whose RMSE labels are the known offsets.
+    Checked on the figure's own Axes (kept when it is saved), not on pixels."""
+    saved = []
+    save = report._save
+    monkeypatch.setattr(report, "_save", lambda fig, out: (saved.append(fig), save(fig, out))[1])
+    t, measured = signals["t"], signals["speed"]
+    before, after = measured + 30.0, measured.copy()  # after = measured exactly: the worst case
+    out = report.fig_before_after(t, measured, before, after, tmp_path / "ba.png",
+                                  windows=[(2.0, 4.0), (18.0, 40.0)], recording="flight <7>.mcap")
+    assert_png(out)
+    (fig,) = saved
+    top, bottom = fig.axes[:2]
+    lines = {ln.get_label(): ln for ln in top.get_lines()}
+    assert set(lines) == {"measured", "model before", "model after"}
+    for label, y in (("measured", measured), ("model before", before), ("model after", after)):
+        assert np.array_equal(lines[label].get_xdata(), t) and np.array_equal(lines[label].get_ydata(), y)
+    styles = {label: (ln.get_color(), ln.get_linestyle()) for label, ln in lines.items()}
+    assert len(set(v[0] for v in styles.values())) == 3, styles  # three colours
+    assert styles["model before"][1] != styles["model after"][1], styles  # and not one line style
+    m, models = lines["measured"], [lines["model before"], lines["model after"]]
+    assert all(m.get_zorder() < ln.get_zorder() for ln in models)  # beneath ...
+    assert all(m.get_linewidth() >= 2.5 * ln.get_linewidth() for ln in models)  # ... and wider
+    legend = [x.get_text() for x in top.get_legend().get_texts()]
+    assert {"measured", "model before", "model after", "disagreement window"} <= set(legend)
+    # axes fit the data: the time span exactly (the window to 40 s does not widen it), the
+    # speeds with a margin of at most 10 % of their range
+    assert top.get_xlim() == pytest.approx((t.min(), t.max()))
+    lo, hi = min(measured.min(), before.min()), max(measured.max(), before.max())
+    y0, y1 = top.get_ylim()
+    assert y0 <= lo and y1 >= hi and (y1 - y0) <= 1.1 * (hi - lo)
+    errors = {ln.get_label(): ln for ln in bottom.get_lines() if not ln.get_label().startswith("_")}
+    assert set(errors) == {"before (RMSE 30.0 rad/s)", "after (RMSE 0.0 rad/s)"}
+    assert np.allclose(errors["before (RMSE 30.0 rad/s)"].get_ydata(), -30.0)
+    named = [top.get_title()] + [x.get_text() for x in fig.texts]
+    assert any("flight <7>.mcap" in x for x in named) and "flight <7>.mcap" in top.get_title()

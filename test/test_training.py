@@ -18,9 +18,9 @@ from bldc_propulsion.errors import BadInputError, BagError, OutputExistsError
 from bldc_propulsion.model import load_model, save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.dataset import load_signals
+from bldc_propulsion.recordings import load_all, load_signals
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
-from bldc_propulsion.training.train import fit_thrust_coefficient, load_all, train_model
+from bldc_propulsion.training.train import fit_thrust_coefficient, train_model
 
 ROOT = Path(__file__).resolve().parents[1]
 BRAKING = {"spin_down_asymmetry": 0.0}  # an actively braking ESC, as in the sample bags

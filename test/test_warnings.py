@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
-from bldc_propulsion.bagio import BagWriter
+from bldc_propulsion.bagio import BagWriter, open_recording
+from bldc_propulsion.core.features import scale_pwm
 from bldc_propulsion.model import NetworkModel, save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import _streams, write_sim_bag
@@ -79,6 +80,45 @@ def test_inputs_outside_the_training_range_are_said(home, tmp_path):
     inside = json.loads(procs["inside"].stdout)
     assert inside["warnings"] == [] and "warning" not in procs["inside"].stderr
     assert inside["recordings"][0]["out_of_training_range"]["fraction"] == 0.0
+
+
+def share_of_time_above(path: Path, level: float) -> float:
+    """Known truth: the share of a recording's time its PWM command (held from one /pwm
+    message to the next) is above ``level``, from the raw messages."""
+    with open_recording(path) as rec:
+        t, pwm = rec.scalars(c.TOPIC_PWM)
+    return float(np.sum(np.diff(t)[pwm[:-1] > level]) / (t[-1] - t[0]))
+
+
+def test_discrepancy_says_when_inputs_leave_the_training_range(tmp_path):
+    """`discrepancy --model`: a model that saw PWM only up to 0.075 (its `pwm` input 0..0.5),
+    any battery voltage and any filtered PWM, on measured and holdout recordings whose command
+    is above 0.075 about half the time: one warning line per recording, naming it, the input
+    (pwm, no other) and the share of time the command is there; exit 0, the lines in --json."""
+    for name, seed in (("measured", 81), ("holdout", 82), ("reference", 83)):
+        write_sim_bag(simulate("random_steps", 12.0, seed=seed), tmp_path / name)
+    good = good_model()
+    save_model(NetworkModel(input_names=good.input_names, input_min=np.array([5.0, -10.0, -10.0]),
+                            input_max=np.array([20.0, scale_pwm(0.075), 10.0]), output_min=0.0, output_max=900.0,
+                            W1=good.W1, b1=good.b1, W2=good.W2, b2=0.0), tmp_path / "low_pwm.npz")
+    truth = {name: share_of_time_above(tmp_path / name, 0.075) for name in ("measured", "holdout")}
+    assert all(0.2 < f < 0.8 for f in truth.values()), truth  # the case is neither all nor nothing
+    proc = run("discrepancy", "--model", tmp_path / "low_pwm.npz", "--measured", tmp_path / "measured",
+               "--reference", tmp_path / "reference", "--holdout", tmp_path / "holdout",
+               "--max-effects", "1", "--hidden", "3", "--max-epochs", "5", "--json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    warn = [ln.removeprefix("warning: ") for ln in proc.stderr.splitlines() if ln.startswith("warning:")]
+    data = json.loads(proc.stdout)
+    assert data["warnings"] == warn
+    ranges = [w for w in warn if "training range" in w]
+    assert len(ranges) == 2, proc.stderr
+    for name, line in zip(("measured", "holdout"), ranges):
+        assert line.startswith(f"{tmp_path / name}: inputs outside the model's training range "), line
+        share = float(line.split("(pwm ")[1].split(" %")[0]) / 100
+        assert abs(share - truth[name]) < 0.01, (line, truth[name])  # within 1 % of the time
+        assert "battery_voltage" not in line and "pwm_filtered" not in line
+        report = data["out_of_training_range"][str(tmp_path / name)]
+        assert set(report["by_input"]) == {"pwm"} and abs(report["fraction"] - truth[name]) < 0.01
 
 
 def test_training_that_learnt_nothing_is_refused(tmp_path):

@@ -12,9 +12,8 @@ from typing import Any
 from .. import contract as c
 from ..atomic import CONFIG, MODEL, REPORT, check_outputs
 from ..errors import BadInputError
-from ..training.dataset import load_signals
+from ..recordings import load_all, load_signals, unique
 from ..training.evaluate import input_range
-from ..training.train import load_all, unique
 from ..discrepancy.workflow import (
     ALPHA, MIN_EFFECT, Options, check_effect_names, check_holdout, run_workflow)
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress

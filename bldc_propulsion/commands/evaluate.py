@@ -12,7 +12,7 @@ import numpy as np
 
 from ..atomic import REPORT, check_outputs, report_output
 from ..model import load_model
-from ..training.dataset import Signals, load_signals
+from ..recordings import Signals, load_signals
 from ..training.evaluate import evaluate
 from .common import CommandResult, add_namespace_argument
 

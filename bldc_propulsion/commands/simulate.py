@@ -13,7 +13,9 @@ DESCRIPTION = (
     "phototransistor) under a command profile and write what a real bench records "
     "(/pwm, /battery/adc, /tachometer/adc, /thrust/measured) plus ground truth "
     "(/truth/speed, /truth/thrust) as an MCAP bag. Every physical effect can be "
-    "switched off (0), kept at its realistic strength (1, the default) or scaled."
+    "switched off (0), kept at its realistic strength (1, the default) or scaled. With "
+    "--namespace motorN the run is recorded as one motor of a quadrotor: its topics under "
+    "/motorN/, /battery/adc at the root."
 )
 
 
@@ -36,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--param", action="append", metavar="NAME=VALUE",
         help="override a bench constant (see bldc_propulsion/sim/params.py); repeatable",
     )
+    p.add_argument("--namespace", metavar="NS",
+                   help="record as one motor of a vehicle (e.g. motor0): its topics under /NS/, "
+                        "/battery/adc at the root, as the quadrotor launch records them")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="bag storage")
     p.add_argument("-o", "--output", required=True, help="recording to write (bag directory or .mcap file)")
     p.add_argument("--force", action="store_true", help="replace an existing recording")
@@ -54,9 +59,11 @@ def run(args: argparse.Namespace) -> CommandResult:
         params=parse_assignments(args.param, "--param"),
         storage=args.storage,
         force=args.force,
+        namespace=args.namespace,
     )
+    where = f" (motor topics under /{info['namespace']}, battery at the root)" if info["namespace"] else ""
     text = (
-        f"wrote {info['path']}: {info['duration_s']:.1f} s of '{info['profile']}', "
+        f"wrote {info['path']}{where}: {info['duration_s']:.1f} s of '{info['profile']}', "
         f"{info['messages']} messages, speed {info['speed_min_rad_s']:.0f}..{info['speed_max_rad_s']:.0f} rad/s, "
         f"battery {info['voltage_end_v']:.2f} V at the end"
     )

@@ -15,9 +15,9 @@ from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
 from ..model import HybridModel, save_model
-from ..training.dataset import Signals
+from ..recordings import Signals, load_all
 from ..training.evaluate import predict_speed
-from ..training.train import load_all, train_model
+from ..training.train import train_model
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 NAME = "train"

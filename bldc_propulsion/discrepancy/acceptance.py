@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import BadInputError
-from ..training.dataset import Signals
+from ..recordings import Signals
 from . import scoring as sc
 
 #: Least fractional reduction of the held-out mean squared error for an effect to be added. 5 %: ~2.5 % of the RMSE, well above the run-to-run scatter of a

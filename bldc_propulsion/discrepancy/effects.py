@@ -27,7 +27,7 @@ import numpy as np
 from .. import contract as c
 from ..core import effect_features as ef
 from ..plant import throttle
-from ..training.dataset import Signals
+from ..recordings import Signals
 
 Params = dict[str, float]
 

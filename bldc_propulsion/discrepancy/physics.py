@@ -36,7 +36,7 @@ from ..core.battery_filter import BatteryFilterConfig
 from ..errors import BadInputError
 from ..plant import motor_response, resolve_effects
 from ..sim.params import BenchParams, params_with_overrides
-from ..training.dataset import Signals
+from ..recordings import Signals
 from . import scoring as sc
 
 #: Constants calibrated on the measured data, log-parameterised: first within a factor

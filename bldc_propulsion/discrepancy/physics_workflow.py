@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
-from ..training.dataset import Signals
+from ..recordings import Signals
 from . import acceptance as acc
 from . import physics as ph
 from .workflow import (DataSet, Options, Progress, WorkflowResult, _rmse, check_effect_names, check_holdout, classify,

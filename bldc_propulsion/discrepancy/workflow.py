@@ -43,7 +43,7 @@ from .. import contract as c
 from ..atomic import report_output
 from ..core import effect_features as ef
 from ..errors import BadInputError
-from ..training.dataset import Signals
+from ..recordings import Signals
 from ..training.evaluate import predict_speed
 from ..training.train import features_of, train_model
 from . import acceptance as acc

@@ -15,12 +15,13 @@ thrust estimator under ``motor<i>`` for each motor, every estimator reading the 
 node of the process, which is why config/propulsion.yaml addresses nodes as ``/**/<node>``.
 
 ``--executor``: ``events`` (default) runs every node on rclpy's EventsExecutor, the cheapest
-(benchmarks/bench_nodes_live.py); it cannot hand callbacks the message info, so the motors
-judge lateness on receipt times: a stall of the process breaks their streams (one revolution
-withheld) instead of being absorbed, and a batch lost in transport is only seen as lateness.
-``single`` runs every node on the single-threaded executor with message info (sequence numbers,
-publisher timestamps; more CPU). ``mixed``: the battery filter on the EventsExecutor in a thread
-of its own, the motors on the single-threaded executor.
+in one process (benchmarks/bench_nodes_live.py): it waits through middleware listeners rather
+than a wait set of every node's entities. It cannot hand callbacks the message info, so the
+motors judge lateness on receipt times: a stall of the process breaks their streams (one
+revolution withheld) instead of being absorbed, and a batch lost in transport is only seen as
+lateness. ``single`` runs every node on ``LeanExecutor`` with message info (sequence numbers,
+publisher timestamps), at about a fifth more CPU with four motors. ``mixed``: the battery filter
+on the EventsExecutor in a thread of its own, the motors on ``LeanExecutor``.
 """
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import threading
+import time
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
@@ -18,9 +19,12 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from rclpy.task import Future
+from std_msgs.msg import Float64
 
 from bldc_propulsion.core.status import CoreStatus
 from bldc_propulsion.errors import BadInputError, one_line
+from bldc_propulsion.nodes.lean_executor import LeanExecutor
 from bldc_propulsion.nodes.params import (
     HARDWARE_ID,
     Param,
@@ -90,13 +94,15 @@ def events_executor() -> Any:
 
 def spin(executor: Any) -> None:
     """Spin until shutdown. The EventsExecutor's own ``spin`` does not return on Ctrl-C
-    (rclpy 7.1.6: the context's shutdown does not wake it), so it is spun in short slices."""
+    (rclpy 7.1.6: the context's shutdown does not wake it), so it is spun in slices of 0.1 s
+    until a future that never completes: ``spin_once`` would return to Python after every
+    event, which cost a fifth of the quadrotor's CPU (benchmarks/bench_nodes_live.py)."""
     if isinstance(executor, SingleThreadedExecutor):
         executor.spin()
         return
-    context = executor._context if hasattr(executor, '_context') else None
-    while rclpy.ok(context=context):
-        executor.spin_once(timeout_sec=0.1)
+    never = Future()
+    while rclpy.ok():
+        executor.spin_until_future_complete(never, timeout_sec=0.1)
 
 
 #: Which executor spins which nodes: the first pair on the calling thread, the others each on
@@ -105,8 +111,9 @@ Plan = Callable[[list[Node]], list[tuple[Any, list[Node]]]]
 
 
 def single_threaded(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
-    """Every node on one single-threaded executor (hands callbacks the message info)."""
-    return [(SingleThreadedExecutor(), nodes)]
+    """Every node on one single-threaded executor that hands callbacks the message info
+    (``LeanExecutor``: rclpy's, with a cheap path for messages and timers)."""
+    return [(LeanExecutor(), nodes)]
 
 
 def on_events(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
@@ -149,9 +156,40 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
     return 0
 
 
+class ScalarOutput:
+    """A Float64 topic that is serialized only while someone subscribes to it.
+
+    Publishing to no one still costs a message, its serialization and a DDS write (about a
+    sixth of a quadrotor's CPU with every output unread). Matching is looked up by
+    :meth:`refresh`, which the node calls from a timer it already has (a lookup per message
+    would cost half a publish); a new subscriber therefore gets data within that timer's period,
+    sooner than DDS discovery matches it anyway. The message object is reused: ``publish``
+    serializes it before returning.
+    """
+
+    def __init__(self, node: Node, topic: str, depth: int = 10) -> None:
+        self.publisher = node.create_publisher(Float64, topic, depth)
+        self.msg = Float64()
+        self.listened = True  #: until the first refresh: publish
+
+    def refresh(self) -> None:
+        self.listened = self.publisher.get_subscription_count() > 0
+
+    def publish(self, value: float) -> None:
+        if self.listened:
+            self.msg.data = value
+            self.publisher.publish(self.msg)
+
+
 def now_s(node: Node) -> float:
-    """The node clock in seconds: wall time, or /clock under use_sim_time (bag --clock)."""
-    return node.get_clock().now().nanoseconds * 1e-9
+    """The node clock in seconds: wall time, or /clock under use_sim_time (bag --clock).
+
+    Without sim time the ROS clock IS the system clock, read here without building an rclpy
+    Time (a third of the cost; this runs for every message)."""
+    clock = node.get_clock()
+    if not clock.ros_time_is_active:
+        return time.time()
+    return clock.now().nanoseconds * 1e-9
 
 
 def stamp_s(stamp: TimeMsg) -> float:

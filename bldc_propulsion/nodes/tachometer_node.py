@@ -18,14 +18,14 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from std_msgs.msg import Float32MultiArray, Float64
+from std_msgs.msg import Float32MultiArray
 
 from bldc_propulsion import contract
 from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
-    declare_parameters, diagnostic_array, input_qos, now_s, run_node)
+    ScalarOutput, declare_parameters, diagnostic_array, input_qos, now_s, run_node)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -44,8 +44,8 @@ class TachometerNode(Node):
         self.timeout_s = params['timeout_s']
         self.last_receipt_s: float | None = None
 
-        self.speed_pub = self.create_publisher(Float64, contract.TOPIC_ROTOR_SPEED, 10)
-        self.rpm_pub = self.create_publisher(Float64, contract.TOPIC_ROTOR_RPM, 10)
+        self.speed_out = ScalarOutput(self, contract.TOPIC_ROTOR_SPEED)
+        self.rpm_out = ScalarOutput(self, contract.TOPIC_ROTOR_RPM)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
         callback = self.on_batch if message_info else (lambda msg: self.on_batch(msg, None))
@@ -69,8 +69,8 @@ class TachometerNode(Node):
             self.core.process_batch(place.t_last, data)
             speed = self.output.after_batch()
             if speed is not None:
-                self.speed_pub.publish(Float64(data=float(speed)))
-                self.rpm_pub.publish(Float64(data=float(speed) * contract.RAD_S_TO_RPM))
+                self.speed_out.publish(float(speed))
+                self.rpm_out.publish(float(speed) * contract.RAD_S_TO_RPM)
 
     def input_lost(self) -> bool:
         """No batch for timeout_s on the node clock (publisher dead, link down)."""
@@ -78,6 +78,8 @@ class TachometerNode(Node):
                 and now_s(self) - self.last_receipt_s > self.timeout_s)
 
     def check_signal(self) -> None:
+        self.speed_out.refresh()
+        self.rpm_out.refresh()
         held = self.stream.holding
         if held is not None and now_s(self) - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
             self.decode(self.stream.release_held())  # no successor came to vouch for it

@@ -37,7 +37,7 @@ from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    declare_parameters, diagnostic_array, input_qos, now_s, run_node, stamp_s)
+    ScalarOutput, declare_parameters, diagnostic_array, input_qos, now_s, run_node, stamp_s)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
@@ -62,8 +62,8 @@ class ThrustEstimatorNode(Node):
         self.last_pwm_s: float | None = None
         self.stale_ticks = 0  #: grid times not predicted because the command was stale
 
-        self.speed_pub = self.create_publisher(Float64, contract.TOPIC_PREDICTED_SPEED, 10)
-        self.thrust_pub = self.create_publisher(Float64, contract.TOPIC_PREDICTED_THRUST, 10)
+        self.speed_out = ScalarOutput(self, contract.TOPIC_PREDICTED_SPEED)
+        self.thrust_out = ScalarOutput(self, contract.TOPIC_PREDICTED_THRUST)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
         qos = input_qos(params['queue_depth'])
@@ -91,6 +91,8 @@ class ThrustEstimatorNode(Node):
         self.core.update_voltage(t, msg.voltage)
 
     def on_timer(self) -> None:
+        self.speed_out.refresh()
+        self.thrust_out.refresh()
         self.publish_until(now_s(self) - self.output_delay_s)
 
     def command_stale(self, t: float) -> bool:
@@ -105,8 +107,8 @@ class ThrustEstimatorNode(Node):
                 continue
             p = self.core.predict(tick)
             if p.ready:
-                self.speed_pub.publish(Float64(data=float(p.speed_rad_s)))
-                self.thrust_pub.publish(Float64(data=float(p.thrust_n)))
+                self.speed_out.publish(float(p.speed_rad_s))
+                self.thrust_out.publish(float(p.thrust_n))
 
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import contract as c
 from ..atomic import RECORDING, check_output
-from ..bagio import SIM_EPOCH_NS, BagWriter
+from ..bagio import SIM_EPOCH_NS, BagWriter, check_namespace, vehicle_topic
 from ..errors import BadInputError
 from .bench import SimResult, simulate
 from .params import BenchParams, params_with_overrides
@@ -44,9 +44,13 @@ def _streams(res: SimResult) -> list[tuple[str, np.ndarray, Any]]:
 
 
 def write_sim_bag(res: SimResult, path: str | os.PathLike[str], *, force: bool = False,
-                  storage: str = "mcap") -> int:
-    """Write ``res`` in message-time order (as ``ros2 bag record`` would); returns messages."""
-    streams = _streams(res)
+                  storage: str = "mcap", namespace: str | None = None) -> int:
+    """Write ``res`` in message-time order (as ``ros2 bag record`` would); returns messages.
+
+    With ``namespace`` (e.g. ``motor0``) the run is recorded as one motor of a vehicle: its
+    topics under ``/motor0/``, ``/battery/adc`` at the root; the messages are the same."""
+    ns = check_namespace(namespace)
+    streams = [(vehicle_topic(topic, ns), t, values) for topic, t, values in _streams(res)]
     times = np.concatenate([s[1] for s in streams])
     which = np.concatenate([np.full(len(s[1]), k) for k, s in enumerate(streams)])
     index = np.concatenate([np.arange(len(s[1])) for s in streams])
@@ -55,7 +59,7 @@ def write_sim_bag(res: SimResult, path: str | os.PathLike[str], *, force: bool =
         for k in order:
             topic, t, values = streams[which[k]]
             i = index[k]
-            if topic == c.TOPIC_TACH_ADC:
+            if topic == vehicle_topic(c.TOPIC_TACH_ADC, ns):
                 bag.write_float32_array(topic, float(t[i]), values[i])
             else:
                 bag.write_float64(topic, float(t[i]), float(values[i]))
@@ -73,8 +77,11 @@ def simulate_to_bag(
     params: dict[str, float] | None = None,
     storage: str = "mcap",
     force: bool = False,
+    namespace: str | None = None,
 ) -> dict[str, Any]:
-    """Simulate and record; returns what ``simulate --json`` prints."""
+    """Simulate and record (one motor of a vehicle under ``namespace``); returns what
+    ``simulate --json`` prints."""
+    namespace = check_namespace(namespace)
     check_output(path, RECORDING, force=force)
     if storage != "mcap" and str(path).lower().endswith(".mcap"):
         raise BadInputError(f"-o {path}: a single .mcap file holds MCAP storage only (give a "
@@ -82,9 +89,10 @@ def simulate_to_bag(
     bench = params_with_overrides(BenchParams(), params or {})
     res = simulate(profile=profile, duration_s=duration_s, seed=seed, effects=effects, soc=soc,
                    params=bench)
-    n = write_sim_bag(res, path, force=force, storage=storage)
+    n = write_sim_bag(res, path, force=force, storage=storage, namespace=namespace)
     return {
         "path": str(path),
+        "namespace": namespace,
         "profile": profile,
         "duration_s": float(duration_s),
         "seed": int(seed),

@@ -10,7 +10,7 @@ import numpy as np
 from scipy import signal, stats
 
 from ..model import NetworkModel, RangeReport, range_report
-from .dataset import Signals
+from ..recordings import Signals
 from .train import features_of
 
 #: Command frequency bands (Hz) for chirp recordings: the paper notes the error grows with the

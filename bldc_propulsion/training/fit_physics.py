@@ -24,7 +24,7 @@ from .. import contract as c
 from ..discrepancy import physics as ph
 from ..errors import BadInputError
 from ..model import PlantModel
-from .dataset import Signals
+from ..recordings import Signals
 from .evaluate import predict_speed
 from .train import ThrustFit, _source, fit_thrust_coefficient
 

@@ -392,6 +392,29 @@ def fig_disagreement_map(
     return _save(fig, out)
 
 
+#: How the before/after figure draws each line: measured as a wide grey band beneath the models,
+#: so that a model that follows it closely (the point of adding an effect) cannot hide it;
+#: before dashed red, after solid blue, each distinct in colour and style.
+BEFORE_AFTER_STYLE: dict[str, dict[str, Any]] = {
+    "measured": {"color": "0.55", "lw": 3.2, "ls": "-", "zorder": 2},
+    "model before": {"color": "C3", "lw": 1.1, "ls": "--", "zorder": 3},
+    "model after": {"color": "C0", "lw": 1.1, "ls": "-", "zorder": 4},
+}
+
+
+def _fit_axes(ax: Any, t: np.ndarray, *series: np.ndarray) -> None:
+    """x limits = the recording's time span; y limits = the finite values of ``series`` with a
+    5 % margin (shaded windows or an empty series never widen them)."""
+    tt = t[np.isfinite(t)]
+    if len(tt) and tt.max() > tt.min():
+        ax.set_xlim(float(tt.min()), float(tt.max()))
+    vals = np.concatenate([s[np.isfinite(s)] for s in series]) if series else np.zeros(0)
+    if len(vals):
+        lo, hi = float(vals.min()), float(vals.max())
+        pad = 0.05 * (hi - lo) if hi > lo else max(1.0, 0.05 * abs(hi))
+        ax.set_ylim(lo - pad, hi + pad)
+
+
 def fig_before_after(
     t: Any,
     measured: Any,
@@ -403,42 +426,45 @@ def fig_before_after(
 ) -> Path:
     """Model error before vs after adding an effect, disagreement windows (t0, t1 in s) shaded.
 
-    Top: measured speed and both models; bottom: both errors with their RMSE, so the reader
-    sees that the error shrank where the windows are and did not grow elsewhere.
+    Top: measured speed (a grey band the models are drawn over) and both models; bottom: both
+    errors with their RMSE, so the reader sees that the error shrank where the windows are and
+    did not grow elsewhere. The title and a footer name the recording.
     """
     t_, m = _arr(t), _arr(measured)
     b, a = _arr(before), _arr(after)
     fig, axes = _figure(2, 1, (9.0, 6.0), sharex=True)
-    _line(axes[0, 0], t_, m, color="0.3", lw=1.0, label="measured")
-    _line(axes[0, 0], t_, b, color="C3", lw=0.9, label="model before")
-    _line(axes[0, 0], t_, a, color="C2", lw=0.9, label="model after")
-    axes[0, 0].set_ylabel("angular speed (rad/s)")
-    axes[0, 0].legend(fontsize=8, loc="best")
+    top, bottom = axes[0, 0], axes[1, 0]
+    for label, y in (("measured", m), ("model before", b), ("model after", a)):
+        _line(top, t_, y, label=label, **BEFORE_AFTER_STYLE[label])
+    top.set_ylabel("angular speed (rad/s)")
+    _fit_axes(top, t_, m, b, a)
     if len(m) == len(b) == len(a) == len(t_) and len(t_):
         eb, ea = m - b, m - a
-        _line(axes[1, 0], t_, eb, color="C3", lw=0.9, label=f"before (RMSE {_rmse(eb):.1f} rad/s)")
-        _line(axes[1, 0], t_, ea, color="C2", lw=0.9, label=f"after (RMSE {_rmse(ea):.1f} rad/s)")
-        axes[1, 0].legend(fontsize=8, loc="best")
+        _line(bottom, t_, eb, label=f"before (RMSE {_rmse(eb):.1f} rad/s)",
+              **BEFORE_AFTER_STYLE["model before"])
+        _line(bottom, t_, ea, label=f"after (RMSE {_rmse(ea):.1f} rad/s)", **BEFORE_AFTER_STYLE["model after"])
+        bottom.legend(fontsize=8, loc="best")
+        _fit_axes(bottom, t_, eb, ea, np.zeros(1))
     else:
-        _no_data(axes[1, 0])
-    axes[1, 0].axhline(0.0, color="k", lw=0.6)
-    axes[1, 0].set_ylabel("error measured - model (rad/s)")
-    axes[1, 0].set_xlabel("time (s)")
+        _no_data(bottom)
+    bottom.axhline(0.0, color="k", lw=0.6)
+    bottom.set_ylabel("error measured - model (rad/s)")
+    bottom.set_xlabel("time (s)")
     n_windows = 0
     for w in windows:
         w0, w1 = float(w[0]), float(w[1])
         if not (math.isfinite(w0) and math.isfinite(w1)):
             continue
         n_windows += 1
-        for ax in axes[:, 0]:
-            ax.axvspan(min(w0, w1), max(w0, w1), color="gold", alpha=0.25, lw=0,
-                       label="disagreement window" if n_windows == 1 and ax is axes[0, 0] else None)
-    if n_windows:
-        axes[0, 0].legend(fontsize=8, loc="best")
-    for ax in axes[:, 0]:
+        for ax in (top, bottom):
+            ax.axvspan(min(w0, w1), max(w0, w1), color="gold", alpha=0.25, lw=0, zorder=1,
+                       label="disagreement window" if n_windows == 1 and ax is top else None)
+    if top.lines:
+        top.legend(fontsize=8, loc="best")
+    for ax in (top, bottom):
         ax.grid(alpha=0.3)
-    axes[0, 0].set_title(f"model error before and after adding the effect ({n_windows} window(s) shaded)",
-                         fontsize=10)
+    top.set_title(f"{recording + ': ' if recording else ''}model before and after adding the effect "
+                  f"({n_windows} window(s) shaded)", fontsize=10)
     fig.tight_layout()
     _name_recording(fig, recording)
     return _save(fig, out)

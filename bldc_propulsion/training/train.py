@@ -14,7 +14,7 @@ from .. import contract as c
 from ..core.features import compute_features
 from ..errors import BadInputError
 from ..model import NetworkModel
-from .dataset import Signals, load_signals
+from ..recordings import Signals
 from .lm import LMResult, train_lm
 from .network import minmax_apply, minmax_fit, nguyen_widrow, pack, unpack
 
@@ -192,19 +192,3 @@ def _zero_output(n_in: int, hidden: int, seed: int, b2: float) -> np.ndarray:
 def _source(sig: Signals) -> dict[str, str]:
     """Provenance of one recording: the path as given, where it was, and its content hash."""
     return {"path": sig.path, "abs_path": os.path.abspath(sig.path.split("#", 1)[0]), "sha256": sig.sha256}
-
-
-def load_all(paths: Sequence[str | os.PathLike[str]], what: str, namespace: str | None = None) -> list[Signals]:
-    """Load recordings (one motor's topics with ``namespace``); a recording listed twice (same
-    content) is refused, not double-counted."""
-    return unique([load_signals(p, namespace=namespace) for p in paths], what)
-
-
-def unique(out: list[Signals], what: str) -> list[Signals]:
-    """``out`` unless a recording is in it twice (same content): BadInputError naming both."""
-    seen: dict[str, str] = {}
-    for s in out:
-        if s.sha256 in seen:
-            raise BadInputError(f"{s.path}: same recording as {seen[s.sha256]} ({what})")
-        seen[s.sha256] = s.path
-    return out

@@ -1,5 +1,8 @@
 """Recordings -> aligned signals on one time grid, decoded by the same cores the nodes run.
 
+What training, evaluation, ``info`` and the discrepancy workflow read: bagio opens the
+recording, this module turns it into ``Signals`` (one per recording, refused when listed twice).
+
 Measured speed is ``rotor/speed`` when a recording carries it (ESC telemetry, an imported
 thrust-stand log), else decoded from ``tachometer/adc``; battery voltage is ``battery/voltage``
 when recorded, else ``battery/adc`` through the battery filter. ``truth/*`` is never read.
@@ -9,18 +12,19 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from .. import contract as c
-from ..bagio import Recording, open_recording
-from ..core.battery_filter import BatteryFilter, BatteryFilterConfig
-from ..core.features import zero_order_hold
-from ..core.tachometer import TachometerConfig, TachometerDecoder
-from ..errors import BadInputError, BagError
+from . import contract as c
+from .bagio import Recording, open_recording
+from .core.battery_filter import BatteryFilter, BatteryFilterConfig
+from .core.features import zero_order_hold
+from .core.tachometer import TachometerConfig, TachometerDecoder
+from .errors import BadInputError, BagError
 
 #: Grid on which features and targets are aligned: 100 Hz resolves the rotor's ~0.1 s time
 #: constant and the 50 Hz command, and matches the estimator node's output rate.
@@ -204,3 +208,19 @@ def load_signals(
         pwm_events=(pwm_t, pwm),
         voltage_events=(volt_t, volt),
     )
+
+
+def load_all(paths: Sequence[str | os.PathLike[str]], what: str, namespace: str | None = None) -> list[Signals]:
+    """Load recordings (one motor's topics with ``namespace``); a recording listed twice (same
+    content) is refused, not double-counted."""
+    return unique([load_signals(p, namespace=namespace) for p in paths], what)
+
+
+def unique(out: list[Signals], what: str) -> list[Signals]:
+    """``out`` unless a recording is in it twice (same content): BadInputError naming both."""
+    seen: dict[str, str] = {}
+    for s in out:
+        if s.sha256 in seen:
+            raise BadInputError(f"{s.path}: same recording as {seen[s.sha256]} ({what})")
+        seen[s.sha256] = s.path
+    return out
