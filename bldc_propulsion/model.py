@@ -474,7 +474,7 @@ class RangeReport:
                 f"time ({each}); predictions there are extrapolations (inputs clipped) and not to be trusted")
 
 
-def range_report(model: NetworkModel, X: np.ndarray, where: str) -> RangeReport:
+def range_report(model: Model, X: np.ndarray, where: str) -> RangeReport:
     """RangeReport of raw inputs ``X`` (rows: time, columns: ``model.input_names``); rows with
     an unknown (NaN) input are not counted."""
     X = np.asarray(X, dtype=float)
