@@ -15,12 +15,16 @@ the estimator from it instead of filtering ``battery/adc``.
 
 from __future__ import annotations
 
+import bisect
 import os
+from collections.abc import Callable, Iterable
 from typing import Any
+
+import numpy as np
 
 from . import contract as c
 from .atomic import RECORDING, check_output
-from .bagio import MOTOR_TOPICS, BagWriter, open_recording, vehicle_topic
+from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
@@ -31,6 +35,12 @@ from .model import RangeReport, load_model
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
 VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
 DIAGNOSTICS_RATE_HZ = 1.0
+#: The bulk path reads MCAP recordings in windows of this much bag time (bounded memory)
+BULK_WINDOW_S = 60.0
+
+
+class _StreamingOnly(Exception):
+    """The recording can only be read exactly message by message (see Recording.bulk)."""
 
 
 def replay_bag(
@@ -42,11 +52,42 @@ def replay_bag(
     battery: BatteryFilterConfig | None = None,
     tachometer: TachometerConfig | None = None,
     namespace: str | None = None,
+    reference: bool = False,
 ) -> dict[str, Any]:
     """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
 
     With ``namespace`` (one motor of a vehicle's recording) the outputs are written as the
-    quadrotor launch publishes them: under the namespace, ``battery/voltage`` at the root."""
+    quadrotor launch publishes them: under the namespace, ``battery/voltage`` at the root.
+
+    Two paths write the same messages (times, values and diagnostics bit for bit) and return
+    the same summary. The reference (``reference=True``, and any recording that only the
+    streaming reader reads exactly: damaged, split into files, compressed per message; the
+    bulk path then starts again with it) feeds every message to the cores one at a time, as
+    the nodes do. The default reads the input topics in bulk (:meth:`Recording.bulk_windows`,
+    ``BULK_WINDOW_S`` of recording at a time), filters the battery samples in arrays and
+    visits only the sparse events in time order (PWM, tachometer batches, published voltages,
+    timer ticks); ``test/test_replay_fast.py`` checks it against the reference message by
+    message."""
+    args = (in_path, out_path, model_path, force, battery, tachometer, namespace)
+    if not reference:
+        try:
+            return _replay(*args, reference=False)
+        except _StreamingOnly:  # nothing was written (the output is staged): the reference path
+            pass
+    return _replay(*args, reference=True)
+
+
+def _replay(
+    in_path: str | os.PathLike[str],
+    out_path: str | os.PathLike[str],
+    model_path: str | os.PathLike[str] | None,
+    force: bool,
+    battery: BatteryFilterConfig | None,
+    tachometer: TachometerConfig | None,
+    namespace: str | None,
+    *,
+    reference: bool,
+) -> dict[str, Any]:
     check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
@@ -65,63 +106,20 @@ def replay_bag(
             raise rec.missing_error(MOTOR_TOPICS)  # a vehicle's recording: only its battery is at the root
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
-        speed_out = SpeedOutput(tach)
         est = ThrustEstimator(model)
-        counts = {"messages_in": 0, "messages_out": 0}
-        per_topic_in: dict[str, int] = {}
-        predictions = Ticker(ESTIMATOR_RATE_HZ)
-        voltage_out = Ticker(VOLTAGE_RATE_HZ)
-        next_diag: float | None = None
-
-        speed_topic, thrust_topic, voltage_topic, rotor_topic, rpm_topic, diag_topic = (
-            vehicle_topic(t, ns) for t in (c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
-                                           c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM, c.TOPIC_DIAGNOSTICS))
-
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
-
-            def timers_until(t: float) -> None:
-                """Outputs due up to t, emitted before an input at t is applied (as the nodes
-                do: a grid time equal to an input's time sees the state before it)."""
-                nonlocal next_diag
-                if t < predictions.next_s and (next_diag is None or t < next_diag):
-                    return
-                for tick in predictions.due(t):
-                    p = est.predict(tick)
-                    if p.ready:
-                        bag.write_float64(speed_topic, tick, p.speed_rad_s)
-                        bag.write_float64(thrust_topic, tick, p.thrust_n)
-                while next_diag is not None and next_diag <= t:
-                    tach.check_timeout(next_diag)
-                    statuses = [*filt.status(), *tach.status(), *est.status()]
-                    bag.write_diagnostics(diag_topic, next_diag, statuses)
-                    next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
-
-            for topic, t, msg in rec.messages(inputs, tolerant=True):
-                timers_until(t)
-                counts["messages_in"] += 1
-                per_topic_in[topic] = per_topic_in.get(topic, 0) + 1
-                if next_diag is None:
-                    next_diag = t + 1.0 / DIAGNOSTICS_RATE_HZ
-                if topic == c.TOPIC_PWM:
-                    if est.update_pwm(t, float(msg.data)):
-                        predictions.start(t)
-                elif topic == c.TOPIC_BATTERY_ADC:
-                    v = filt.update(t, float(msg.data))
-                    if v is not None and voltage_out.take(t):
-                        bag.write_battery_state(voltage_topic, t, v)
-                        if not has_voltage:
-                            est.update_voltage(t, v)
-                elif topic == c.TOPIC_BATTERY_VOLTAGE:
-                    est.update_voltage(t, float(msg.voltage))
-                elif topic == c.TOPIC_TACH_ADC:
-                    tach.process_batch(t, msg.data)
-                    speed = speed_out.after_batch()
-                    if speed is not None:
-                        bag.write_float64(rotor_topic, t, speed)
-                        bag.write_float64(rpm_topic, t, speed * c.RAD_S_TO_RPM)
+            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage)
+            if reference:
+                node.run_reference(rec.messages(inputs, tolerant=True))
+            else:
+                for bulk in rec.bulk_windows(inputs, BULK_WINDOW_S):
+                    if bulk is None:  # only the streaming reader reads it exactly: start again
+                        raise _StreamingOnly
+                    node.run_bulk(bulk, rec.t0_ns)
             end = (rec.end_ns - rec.t0_ns) * 1e-9
-            timers_until(end)
-            counts["messages_out"] = bag.messages_written
+            node.timers_until(end)
+            node.counts["messages_out"] = bag.messages_written
+        counts, per_topic_in = node.counts, node.per_topic_in
         tach.check_timeout(end)  # a tachometer silent until the end: its status says so
         statuses = [*filt.status(), *tach.status(), *est.status()]
         n = max(est.predictions, 1)
@@ -144,6 +142,183 @@ def replay_bag(
                 for s in statuses
             ],
         }
+
+
+class _Nodes:
+    """The three nodes' cores, timers and publishers over one replay."""
+
+    def __init__(self, bag: BagWriter, filt: BatteryFilter, tach: TachometerDecoder,
+                 est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool) -> None:
+        self.bag, self.filt, self.tach, self.est = bag, filt, tach, est
+        self.has_voltage = has_voltage
+        self.speed_out = SpeedOutput(tach)
+        self.predictions = Ticker(ESTIMATOR_RATE_HZ)
+        self.voltage_out = Ticker(VOLTAGE_RATE_HZ)
+        self.next_diag: float | None = None
+        self.counts = {"messages_in": 0, "messages_out": 0}
+        self.per_topic_in: dict[str, int] = {}
+        #: the battery filter's diagnostics; the bulk path hands out statuses taken in advance
+        self.filter_status: Callable[[], list[Any]] = filt.status
+        (self.speed_topic, self.thrust_topic, self.voltage_topic, self.rotor_topic,
+         self.rpm_topic, self.diag_topic) = map(topic_out, (
+            c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
+            c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM, c.TOPIC_DIAGNOSTICS))
+
+    def timers_until(self, t: float) -> None:
+        """Outputs due up to t, emitted before an input at t is applied (as the nodes
+        do: a grid time equal to an input's time sees the state before it)."""
+        predictions, next_diag = self.predictions, self.next_diag
+        if t < predictions.next_s and (next_diag is None or t < next_diag):
+            return
+        bag, est = self.bag, self.est
+        for tick in predictions.due(t):
+            p = est.predict(tick)
+            if p.ready:
+                bag.write_float64(self.speed_topic, tick, p.speed_rad_s)
+                bag.write_float64(self.thrust_topic, tick, p.thrust_n)
+        while next_diag is not None and next_diag <= t:
+            self.tach.check_timeout(next_diag)
+            statuses = [*self.filter_status(), *self.tach.status(), *est.status()]
+            bag.write_diagnostics(self.diag_topic, next_diag, statuses)
+            next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
+        self.next_diag = next_diag
+
+    # --- the inputs, as the nodes' callbacks take them ------------------------------------
+    def pwm(self, t: float, value: float) -> None:
+        if self.est.update_pwm(t, value):
+            self.predictions.start(t)
+
+    def voltage_published(self, t: float, v: float) -> None:
+        """The battery filter publishes ``v``; the estimator takes it unless the recording
+        carries its own battery/voltage."""
+        self.bag.write_battery_state(self.voltage_topic, t, v)
+        if not self.has_voltage:
+            self.est.update_voltage(t, v)
+
+    def tach_batch(self, t: float, samples: Any) -> None:
+        self.tach.process_batch(t, samples, result=False)
+        speed = self.speed_out.after_batch()
+        if speed is not None:
+            self.bag.write_float64(self.rotor_topic, t, speed)
+            self.bag.write_float64(self.rpm_topic, t, speed * c.RAD_S_TO_RPM)
+
+    # --- the reference: every message in turn ----------------------------------------------
+    def run_reference(self, messages: Iterable[tuple[str, float, Any]]) -> None:
+        counts, per_topic_in = self.counts, self.per_topic_in
+        for topic, t, msg in messages:
+            self.timers_until(t)
+            counts["messages_in"] += 1
+            per_topic_in[topic] = per_topic_in.get(topic, 0) + 1
+            if self.next_diag is None:
+                self.next_diag = t + 1.0 / DIAGNOSTICS_RATE_HZ
+            if topic == c.TOPIC_PWM:
+                self.pwm(t, float(msg.data))
+            elif topic == c.TOPIC_BATTERY_ADC:
+                v = self.filt.update(t, float(msg.data))
+                if v is not None and self.voltage_out.take(t):
+                    self.voltage_published(t, v)
+            elif topic == c.TOPIC_BATTERY_VOLTAGE:
+                self.est.update_voltage(t, float(msg.voltage))
+            elif topic == c.TOPIC_TACH_ADC:
+                self.tach_batch(t, msg.data)
+
+    # --- the bulk path ----------------------------------------------------------------------
+    def run_bulk(self, bulk: Bulk, t0_ns: int) -> None:
+        """The same as :meth:`run_reference` over ``bulk``'s messages (the next window of them:
+        state carries from one call to the next).
+
+        Every message is a possible timer point (the first message at or after the next
+        prediction or diagnostics time triggers them, and the tick times depend on which
+        message did), so the message times stay one array searched for the next trigger;
+        between triggers only events are visited: PWM, tachometer batches, battery/voltage
+        messages and the battery samples after which the filter publishes. The battery filter
+        runs over the samples in arrays (``BatteryFilter.process``, the same arithmetic as
+        ``update``), cut at the diagnostics times so that its counters there are exact.
+        """
+        n = len(bulk.ns)
+        if n == 0:
+            return
+        times = ((bulk.ns - t0_ns) * 1e-9).tolist()  # as float((ns - t0) * 1e-9) per message
+        code = bulk.code
+        self.counts["messages_in"] += n
+        first = {int(k): int(np.argmax(code == k)) for k in np.unique(code)}
+        for k in sorted(first, key=first.__getitem__):  # topics in order of first appearance
+            topic = bulk.topics[k]
+            self.per_topic_in[topic] = self.per_topic_in.get(topic, 0) + int(np.count_nonzero(code == k))
+        if self.next_diag is None:
+            self.next_diag = times[0] + 1.0 / DIAGNOSTICS_RATE_HZ
+        # events: (message index, kind, value); the battery samples that publish are added below
+        events: list[tuple[int, int, Any]] = []
+        for k, topic in enumerate(bulk.topics):
+            where = np.flatnonzero(code == k).tolist()
+            vals = bulk.values[topic]
+            if topic == c.TOPIC_PWM:
+                events += zip(where, [0] * len(where), vals.tolist())
+            elif topic == c.TOPIC_TACH_ADC:
+                events += zip(where, [2] * len(where), vals)
+                self.tach.expect(vals)  # their level trackers are computed many at a time
+            elif topic == c.TOPIC_BATTERY_VOLTAGE:
+                events += zip(where, [3] * len(where), vals.tolist())
+            elif topic == c.TOPIC_BATTERY_ADC:
+                events += self._battery(np.asarray(where), np.asarray(times)[where], vals)
+        events.sort(key=lambda e: e[0])
+        self._visit(times, events)
+
+    def _battery(self, where: np.ndarray, t: np.ndarray, adc: np.ndarray) -> list[tuple[int, int, Any]]:
+        """Filter every battery sample; the filter's statuses at the diagnostics times (taken
+        now, in order, for :meth:`timers_until`); the (message index, 1, volts) events of the
+        samples after which the filter publishes (the Ticker's rule at each accepted sample)."""
+        filt, end = self.filt, len(t)
+        out = np.empty(end)
+        statuses: list[list[Any]] = []
+        diag, a = self.next_diag, 0
+        while a < end:
+            b = int(np.searchsorted(t, diag, side="left"))  # samples before diagnostics at `diag`
+            out[a:b] = filt.process(t[a:b], adc[a:b])
+            a = b
+            if a < end:
+                statuses.append(filt.status())
+                diag += 1.0 / DIAGNOSTICS_RATE_HZ
+        later = iter(statuses)
+        self.filter_status = lambda: next(later, None) or self.filt.status()
+        accepted = np.flatnonzero(~np.isnan(out))
+        ta = t[accepted].tolist()
+        events = []
+        ticker, i = self.voltage_out, 0
+        while i < len(ta):
+            if ticker.take(ta[i]):  # the first accepted sample at or after the next grid time
+                k = int(accepted[i])
+                events.append((int(where[k]), 1, float(out[k])))
+            i = bisect.bisect_left(ta, ticker.next_s, i + 1)
+        return events
+
+    def _visit(self, times: list[float], events: list[tuple[int, int, Any]]) -> None:
+        n, predictions = len(times), self.predictions
+        done = 0  # messages before this index have been applied
+        for pos, kind, value in events:
+            while True:  # timers triggered by messages up to and including this one
+                due = min(predictions.next_s, self.next_diag)
+                j = bisect.bisect_left(times, due, done)
+                if j > pos:
+                    break
+                self.timers_until(times[j])
+                done = j + 1
+            t = times[pos]
+            if kind == 0:
+                self.pwm(t, value)
+            elif kind == 1:
+                self.voltage_published(t, value)
+            elif kind == 2:
+                self.tach_batch(t, value)
+            else:
+                self.est.update_voltage(t, value)
+            done = pos + 1
+        while True:
+            j = bisect.bisect_left(times, min(predictions.next_s, self.next_diag), done)
+            if j >= n:
+                break
+            self.timers_until(times[j])
+            done = j + 1
 
 
 def summary_text(info: dict[str, Any]) -> str:

@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT / "test"))
 def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str) -> dict:
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
-    from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
+    from bldc_propulsion.discrepancy.workflow import run_physics_workflow
     from bldc_propulsion.discrepancy.workflow import Options
     from bldc_propulsion.sim import random_bench as rb
     from bldc_propulsion.recordings import load_signals

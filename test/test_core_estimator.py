@@ -290,3 +290,19 @@ def test_every_registered_feature_batch_equals_streaming():
             S[i] = fs.vector_at(grid[i])
     for j, name in enumerate(names):
         np.testing.assert_allclose(X[:, j], S[:, j], rtol=0, atol=1e-12, equal_nan=True, err_msg=name)
+
+
+def test_fallback_forward_one_is_forward_bit_for_bit():
+    """The estimator's per-prediction fallback (plain floats) = PhysicsModel.forward (numpy)."""
+    import struct
+
+    from bldc_propulsion.core.estimator import fallback_model
+
+    m = fallback_model()
+    rng = np.random.default_rng(0)
+    volts = np.concatenate([rng.uniform(0, 60, 20000), [0.0, -0.0, 60.0, 12.0, -0.0, 1e-300, -3.0]])
+    pwm = np.concatenate([rng.uniform(0, 1, 20000), [0.1, 0.5, 1.0, 0.0, 0.1000000001, 0.5, 0.7]])
+    for v, p in zip(volts.tolist(), pwm.tolist()):
+        x = [v, p, p]
+        want = float(m.forward(np.asarray(x, dtype=float)))
+        assert struct.pack("<d", m.forward_one(x)) == struct.pack("<d", want), x

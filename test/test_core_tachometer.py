@@ -332,3 +332,66 @@ def test_against_simulator_truth():
     fast = truth > 100.0
     assert fast.sum() > 20
     assert rel_rms(out.speed[fast], truth[fast]) < 0.01
+
+
+def _planned_vs_plain(batches: list[tuple[float, np.ndarray]], cfg=None) -> int:
+    """Feed the batches to a decoder told them in advance (expect) and to one that is not:
+    every batch's result, the state and the diagnostics must be identical. Returns how many
+    batches went through a plan."""
+    plain = TachometerDecoder(cfg)
+    planned = TachometerDecoder(cfg)
+    planned.expect([x for _, x in batches])
+    for k, (t, x) in enumerate(batches):
+        a = plain.process_batch(t, x)
+        b = planned.process_batch(t, x)
+        for f in ("edge_t", "speed", "all_edge_t"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+        assert (a.speed_now, a.signal_ok, a.state) == (b.speed_now, b.signal_ok, b.state)
+        assert plain.counts == planned.counts
+        assert (plain._edges.hi, plain._edges.lo, plain._edges.tail, plain._edges.cross,
+                plain._edges.pending, plain._edges.state, plain._edges.r_last) == (
+                planned._edges.hi, planned._edges.lo, planned._edges.tail, planned._edges.cross,
+                planned._edges.pending, planned._edges.state, planned._edges.r_last)
+        if k == len(batches) // 2:  # a diagnostics timeout check between two batches
+            assert plain.check_timeout(t + 0.5) == planned.check_timeout(t + 0.5)
+    assert plain.status() == planned.status()
+    return planned.planned_batches
+
+
+def _cut(x: np.ndarray, n: int = 200, t0: float = 0.0, rate: float = 20000.0):
+    return [(t0 + (a + n - 1) / rate, x[a:a + n].astype(np.float32)) for a in range(0, len(x) - n + 1, n)]
+
+
+def test_planned_batches_equal_plain_ones():
+    """TachometerDecoder.expect (replay's planned level trackers) changes nothing: clean
+    signal, steps, noise and glitches, NaN and absurd samples, gaps, late and repeated
+    batches, a sample-rate mismatch, short batches."""
+    steps = make_signal(first_order_steps(0.0, [(0.05, 600.0), (0.6, 150.0), (1.1, 0.0)]), 1.6, seed=2)
+    batches = _cut(steps.x)
+    assert _planned_vs_plain(batches) > 0.9 * len(batches)
+    noisy = make_signal(400.0, 0.8, noise_v=0.4, seed=3)
+    x = noisy.x.copy()
+    x[1000:1003] = 0.2  # spikes (glitches)
+    x[5000] = np.nan
+    x[6000:6200] = np.nan
+    x[7000] = 1e6
+    batches = _cut(x)
+    del batches[30:33]  # a gap
+    batches[40] = (batches[39][0], batches[40][1])  # stamped like the one before: rejected
+    batches[50] = (batches[50][0] + 0.02, batches[50][1])  # late
+    batches.insert(60, (batches[59][0] + 0.004, batches[60][1][:80]))  # a short batch
+    assert _planned_vs_plain(batches) > 0.8 * len(batches)
+    # batch stamps at half the rate the samples have: a sample-rate mismatch
+    fast = make_signal(300.0, 0.6, seed=4)
+    assert _planned_vs_plain([(t * 2, x) for t, x in _cut(fast.x)]) > 0
+    # the same array objects given twice, and batches the decoder was not told about
+    b = _cut(steps.x[:8000])
+    plain, planned = TachometerDecoder(), TachometerDecoder()
+    planned.expect([x for _, x in b])
+    for k, (t, x) in enumerate(b):
+        if k == 10:
+            extra = (t - 0.0001, x.copy())
+            plain.process_batch(*extra)
+            planned.process_batch(*extra)
+        assert plain.process_batch(t, x).speed.tolist() == planned.process_batch(t, x).speed.tolist()
+    assert plain.counts == planned.counts and plain.status() == planned.status()

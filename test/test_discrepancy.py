@@ -210,7 +210,8 @@ def test_input_delay_removes_the_delays_share_of_the_holdout_error(bags_dir):
     """What adding the dead time can do: close the gap between the base model's holdout error
     and its error on the same holdout command simulated without the delay (its own floor, which
     lies above the 30 % bar: see KNOWN_FAILURES)."""
-    from bldc_propulsion.discrepancy.workflow import _rmse, run_model
+    from bldc_propulsion.discrepancy.base import rmse as _rmse
+    from bldc_propulsion.discrepancy.network import run_model
 
     s = scenario("input_delay", bags_dir)
     data = run(s)

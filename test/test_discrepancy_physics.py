@@ -20,7 +20,7 @@ import pytest
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
-from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
+from bldc_propulsion.discrepancy.workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import BenchParams, params_with_overrides, simulate
@@ -116,6 +116,10 @@ def test_control_names_nothing(bags_dir):
     assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
 
 
+@pytest.mark.xfail(strict=True, reason="a fit at a bound is no basis for a verdict (issue 11/12): with every other "
+                   "effect off, rotor_lag's fit (holdout 66.1 -> 22.3 rad/s) stands strength 2.48 and CP in for the "
+                   "missing effects and takes CP to the lower bound of its range (0.014, a third of the true "
+                   "0.042), so it is flagged and considered, not added")
 def test_nominal_bench_names_the_biggest_missing_effect_first(bags_dir):
     """`--physics` without CONFIG (every effect off) on recordings with all on: the first round
     names rotor_lag (a static motor misses every transient) and the holdout error falls by half.
@@ -217,7 +221,11 @@ REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
 
 @pytest.mark.parametrize("log, expected", [
     # "a 16.8 V supply that sags to 13.7 V at ~10 A": the voltage is what the model lacks
-    ("rcbenchmark_steps_90percent", "battery_voltage"),
+    pytest.param("rcbenchmark_steps_90percent", "battery_voltage", marks=pytest.mark.xfail(
+        strict=True, reason="a fit at a bound is no basis for a verdict (issue 11/12): against the nominal bench "
+        "(Kv 2085 and CP 0.00033 calibrated vs 710 and 0.042: another motor and propeller), battery_voltage's fit "
+        "(69 % on held-out blocks, p = 1e-4) takes CP to the lower bound of its range (0.0001089), so it is "
+        "flagged and considered, not added; a CONFIG of that bench is what the physics path needs")),
     # "optical RPM shows a slow coast-down (ESC without active braking)"
     pytest.param("rcbenchmark_step_coastdown_16v_10in", "spin_down_asymmetry", marks=pytest.mark.xfail(
         strict=True, reason="held-out acceptance (issue 11): after rotor_lag, spin_down_asymmetry scores 64 % "

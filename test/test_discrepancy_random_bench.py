@@ -17,7 +17,7 @@ import pytest
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
-from bldc_propulsion.discrepancy.physics_workflow import run_physics_workflow
+from bldc_propulsion.discrepancy.workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.sim import random_bench as rb
 from bldc_propulsion.recordings import load_signals

@@ -1,5 +1,5 @@
 """`bldc-propulsion discrepancy`: arguments, loading, and the summary for people and scripts
-(the workflow itself is discrepancy/workflow.py and physics_workflow.py)."""
+(the workflow itself is discrepancy/workflow.py, one loop for both model kinds)."""
 
 from __future__ import annotations
 
@@ -171,9 +171,9 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
-    """``--physics [CONFIG]``: the bench physics as the model (see physics_workflow.py)."""
+    """``--physics [CONFIG]``: the bench physics as the model (see discrepancy/physics_kind.py)."""
     from ..discrepancy.physics import save_config, supply_tau_s
-    from ..discrepancy.physics_workflow import run_physics_workflow
+    from ..discrepancy.workflow import run_physics_workflow
     from ..model import PlantModel, save_model
 
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
@@ -214,7 +214,8 @@ def _physics_input(path: str) -> Any:
         return load_config(path)
     m = load_model(path, kinds=(PHYSICS,))
     nominal = load_config(None).params
-    return PhysicsModel(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v)
+    return PhysicsModel(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v,
+                        source=path)
 
 
 def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,

@@ -102,6 +102,17 @@ class PhysicsModel:
         a = self.resistance_ohm * self.torque_coefficient / ke
         return 2.0 * vm / (ke + np.sqrt(ke * ke + 4.0 * a * vm))
 
+    def forward_one(self, x: list[float]) -> float:
+        """:meth:`forward` of one row in plain floats: the same operations in the same order
+        (IEEE results, bit for bit; tested), 20x cheaper than numpy on one row."""
+        volts, pwm_f = x[0], x[2]
+        ke = 60.0 / (2.0 * math.pi * self.kv_rpm_per_v)
+        duty = (pwm_f - self.start_fraction) / (1.0 - self.start_fraction)
+        duty = min(max(duty, 0.0), 1.0) if duty == duty else duty  # np.clip; NaN stays NaN
+        vm = duty * (volts if volts > 0.0 or volts != volts else 0.0)  # np.maximum(volts, 0.0)
+        a = self.resistance_ohm * self.torque_coefficient / ke
+        return 2.0 * vm / (ke + math.sqrt(ke * ke + 4.0 * a * vm))
+
 
 def _fast_forward(model: SpeedModel):
     """x (list of raw inputs) -> speed (rad/s); the network's scaling folded into its weights.
@@ -117,6 +128,8 @@ def _fast_forward(model: SpeedModel):
         net, k = _fast_forward(model.network), model.physics_index  # type: ignore[attr-defined]
         return lambda x: x[k] + net(x)
     W1 = getattr(model, "W1", None)
+    if isinstance(model, PhysicsModel):
+        return model.forward_one
     if W1 is None or getattr(model, "is_fallback", False):
         return lambda x: float(model.forward(np.asarray(x, dtype=float)))
     lo = np.asarray(model.input_min, dtype=float)

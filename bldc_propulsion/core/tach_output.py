@@ -15,8 +15,9 @@ from .tachometer import STOPPED, TachometerDecoder
 
 def _breaks(d: TachometerDecoder) -> int:
     """Every counter that marks samples before and after it as not adjacent."""
-    return (d.history_resets + d.gaps + d.time_resyncs + d.nonfinite_gaps + d.signal_losses
-            + d.rate_mismatch_batches + d.rejected_batches)
+    k = d.counts
+    return (k.history_resets + k.gaps + k.time_resyncs + k.nonfinite_gaps + k.signal_losses
+            + k.rate_mismatch_batches + k.rejected_batches)
 
 
 class SpeedOutput:
@@ -33,11 +34,12 @@ class SpeedOutput:
         """The speed (rad/s) to publish after the batch just decoded, or None."""
         d = self.decoder
         breaks = _breaks(d)
-        if d.speeds > self._speeds and not d.rate_mismatch:
+        speeds = d.counts.speeds
+        if speeds > self._speeds and not d.rate_mismatch:
             self.valid = True  # a revolution measured in this batch
         elif breaks > self._breaks:
             self.valid = False
-        self._speeds, self._breaks = d.speeds, breaks
+        self._speeds, self._breaks = speeds, breaks
         if self.valid and d.signal_ok:
             return d.speed_now
         self.valid = False

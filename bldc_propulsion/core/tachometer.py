@@ -68,13 +68,15 @@ step 6 combines the gate's signal loss with the detector's levels.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import BadInputError
 from .status import ERROR, OK, WARN, CoreStatus, counters
-from .tachometer_parts import TWO_PI, EdgeDetector, SampleClock, SpeedGate, TachCounters, TachOutput
+from .tachometer_parts import (TWO_PI, EdgeDetector, RowPlan, SampleClock, SpeedGate, TachCounters,
+                               TachOutput)
 
 #: Values of :attr:`TachBatchResult.state`.
 SPINNING = "spinning"
@@ -182,6 +184,7 @@ class TachometerDecoder:
     """
 
     _CHUNK = 16384  #: long inputs are processed in slices of this size (cache, precision)
+    _PLAN_ROWS = 256  #: batches planned at a time (:meth:`expect`)
     RATE_CHECK_BATCHES = 5  #: batches whose median sample rate is compared with the parameter
     RATE_TOLERANCE = 0.2  #: relative difference of that rate from sample_rate_hz that is a mismatch
     VERIFY_TOLERANCE = 0.05  #: relative agreement of consecutive speeds that ends a noise check
@@ -210,6 +213,11 @@ class TachometerDecoder:
         self.config = config or TachometerConfig()
         self.dt = 1.0 / self.config.sample_rate_hz
         self.counts = TachCounters()
+        self._expected: list[np.ndarray] | None = None
+        self._cursor = 0
+        self._plan: RowPlan | None = None
+        self._plan_start = 0
+        self.planned_batches = 0  #: batches decoded through a plan (see expect)
         self.reset()
 
     def reset(self) -> None:
@@ -220,22 +228,64 @@ class TachometerDecoder:
         self._gate = SpeedGate(cfg, counts, self._clock, verify_tolerance=self.VERIFY_TOLERANCE,
                                max_accel=self.MAX_ACCEL_RAD_S2)
         self._edges = EdgeDetector(cfg, counts, self._gate)
+        self._plan = None
 
     # --- public API --------------------------------------------------------------------------
 
-    def process_batch(self, t_last: float, samples) -> TachBatchResult:
-        """Decode one batch of contiguous samples (V); ``t_last`` is the time (s) of the last one."""
-        x = np.asarray(samples, dtype=np.float64)
-        if x.ndim != 1:
-            x = x.reshape(-1)
+    def expect(self, batches: Sequence[np.ndarray]) -> None:
+        """Announce the batches the next :meth:`process_batch` calls receive (the same array
+        objects, in order; others may come between them). Their level trackers are then
+        computed many batches at a time (:meth:`EdgeDetector.plan_rows`), which is several
+        times faster and gives the same state and results (each planned row is used only when
+        the detector's state is the one the plan assumed). Replay knows its batches ahead."""
+        self._expected = list(batches)
+        self._cursor = 0
+        self._plan = None
+
+    def _planned_row(self, samples) -> tuple[RowPlan, int] | None:
+        """(plan, row) for ``samples`` if they are the next expected batch and can be planned."""
+        exp = self._expected
+        k = self._cursor
+        if exp is None or k >= len(exp) or samples is not exp[k]:
+            return None
+        self._cursor = k + 1
+        if self._plan is not None and self._plan_start <= k < self._plan_start + len(self._plan.X):
+            return self._plan, k - self._plan_start
+        n = len(exp[k])
+        if not 1 <= n <= self._CHUNK:
+            return None
+        stop = k
+        while stop < min(len(exp), k + self._PLAN_ROWS) and len(exp[stop]) == n and np.ndim(exp[stop]) == 1:
+            stop += 1
+        X = np.asarray(np.stack(exp[k:stop]), dtype=np.float64)
+        lim = self.config.max_abs_v
+        bad = np.flatnonzero(~(np.abs(X) <= lim).all(axis=1))  # NaN/inf or absurd: not planned
+        if len(bad):
+            X = X[: bad[0]]
+        if len(X) == 0:
+            self._plan = None
+            return None
+        self._plan, self._plan_start = self._edges.plan_rows(X), k
+        return self._plan, 0
+
+    def process_batch(self, t_last: float, samples, result: bool = True) -> TachBatchResult | None:
+        """Decode one batch of contiguous samples (V); ``t_last`` is the time (s) of the last one.
+        With ``result=False`` nothing is returned (the decoder's state is all a caller needs)."""
+        planned = self._planned_row(samples) if self._expected is not None else None
+        if planned is not None:
+            x = planned[0].X[planned[1]]
+        else:
+            x = np.asarray(samples, dtype=np.float64)
+            if x.ndim != 1:
+                x = x.reshape(-1)
         n = len(x)
         out = TachOutput()
         if n == 0:
-            return self._result(out)
+            return self._result(out) if result else None
         t_last = float(t_last)
         clock, edges = self._clock, self._edges
         if not clock.accepts(t_last):
-            return self._result(out)
+            return self._result(out) if result else None
         if clock.check_rate(t_last, n):  # whatever was measured at the wrong rate is void
             self._gate.void_speed()
         t_first = t_last - (n - 1) * self.dt
@@ -245,6 +295,14 @@ class TachometerDecoder:
             edges.settle(out)
             clock.restart(t_first)
         i0 = clock.advance(t_last, n)
+        if planned is not None:  # a whole finite batch: segment, through the plan when it holds
+            if edges.segment_planned(planned[0], planned[1], i0, out):
+                self.planned_batches += 1
+            else:
+                self._plan = None  # the state differs from the plan's: plan again from the next
+                edges.segment(x, i0, out)
+            self._check_time(clock.last_sample_t())
+            return self._result(out) if result else None
         lim = self.config.max_abs_v
         if not (x.max() <= lim and x.min() >= -lim):  # NaN/inf or absurd values: all as NaN
             x = np.where(np.abs(x) <= lim, x, np.nan)
@@ -271,7 +329,7 @@ class TachometerDecoder:
             if len(stops) and stops[-1] < n:
                 self._nonfinite_gap(out)
         self._check_time(clock.last_sample_t())
-        return self._result(out)
+        return self._result(out) if result else None
 
     def process(self, t0: float, samples, batch_size: int | None = None) -> TachBatchResult:
         """Decode a flat array whose first sample is at ``t0`` (s), in batches of ``batch_size``.

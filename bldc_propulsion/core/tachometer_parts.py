@@ -15,7 +15,6 @@ are in clock samples (float, sub-sample), times in seconds.
 from __future__ import annotations
 
 import math
-import statistics
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -58,6 +57,16 @@ class TachOutput:
     edge_t: list[float] = field(default_factory=list)
     speed: list[float] = field(default_factory=list)
     all_edge_t: list[float] = field(default_factory=list)
+
+
+def _median(values: deque[float]) -> float:
+    """``statistics.median`` (the same arithmetic) without its generality, for a few numbers."""
+    data = sorted(values)
+    n = len(data)
+    if n % 2 == 1:
+        return data[n // 2]
+    i = n // 2
+    return (data[i - 1] + data[i]) / 2
 
 
 class SampleClock:
@@ -104,7 +113,7 @@ class SampleClock:
             self.rates.append(n / (t_last - self.last_batch_t) / self._rate_hz)
         if not self.rates:  # the first batch: no timing to compare yet
             return False
-        ratio = float(statistics.median(self.rates))  # 5 numbers: faster than np.median
+        ratio = float(_median(self.rates))  # 5 numbers: faster than np.median
         bad = abs(ratio - 1.0) > self._rate_tolerance
         starts = False
         if bad:
@@ -272,6 +281,32 @@ class SpeedGate:
         return True
 
 
+@dataclass(slots=True)
+class RowPlan:
+    """Rows of :meth:`EdgeDetector.plan_rows`: per batch the clear level ``HI``, the clamped
+    blocked level ``LO`` and the normalised signal ``R`` (as :meth:`EdgeDetector.segment`
+    computes them), the state assumed on entry and left on exit, and the hysteresis events
+    of each row: its first event (a sample beyond a threshold: column ``first_col``, -1 if
+    none, and ``first_val``, True above), its last event's value, and the columns where an
+    event differs from the row's previous one (``switch_cols[bounds[j]:bounds[j+1]]``)."""
+
+    X: np.ndarray
+    HI: np.ndarray
+    LO: np.ndarray
+    R: np.ndarray
+    enter: list[tuple[float | None, float | None, float | None]]
+    hi_end: list[float]
+    lo_end: list[float]
+    last: list[float]
+    r_last: list[float]
+    r_first: list[float]
+    first_col: list[int]
+    first_val: list[bool]
+    last_val: list[bool]
+    switch_cols: list[int]
+    bounds: list[int]
+
+
 class EdgeDetector:
     """Contiguous finite samples to edge positions (steps 1 to 4 of the decoder).
 
@@ -402,6 +437,117 @@ class EdgeDetector:
         if self.pending is not None and (i0 + n - self.pending[1]) >= self._min_trig:
             self._confirm(out)
             self.pending = None
+
+    # --- many batches' levels at once (the same arithmetic as segment, row by row) ----------
+    def plan_rows(self, X: np.ndarray) -> RowPlan:
+        """Level trackers of the batches ``X`` (rows: contiguous, finite, each a whole batch),
+        computed ahead on the assumption that each row is segmented right after the previous
+        one, starting from the detector's current state. :meth:`segment_planned` uses a row
+        only when the state it meets is the one assumed (checked), so results are those of
+        :meth:`segment` either way."""
+        m, n = X.shape
+        c = self._decay
+        k = self._ramp[:n] if n <= len(self._ramp) else self._ramp_for(n)
+        U = np.empty((m, n))
+        np.minimum(X[:, :-1], X[:, 1:], out=U[:, 1:])
+        U[:, 1:] += k[1:]
+        V = np.empty((m, n))
+        np.maximum(X[:, :-1], X[:, 1:], out=V[:, 1:])
+        V[:, 1:] -= k[1:]
+        u_max = U[:, 1:].max(axis=1).tolist() if n > 1 else [-math.inf] * m
+        v_min = V[:, 1:].min(axis=1).tolist() if n > 1 else [math.inf] * m
+        first, last = X[:, 0].tolist(), X[:, -1].tolist()
+        k_end = k.item(n - 1)
+        enter: list[tuple[float | None, float | None, float | None]] = []
+        u0s, v0s = [], []
+        tail, hi, lo = self.tail, self.hi, self.lo
+        for j in range(m):  # the scalar chain segment runs at the start of each row
+            enter.append((tail, hi, lo))
+            x0 = first[j]
+            if tail is None:
+                tail = x0
+            if hi is None:
+                hi = x0 + c
+                lo = min(self._initial_low, x0) - c
+            u0 = min(tail, x0) + 0.0
+            if u0 < hi - c:
+                u0 = hi - c
+            v0 = max(tail, x0) - 0.0
+            if v0 > lo + c:
+                v0 = lo + c
+            u0s.append(u0)
+            v0s.append(v0)
+            tail = last[j]
+            hi = max(u0, u_max[j]) - k_end
+            lo = min(v0, v_min[j]) + k_end
+        U[:, 0] = u0s
+        V[:, 0] = v0s
+        np.maximum.accumulate(U, axis=1, out=U)
+        U -= k
+        np.minimum.accumulate(V, axis=1, out=V)
+        V += k
+        hi_end, lo_end = U[:, -1].tolist(), V[:, -1].tolist()
+        np.minimum(V, U - self._min_contrast, out=V)  # clamped blocked level
+        R = X - V
+        R /= U - V
+        low_f, high_f = self._low_f, self._high_f
+        E = (R > high_f).view(np.int8) - (R < low_f).view(np.int8)
+        rows, cols = np.nonzero(E)
+        val = E[rows, cols] > 0
+        new_row = np.ones(len(rows), dtype=bool)
+        new_row[1:] = rows[1:] != rows[:-1]
+        switch = ~new_row
+        switch[1:] &= val[1:] != val[:-1]
+        # per row: its first event (column, value), its last event's value, its inner switches
+        first_col = np.full(m, -1, dtype=np.int64)
+        first_val = np.zeros(m, dtype=bool)
+        last_val = np.zeros(m, dtype=bool)
+        starts = np.flatnonzero(new_row)
+        first_col[rows[starts]] = cols[starts]
+        first_val[rows[starts]] = val[starts]
+        ends = np.append(starts[1:], len(rows)) - 1
+        last_val[rows[ends]] = val[ends]
+        sw_rows = rows[switch]
+        bounds = np.searchsorted(sw_rows, np.arange(m + 1)).tolist()
+        return RowPlan(X, U, V, R, enter, hi_end, lo_end, last, R[:, -1].tolist(), R[:, 0].tolist(),
+                       first_col.tolist(), first_val.tolist(), last_val.tolist(),
+                       cols[switch].tolist(), bounds)
+
+    def segment_planned(self, plan: RowPlan, j: int, i0: int, out: TachOutput) -> bool:
+        """:meth:`segment` of row j of ``plan`` if the state is the one the plan assumed for
+        it (True); False, with nothing done, otherwise."""
+        if plan.enter[j] != (self.tail, self.hi, self.lo):
+            return False
+        r = plan.R[j]
+        n = len(r)
+        self.tail = self.level_now = plan.last[j]
+        self.hi, self.lo = plan.hi_end[j], plan.lo_end[j]
+        r_prev0 = self.r_last if self.r_last is not None else plan.r_first[j]
+        self.r_last = plan.r_last[j]
+        state = self.state
+        if state is None:
+            state = self.state = plan.r_first[j] >= 0.5
+        first = plan.first_col[j]
+        if first >= 0:  # the row has hysteresis events
+            trig = plan.switch_cols[plan.bounds[j]:plan.bounds[j + 1]]
+            if plan.first_val[j] != state:
+                trig.insert(0, first)
+            self.state = plan.last_val[j]
+            if trig:
+                hi, lo = plan.HI[j], plan.LO[j]
+                for kk in trig:
+                    p = self._crossing(r, kk, r_prev0, i0)
+                    if p is None:  # the crossing was in an earlier slice
+                        p = self.cross if self.cross is not None else float(i0 + kk)
+                    self._switch(p, i0 + kk, out, hi.item(kk), lo.item(kk))
+        if self._low_f <= self.r_last <= self._high_f:
+            p = self._crossing(r, n, r_prev0, i0)
+            if p is not None:
+                self.cross = p
+        if self.pending is not None and (i0 + n - self.pending[1]) >= self._min_trig:
+            self._confirm(out)
+            self.pending = None
+        return True
 
     def _crossing(self, r: np.ndarray, kk: int, r_prev0: float, i0: int) -> float | None:
         """Position (clock samples) of the last midpoint crossing at or before index kk of the slice.

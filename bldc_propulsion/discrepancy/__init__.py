@@ -1,6 +1,15 @@
 """Find where a model and measurements disagree, name the missing physical effect, add it.
 
-``residuals`` (windows, whiteness, cross-correlation, conditions) -> ``effects`` (one candidate
-feature per effect of the contract) -> ``scoring`` (held-out time blocks, significance) ->
-``workflow`` (steps 1-5 and the loop) -> ``command`` (the `discrepancy` subcommand).
+One loop, two model kinds:
+
+- ``workflow`` (steps 1-5, the loop) talks to a model kind through the ``base.ModelKind``
+  protocol (start, candidates, score, add, heldout, keep, finish): ``network`` (a trained
+  network, ``--model``) and ``physics_kind`` (the bench physics, ``--physics``; the model, its
+  CONFIG, calibration, scores and fit flags are ``physics``);
+- ``residuals`` (windows, whiteness, cross-correlation, conditions), ``effects`` (one candidate
+  feature per effect of the contract), ``scoring`` (held-out time blocks, significance),
+  ``identify`` (the identification rules: dynamics, start level, heating, which one changed),
+  ``acceptance`` (held-out evidence decides what is kept);
+- ``results`` (evidence, rounds and the result as dataclasses with ``as_json()``, the summary
+  lines, the report), and ``commands/discrepancy.py`` the `discrepancy` subcommand.
 """

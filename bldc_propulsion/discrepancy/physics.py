@@ -90,6 +90,9 @@ class PhysicsModel:
     #: the stiff supply's voltage (V) that battery_voltage strength 0 gives; None: not yet set
     #: (``with_supply`` sets the measured recordings' median)
     supply_v: float | None = None
+    #: the CONFIG file it was read from; None: the package's nominal bench (no CONFIG given), whose
+    #: constants stand for an unknown motor and propeller (see PLAUSIBLE_FACTOR)
+    source: str | None = None
 
     def predict(self, s: Signals) -> np.ndarray:
         """Speed (rad/s) on the recording's grid."""
@@ -129,17 +132,26 @@ class PhysicsModel:
         return {"params": params, "effects": dict(self.effects), "supply_v": self.supply_v}
 
 
-def describe(name: str, strength: float, p: BenchParams) -> str:
-    """The physical meaning of an effect's strength, for people."""
-    what = {
-        "battery_voltage": f"the motor sees {strength:.2f} x the measured battery voltage's deviation from a stiff supply",
-        "rotor_lag": f"rotor inertia {strength * p.rotor_inertia_kg_m2:.3g} kg m^2",
-        "input_delay": f"dead time {1000 * strength * p.esc_input_delay_s:.0f} ms",
-        "esc_deadband": f"ESC start threshold PWM {c.PWM_STOP + strength * p.esc_deadband_pwm:.4f}",
-        "spin_down_asymmetry": f"{100 * strength:.0f} % of the ESC's active braking removed",
-        "motor_heating": f"winding resistance +{100 * strength * p.copper_temperature_coefficient_per_k:.2f} %/K",
+#: The physical quantity each effect's strength scales (sim.bench.EFFECT_DOCS): name, unit, and its
+#: value at a strength on a bench.
+def fitted_value(name: str, strength: float, p: BenchParams) -> dict[str, Any]:
+    """An effect's strength as the physical quantity it sets: {quantity, value, unit, strength}."""
+    quantity, value, unit = {
+        "battery_voltage": ("share of the measured battery voltage's deviation from a stiff supply the motor sees",
+                            strength, "x"),
+        "rotor_lag": ("rotor inertia", strength * p.rotor_inertia_kg_m2, "kg m^2"),
+        "input_delay": ("dead time", 1000.0 * strength * p.esc_input_delay_s, "ms"),
+        "esc_deadband": ("ESC start level", c.PWM_STOP + strength * p.esc_deadband_pwm, "PWM level"),
+        "spin_down_asymmetry": ("share of the ESC's active braking removed", 100.0 * strength, "%"),
+        "motor_heating": ("winding resistance rise", 100.0 * strength * p.copper_temperature_coefficient_per_k, "%/K"),
     }[name]
-    return f"{name} at strength {strength:.2f} ({what})"
+    return {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
+
+
+def describe(name: str, strength: float, p: BenchParams) -> str:
+    """The physical meaning of an effect's strength, for people (the numbers of ``fitted_value``)."""
+    v = fitted_value(name, strength, p)
+    return f"strength {strength:.3g} ({v['quantity']} {v['value']:.4g} {v['unit']})"
 
 
 # --- CONFIG files -----------------------------------------------------------------------------------
@@ -177,7 +189,7 @@ def load_config(path: str | None) -> PhysicsModel:
     if supply is not None and (isinstance(supply, bool) or not isinstance(supply, (int, float))
                                or not math.isfinite(supply) or supply <= 0):
         raise BadInputError(f"--physics {path}: supply_v {supply!r} must be a voltage > 0 (or null)")
-    return PhysicsModel(p, eff, None if supply is None else float(supply))
+    return PhysicsModel(p, eff, None if supply is None else float(supply), str(path))
 
 
 def save_config(model: PhysicsModel, path: str, force: bool, provenance: dict[str, Any]) -> None:
@@ -274,17 +286,83 @@ def fit_reference(model: PhysicsModel, data: Data) -> Fit:
     return calibrate(model, data, np.array(list(model.constants().values())), LOG_RANGE_BASE, on, max_nfev=60)
 
 
-def at_bounds(fit: Fit) -> list[str]:
-    """The fitted quantities of ``fit`` that ended at a bound of their range, in words."""
+#: A fitted constant (Kv, CP) or a strength the CONFIG sets is implausible when it ends more than this
+#: factor above or below the CONFIG's value. A CONFIG names a motor and a propeller: a motor's Kv is
+#: specified within ~10 %, a propeller's CP differs by ~20 % between makers of the same size; beyond
+#: a factor 2 the fitted value describes another motor or propeller, or, far more often, stands in
+#: for an effect the model lacks (on the bundled bags, with every effect off, CP 0.0026 against
+#: 0.042). Such a fit is no basis for a verdict when the user GAVE the CONFIG; without one (the
+#: package's nominal bench, which stands for a motor and propeller nobody stated: a real 10 in
+#: propeller at 16.8 V is far from it) it is flagged all the same, not held against the verdict. The
+#: strength of an effect the workflow switches on has no CONFIG value to be measured from (0 = off)
+#: and is only checked against its bounds. A fit at a bound is never a basis for a verdict.
+PLAUSIBLE_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class FitFlag:
+    """A fitted quantity at a bound of its range, or implausibly far (PLAUSIBLE_FACTOR) from the
+    CONFIG's value."""
+
+    fit: str  #: which fit ("calibration on the measured data", "reference fit", "rotor_lag fit")
+    quantity: str  #: a CALIBRATED constant, or "<effect> strength"
+    value: float
+    config: float  #: the CONFIG's value (an effect's strength: 0 when the CONFIG has it off)
+    low: float  #: the fit's range
+    high: float
+    at_bound: bool  #: True: at a bound of the range; False: implausibly far from the CONFIG
+    stated: bool = True  #: the CONFIG was given (a file), not the package's nominal bench
+
+    @property
+    def blocks(self) -> bool:
+        """The fit is no basis for a verdict (see PLAUSIBLE_FACTOR)."""
+        return self.at_bound or self.stated
+
+    @property
+    def why(self) -> str:
+        if self.at_bound:
+            return f"at a bound of its range {self.low:.4g}-{self.high:.4g}"
+        return (f"implausible: {self.value / self.config:.2g}x the {'CONFIG' if self.stated else 'nominal bench'}'s, "
+                f"outside {1 / PLAUSIBLE_FACTOR:g}-{PLAUSIBLE_FACTOR:g}x; range {self.low:.4g}-{self.high:.4g}")
+
+    def text(self) -> str:
+        return (f"{self.fit}: {self.quantity} fitted {self.value:.4g} vs "
+                f"{'CONFIG' if self.stated else 'nominal (no CONFIG given)'} {self.config:.4g} ({self.why})")
+
+    def consequence(self) -> str:
+        return ("the fit is not a basis for a verdict on it" if self.blocks else
+                "another motor or propeller than the nominal bench, or the constant stands in for a missing "
+                "effect: give --physics a CONFIG of the bench to have it held against the verdicts")
+
+    def as_json(self) -> dict[str, Any]:
+        return {"fit": self.fit, "quantity": self.quantity, "value": self.value, "config": self.config,
+                "low": self.low, "high": self.high, "at_bound": self.at_bound, "config_given": self.stated,
+                "not_a_basis_for_a_verdict": self.blocks, "why": self.why, "text": self.text()}
+
+
+def implausible(value: float, config: float) -> bool:
+    """``value`` more than PLAUSIBLE_FACTOR from the CONFIG's ``config`` (> 0), either way."""
+    return config > 0 and not 1.0 / PLAUSIBLE_FACTOR <= value / config <= PLAUSIBLE_FACTOR
+
+
+def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
+    """The quantities of ``fit`` (named ``what``) that ended at a bound of their range or
+    implausibly far from ``config`` (the CONFIG as given): Kv and CP, and the fitted strengths."""
     out = []
-    consts = fit.model.constants()
-    for (name, value), a, span in zip(consts.items(), fit.anchor, fit.log_range):
+    stated = config.source is not None
+    for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range):
+        cfg = float(getattr(config.params, name))
+        low, high = a * math.exp(-span), a * math.exp(span)
         if abs(abs(math.log(value / a)) - span) < 1e-3:
-            out.append(f"{name} {value:.4g} (range {a * math.exp(-span):.4g}-{a * math.exp(span):.4g})")
+            out.append(FitFlag(what, name, value, cfg, low, high, True, stated))
+        elif implausible(value, cfg):
+            out.append(FitFlag(what, name, value, cfg, low, high, False, stated))
     for name in fit.free:
-        hit = strength_at_bound(name, fit.model.effects[name])
-        if hit:
-            out.append(hit)
+        value, cfg = fit.model.effects[name], config.effects[name]
+        if strength_at_bound(name, value):
+            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], True, stated))
+        elif implausible(value, cfg):
+            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], False, stated))
     return out
 
 

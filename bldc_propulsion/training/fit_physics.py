@@ -80,10 +80,12 @@ def train_physics(
     for name, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         say(f"fitting Kv, CP and the effects' strengths, {name}")
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
-        fit = ph.fit_reference(dataclasses.replace(nominal, effects=effects).with_supply(train), data)
+        start = dataclasses.replace(nominal, effects=effects).with_supply(train)
+        fit = ph.fit_reference(start, data)
         m = _plant_model(fit.model, tau)
+        at_bound = [f.text() for f in ph.fit_flags(fit, start, "training fit") if f.at_bound]
         candidates.append({"fit": name, "constants": fit.model.constants(), "effects": dict(fit.model.effects),
-                           "at_bound": ph.at_bounds(fit), "train_rmse_rad_s": rmse(m, train),
+                           "at_bound": at_bound, "train_rmse_rad_s": rmse(m, train),
                            "validation_rmse_rad_s": rmse(m, validation), "model": m})
         say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
             f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s")

@@ -1,0 +1,145 @@
+"""What the one loop (``workflow.py``) and the model kinds (``network.py``, ``physics_kind.py``)
+share: the options, a data set with its residual, and the protocol a model kind implements.
+
+A model kind is asked, in this order: ``start`` (step 1: the model on the measured, reference
+and holdout recordings, calibrated where it calibrates), ``candidates`` and ``score`` (step 3:
+each effect it can add, scored on held-out time blocks), ``add`` (step 4: the effect fitted
+into a trial model), ``heldout`` (step 5 without a --holdout: the kind's own held-out evidence),
+``keep`` (the trial becomes the model), ``finish`` (its own result fields and summary lines).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..recordings import Signals
+from . import acceptance as acc
+from . import scoring as sc
+
+Progress = Callable[[str], None]
+
+#: Decision thresholds (see workflow.py).
+ALPHA = 0.01  #: significance level of the held-out randomisation test
+MIN_EFFECT = 0.10  #: least fractional held-out MSE reduction (beyond the null correction)
+
+
+@dataclass
+class Options:
+    max_effects: int = 3
+    restrict: Sequence[str] | None = None
+    hidden: int | None = None
+    max_epochs: int = 300
+    patience: int = 6
+    seed: int = 0
+    alpha: float = ALPHA
+    min_effect: float = MIN_EFFECT
+    report_dir: str | None = None
+    report_force: bool = False  #: --force: an earlier report at report_dir may be replaced
+    warm_start: bool = True  #: retrain from the base model's weights (network.warm_start_weights)
+
+
+@dataclass
+class DataSet:
+    """Recordings, the current model's prediction on them, and the residual."""
+
+    signals: list[Signals]
+    predictions: list[np.ndarray] = field(default_factory=list)
+    inputs: list[np.ndarray] = field(default_factory=list)  #: network inputs scaled to [-1, 1]
+
+    @property
+    def residuals(self) -> list[np.ndarray]:
+        return [s.speed - p for s, p in zip(self.signals, self.predictions)]
+
+
+def rmse(residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray] | None = None) -> float:
+    """Root mean square of the finite residual samples (inside ``masks`` when given)."""
+    parts = []
+    for k, r in enumerate(residuals):
+        sel = np.isfinite(r)
+        if masks is not None:
+            sel &= masks[k]
+        parts.append(r[sel])
+    x = np.concatenate(parts) if parts else np.zeros(0)
+    return float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")
+
+
+@dataclass
+class Scores:
+    """A candidate's step-3 scores: on the measured data (for the network, its residual
+    correction fitted on measured + reference pooled), on the measured data alone, and on the
+    reference alone (None without reference recordings)."""
+
+    measured: sc.Score
+    measured_alone: sc.Score
+    reference: sc.Score | None
+    feature: str  #: the candidate's feature at its step-3 parameters, in words
+
+
+@dataclass
+class Trial:
+    """Step 4: a model with one more effect, fitted, not yet kept."""
+
+    model: Any
+    hold: DataSet  #: its predictions on the holdout (the measured recordings without one)
+    parameters: dict[str, Any]  #: the fitted parameters (--json ``fitted_parameters``)
+    feature: str  #: the fitted feature in words
+    value: dict[str, Any] | None = None  #: the fitted value in physical units (physics.fitted_value)
+    #: fitted quantities at a bound of their range or implausibly far from the CONFIG, in words
+    #: (physics.FitFlag): the fit is not a basis for a verdict
+    flags: list[str] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific fields of the round
+
+
+class ModelKind(Protocol):
+    """A model the loop can check against measurements and extend by one effect at a time."""
+
+    #: the model as the sentences name it ("the model", "the calibrated physics model")
+    noun: str
+    #: its step-3 scores are residual corrections, which cannot see a changed response (dead
+    #: time, lag, start level, heating): the loop then applies identify.refine
+    identifies_response: bool
+    #: what the holdout-less before/after figure was fitted on (for the warning)
+    fitted_on: str
+    #: the warning when there are no reference recordings
+    no_reference: str
+
+    def start(self, measured: Sequence[Signals], reference: Sequence[Signals], hold: Sequence[Signals],
+              progress: Progress) -> tuple[DataSet, DataSet | None, DataSet]:
+        """Step 1: the model's prediction on the measured, reference and holdout recordings."""
+
+    def warnings(self) -> list[str]:
+        """What the kind found doubtful so far (fits at a bound, implausible constants)."""
+
+    def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
+        """The effects the current model can still add."""
+
+    def score(self, names: Sequence[str], progress: Progress) -> dict[str, Scores]:
+        """Step 3: each candidate scored on held-out time blocks."""
+
+    def residual_rmse(self) -> tuple[float, float]:
+        """The current model's residual RMSE (rad/s) on the measured and the reference data."""
+
+    def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
+            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:
+        """Step 4: the effect added (at ``params`` when the identification fixed them)."""
+
+    def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
+        """Step 5 without --holdout: the trial judged on the kind's own held-out data."""
+
+    def keep(self, trial: Trial) -> None:
+        """The trial becomes the current model."""
+
+    @property
+    def model(self) -> Any:
+        """The current model."""
+
+    def fitted(self, name: str) -> tuple[dict[str, Any], str, dict[str, Any] | None] | None:
+        """A named effect's parameters, feature and physical value in the CURRENT model (the
+        one number reported everywhere), or None when they do not change after it is added."""
+
+    def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
+        """The kind's own --json fields, summary lines before and after the shared ones."""

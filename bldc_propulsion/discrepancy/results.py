@@ -1,0 +1,305 @@
+"""What the workflow found, as data: per-candidate evidence, the rounds, the result; and the two
+ways it is shown to people (summary lines, the report's index.html). ``as_json()`` gives the
+``--json`` object (keys: ../shared/interfaces.md and docs/architecture.md); the summary and the
+report are written from that same object, so every figure is one number everywhere."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..atomic import report_output
+from . import acceptance as acc
+from . import residuals as rs
+from . import scoring as sc
+from .base import DataSet
+
+#: The reference must lose less than this fraction of the measured data's mean squared residual
+#: for an effect to be new (else structural).
+STRUCTURAL_RATIO = 0.5
+
+
+def explained_mse(score: sc.Score | None) -> float:
+    """Held-out mean squared residual (rad/s)^2 that the effect removes beyond the null."""
+    if score is None or not np.isfinite(score.rmse_null):
+        return 0.0
+    return max(score.fraction, 0.0) * score.rmse_null**2
+
+
+def sentence(effect: str, feature: str, meas: sc.Score, ref: sc.Score | None, verdict: str, noun: str) -> str:
+    """A candidate's step-3 finding in words (``noun``: the model as the kind names it)."""
+    ref_txt = (f"{100 * max(ref.fraction, 0):.0f} % on the reference data (p = {ref.p_value:.2g}), "
+               f"{explained_mse(ref) / max(explained_mse(meas), 1e-12):.2g} times the mean squared residual "
+               f"(rad/s)^2 it removes on the measured data"
+               if ref is not None else "the reference data were not available")
+    core = (f"{effect}: {feature} removes {100 * meas.fraction:.0f} % of {noun}'s remaining residual on "
+            f"held-out time blocks of the measured data ({meas.blocks_improved} of {meas.blocks} blocks "
+            f"better, p = {meas.p_value:.2g})")
+    if verdict == "new":
+        return f"{core} but only {ref_txt}" if ref is not None else f"{core}; {ref_txt}"
+    if verdict == "structural":
+        return (f"{core} and {ref_txt}: {noun} lacks it on its own reference data too "
+                f"(structural, not new in the measured data)")
+    return f"{core}: {verdict}"
+
+
+@dataclass
+class Evidence:
+    """One candidate effect in one round: its scores, verdict, and (once fitted) its fit and the
+    held-out figure that kept or rejected it."""
+
+    effect: str
+    verdict: str  #: new, structural, not significant, not new (identified dynamics unchanged)
+    measured: sc.Score
+    measured_alone: sc.Score
+    reference: sc.Score | None
+    feature: str
+    sentence: str
+    noun: str = "the model"
+    verdict_residual: str | None = None  #: the scores' verdict when the identification overrode it
+    heating: dict[str, float] | None = None  #: identify.Heating, when identified
+    dynamics: dict[str, Any] | None = None  #: identify.Dynamics of both sets, when identified
+    fitted_parameters: dict[str, Any] | None = None
+    fitted_value: dict[str, Any] | None = None  #: physics: the fitted value in physical units
+    acceptance: acc.Acceptance | None = None
+    named: bool = False
+
+    def override(self, verdict: str, text: str) -> None:
+        """The identification's verdict replaces the scores' (kept in ``verdict_residual``)."""
+        self.verdict_residual, self.verdict, self.sentence = self.verdict, verdict, text
+
+    def refit(self, parameters: dict[str, Any], feature: str, value: dict[str, Any] | None) -> None:
+        """The effect's fitted parameters (step 4, or refitted in a later round): the feature and,
+        unless the identification wrote it, the sentence say the same number."""
+        self.fitted_parameters, self.fitted_value = parameters, value
+        if self.verdict_residual is None:
+            self.sentence = sentence(self.effect, feature, self.measured, self.reference, self.verdict, self.noun)
+        self.feature = feature
+
+    def as_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "verdict": self.verdict,
+            "measured": self.measured.as_dict(),
+            "measured_alone": self.measured_alone.as_dict(),
+            "reference": self.reference.as_dict() if self.reference is not None else None,
+            "p_value": self.measured.p_value,
+            "feature": self.feature,
+            "sentence": self.sentence,
+        }
+        for key in ("verdict_residual", "heating", "dynamics", "fitted_parameters", "fitted_value"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        if self.acceptance is not None:
+            out["acceptance"] = self.acceptance.as_json()
+        if self.named:
+            out["named"] = True
+        return out
+
+
+@dataclass
+class Round:
+    """One pass of steps 3-5: every candidate's evidence, and the one proposed."""
+
+    evidence: dict[str, Evidence]
+    proposed: str | None = None
+    parameters: dict[str, Any] | None = None
+    holdout_rmse: float | None = None
+    acceptance: acc.Acceptance | None = None
+    named: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific (the network's added input)
+
+    def as_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"evidence": {k: v.as_json() for k, v in self.evidence.items()}}
+        if self.proposed is not None:
+            out.update(proposed=self.proposed, **self.extra, parameters=self.parameters,
+                       holdout_rmse_rad_s=self.holdout_rmse,
+                       acceptance=self.acceptance.as_json() if self.acceptance else None)
+        if self.named is not None:
+            out["named"] = self.named
+        return out
+
+
+@dataclass
+class Disagreement:
+    """Step 2: where the model and the measured data disagree, and the residual tests."""
+
+    threshold: float  #: rad/s: THRESHOLD_SIGMAS x the robust sigma of the reference residual
+    windows: list[rs.Window]
+    tests: Any  #: residuals.residual_tests on the measured data
+    tests_ref: Any  #: the same on the reference data, or None
+    conditions: Any  #: residuals.condition_bins on the measured data (the disagreement map)
+
+
+@dataclass
+class Result:
+    """Everything one discrepancy run found (``as_json``: the --json object)."""
+
+    named: list[str]
+    structural: list[dict[str, Any]]
+    evidence: dict[str, Evidence]
+    rounds: list[Round]
+    gap: dict[str, float | None]  #: holdout RMSE before/after, overall and in its windows
+    found: Disagreement
+    hold_windows: list[rs.Window]
+    recordings: dict[str, list[str]]  #: reference, measured, holdout paths
+    holdout_in_sample: bool
+    decision: dict[str, Any]
+    warnings: list[str]
+    kind_fields: dict[str, Any] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, Any]:
+        evidence = {k: v.as_json() for k, v in self.evidence.items()}
+        found = self.found
+        return {
+            "named": list(self.named),
+            "structural": [x for x in self.structural if x["effect"] not in self.named],
+            "considered_not_added": acc.considered(evidence, self.named),
+            **self.gap,
+            "holdout_in_sample": self.holdout_in_sample,
+            "holdout_recordings": self.recordings["holdout"],
+            "windows": [w.as_dict() for w in found.windows],
+            "holdout_windows": [w.as_dict() for w in self.hold_windows],
+            "window_threshold_rad_s": found.threshold,
+            "residual_tests": {"measured": found.tests.as_dict(),
+                               "reference": found.tests_ref.as_dict() if found.tests_ref else None},
+            "conditions": found.conditions,
+            "reference_recordings": self.recordings["reference"],
+            "measured_recordings": self.recordings["measured"],
+            "decision": self.decision,
+            "evidence": evidence,
+            "iterations": [r.as_json() for r in self.rounds],
+            **self.kind_fields,
+            "warnings": list(self.warnings),
+            "model": None,
+        }
+
+
+def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.ndarray]) -> dict[str, float | None]:
+    """Step 5's figures: holdout RMSE before and after, overall and inside the holdout's windows."""
+    from .base import rmse
+
+    any_win = any(m.any() for m in hold_masks)
+    return {
+        "holdout_rmse_before": rmse(hold_base.residuals),
+        "holdout_rmse_after": rmse(hold_final.residuals),
+        "holdout_rmse_in_windows_before": rmse(hold_base.residuals, hold_masks) if any_win else None,
+        "holdout_rmse_in_windows_after": rmse(hold_final.residuals, hold_masks) if any_win else None,
+    }
+
+
+# --- for people --------------------------------------------------------------------------------------
+def kept_text(kept: dict[str, Any]) -> str:
+    """The held-out figure that kept an effect, with the margin and significance it had to meet."""
+    return (f"on {kept['source']}: RMSE {kept['rmse_before_rad_s']:.2f} -> {kept['rmse_after_rad_s']:.2f} rad/s, "
+            f"{100 * kept['mse_reduction']:.1f} % of the mean squared error ({kept['blocks_improved']} of "
+            f"{kept['blocks']} blocks better, p = {kept['p_value']:.2g}; needed >= "
+            f"{100 * kept['min_mse_reduction']:.0f} % and p < {kept['alpha']:g})")
+
+
+def value_text(value: dict[str, Any]) -> str:
+    """A fitted value in physical units (physics.fitted_value), e.g. 'dead time 52 ms'."""
+    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()
+
+
+def summary_lines(data: dict[str, Any]) -> list[str]:
+    lines = []
+    if data["named"]:
+        lines.append("new effect(s) found in the measured data: " + ", ".join(data["named"]))
+        for name in data["named"]:
+            ev = data["evidence"][name]
+            lines.append("  " + ev["sentence"])
+            if ev.get("fitted_value"):
+                lines.append(f"    fitted: {value_text(ev['fitted_value'])} (strength "
+                             f"{ev['fitted_value']['strength']:.3g})")
+            if ev.get("acceptance"):
+                lines.append("    added because " + kept_text(ev["acceptance"]))
+    else:
+        lines.append("no effect improves data it was not fitted on: nothing named")
+    for s in data["structural"]:
+        lines.append("structural (also on the reference data): " + s["sentence"])
+    lines += acc.considered_lines([x for x in data.get("considered_not_added", []) if x["verdict"] != "structural"])
+    lines.append(f"{len(data['windows'])} disagreement window(s) in the measured data "
+                 f"(smoothed |residual| > {data['window_threshold_rad_s']:.1f} rad/s)")
+    for w in data["windows"][:5]:
+        cnd = w["conditions"]
+        lines.append(f"  {Path(w['path']).name} {w['t_start_s']:.1f}-{w['t_end_s']:.1f} s: "
+                     f"RMS {w['rms_residual_rad_s']:.1f} rad/s at PWM {cnd['pwm']:.3f} ({cnd['pwm_direction']}), "
+                     f"{cnd['battery_voltage_v']:.2f} V, {cnd['time_under_load_s']:.0f} s under load")
+    wt = data["residual_tests"]["measured"]
+    if wt.get("whiteness"):
+        lines.append(f"residual whiteness: Ljung-Box p = {wt['whiteness']['ljung_box_p']:.2g} "
+                     f"({wt['whiteness']['lags_outside_bounds']}/{wt['whiteness']['lags_tested']} lags outside "
+                     f"+/-{wt['bound_95']:.3f})")
+    hold = "holdout" if not data["holdout_in_sample"] else "measured (in-sample)"
+    lines.append(f"{hold} RMSE {data['holdout_rmse_before']:.2f} -> {data['holdout_rmse_after']:.2f} rad/s"
+                 + (f"; inside its disagreement windows {data['holdout_rmse_in_windows_before']:.2f} -> "
+                    f"{data['holdout_rmse_in_windows_after']:.2f} rad/s"
+                    if data["holdout_rmse_in_windows_before"] is not None else ""))
+    return lines
+
+
+def write_report(final: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
+                 hold_windows: Sequence[rs.Window], data: dict[str, Any], force: bool = False) -> str:
+    """Disagreement map and before/after figures (training/report.py) and an index.html,
+    written whole to ``final`` (atomic.report_output)."""
+    with report_output(final, force=force) as d:
+        _write_report(d, meas, hold_base, hold_final, hold_windows, data)
+    return str(final)
+
+
+def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
+                  hold_windows: Sequence[rs.Window], data: dict[str, Any]) -> None:
+    from ..training import report as rp
+
+    figs = []
+    pwm = np.concatenate([s.pwm for s in meas.signals])
+    rate = np.concatenate([rs.pwm_rate(s.t, s.pwm) for s in meas.signals])
+    volt = np.concatenate([s.voltage for s in meas.signals])
+    res = np.concatenate(meas.residuals)
+    rp.fig_disagreement_map(pwm, rate, res, d / "disagreement_map.png", voltage=volt)
+    figs.append(("disagreement_map.png", "mean residual (measured - model) per PWM level and rate, "
+                 "and vs battery voltage, on the measured recordings"))
+    for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions)):
+        name = f"before_after_{k}.png"
+        spans = [(w.t_start_s, w.t_end_s) for w in hold_windows if w.path == s.path]
+        rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans, recording=s.path)
+        figs.append((name, f"{s.path}: model before and after adding {', '.join(data['named']) or 'nothing'}"))
+    rows = [{"effect": k, "verdict": v["verdict"],
+             "measured reduction": v["measured"]["mse_reduction"], "measured p": v["measured"]["p_value"],
+             "reference reduction": (v["reference"] or {}).get("mse_reduction"),
+             "reference p": (v["reference"] or {}).get("p_value"), "feature": v["feature"]}
+            for k, v in data["evidence"].items()]
+    gap = [{"holdout RMSE before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
+            "in windows before": data["holdout_rmse_in_windows_before"],
+            "in windows after": data["holdout_rmse_in_windows_after"]}]
+    # a named effect's fitted value and held-out figure as the summary states them (the same text)
+    added = []
+    for k in data["named"]:
+        ev = data["evidence"][k]
+        row: dict[str, Any] = {"effect": k, "feature": ev["feature"]}
+        if ev.get("fitted_value"):
+            row["fitted value"] = value_text(ev["fitted_value"])
+            row["strength"] = f"{ev['fitted_value']['strength']:.3g}"
+        if ev.get("acceptance"):
+            row["held-out figure that kept it"] = kept_text(ev["acceptance"])
+        added.append(row)
+    skipped = [{"effect": x["effect"], "why": x["why"], "held-out MSE reduction": x["measured_mse_reduction"],
+                "p": x["p_value"], "reference MSE reduction": x["reference_mse_reduction"],
+                "tried on held-out data": (x["acceptance"] or {}).get("mse_reduction")}
+               for x in data.get("considered_not_added", [])]
+    tables = [("candidate effects (held-out scores)", rows), ("added: the held-out figure that kept each", added),
+              ("considered, not added", skipped), ("the gap", gap)]
+    flags = data.get("fit_flags") or []
+    if flags:
+        tables.append(("fit flags: a fitted quantity at a bound of its range, or implausibly far from the CONFIG",
+                       [{"fit": f["fit"], "quantity": f["quantity"], "fitted": f"{f['value']:.4g}",
+                         "CONFIG": f"{f['config']:.4g}" + ("" if f["config_given"] else " (nominal, no CONFIG given)"),
+                         "why": f["why"], "not a basis for a verdict": f["not_a_basis_for_a_verdict"]}
+                        for f in flags]))
+    if data.get("warnings"):
+        tables.append(("warnings", [{"warning": w} for w in data["warnings"]]))
+    rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs, tables)
