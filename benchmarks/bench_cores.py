@@ -1,7 +1,8 @@
 """Throughput of the cores (prints figures, asserts nothing).
 
 Run: PYTHONPATH=. python benchmarks/bench_cores.py
-Goals: tachometer >= 5e6 samples/s on one core; one estimator update + predict < 20 us.
+Goals: tachometer >= 5e6 samples/s on one core; one estimator update + predict < 20 us; one
+update of the physics model's stream < 20 us.
 Times are CPU time of this process (best of several runs), so other load on the machine
 disturbs them little.
 """
@@ -20,8 +21,11 @@ from _tachsignal import make_signal  # noqa: E402
 
 from bldc_propulsion.core.battery_filter import BatteryFilter  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
+from bldc_propulsion.core.plant_stream import PlantStream  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerDecoder  # noqa: E402
-from bldc_propulsion.model import NetworkModel  # noqa: E402
+from bldc_propulsion.contract import EFFECTS, INPUT_PHYSICS_SPEED  # noqa: E402
+from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel  # noqa: E402
+from bldc_propulsion.sim import BenchParams, simulate  # noqa: E402
 
 
 def best(fn, repeat: int = 5) -> float:
@@ -64,7 +68,12 @@ def bench_estimator() -> None:
     rng = np.random.default_rng(0)
     net = NetworkModel(("battery_voltage", "pwm", "pwm_filtered"), [9.5, 0, 0], [12.6, 1, 1], 0.0, 650.0,
                        rng.normal(size=(25, 3)), rng.normal(size=25), rng.normal(size=25) / 25, 0.0)
-    for label, model in (("3-25-1 network", net), ("physics fallback", fallback_model())):
+    plant = PlantModel(BenchParams(sim_step_s=0.005), dict.fromkeys(EFFECTS, 1.0), 12.0)
+    residual = NetworkModel((INPUT_PHYSICS_SPEED, "pwm", "pwm_filtered"), [0, 0, 0], [650, 1, 1], -50.0, 50.0,
+                            rng.normal(size=(25, 3)), rng.normal(size=25), rng.normal(size=25) / 25, 0.0)
+    for label, model in (("3-25-1 network", net), ("physics fallback", fallback_model()),
+                         ("physics model, 5 ms steps", plant),
+                         ("hybrid: physics + 3-25-1", HybridModel(plant, residual))):
         n = 20000
 
         def run():
@@ -79,7 +88,35 @@ def bench_estimator() -> None:
         print(f"estimator ({label}): update_pwm + predict {s / n * 1e6:6.2f} us (goal < 20)")
 
 
+def bench_plant_stream() -> None:
+    """The physics model as a stream (5 ms steps, every effect on) fed as a vehicle feeds it:
+    PWM at 50 Hz, battery/voltage at 20 Hz, a prediction at 100 Hz."""
+    res = simulate("random_steps", 60.0, 1)
+    volt_t, volts = res.truth_t[::50].tolist(), res.truth_voltage[::50].tolist()
+    events = sorted([(t, 0, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
+                    + [(t, 1, x) for t, x in zip(volt_t, volts)]
+                    + [(k / 100.0, 2, 0.0) for k in range(6000)])
+    params = BenchParams(sim_step_s=0.005)
+
+    def run():
+        s = PlantStream(params, {}, 12.0, 2.0)
+        upd_pwm, upd_volt, speed = s.update_pwm, s.update_voltage, s.speed_at
+        for t, kind, x in events:
+            if kind == 0:
+                upd_pwm(t, x)
+            elif kind == 1:
+                upd_volt(t, x)
+            else:
+                speed(t)
+
+    s = best(run, repeat=3)
+    print(f"physics stream (plant, 5 ms steps): {s / len(events) * 1e6:6.2f} us per update "
+          f"(pwm 50 Hz, voltage 20 Hz, speed_at 100 Hz; {s / 6000 * 1e6:.1f} us per prediction "
+          f"with its share of the inputs) (goal < 20)")
+
+
 if __name__ == "__main__":
     bench_tachometer()
     bench_battery()
     bench_estimator()
+    bench_plant_stream()

@@ -102,9 +102,9 @@ def _loads(loader: Callable[[Path], object]) -> Callable[[Path], bool]:
 
 
 def _model_loader(p: Path) -> object:
-    from .model import load_model  # late: model imports this module
+    from .model import KINDS, load_model  # late: model imports this module
 
-    return load_model(p)
+    return load_model(p, kinds=KINDS)
 
 
 def _config_loader(p: Path) -> object:

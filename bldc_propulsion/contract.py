@@ -67,6 +67,8 @@ INPUT_BATTERY_VOLTAGE = "battery_voltage"
 INPUT_PWM = "pwm"
 INPUT_PWM_FILTERED = "pwm_filtered"
 DEFAULT_INPUTS: tuple[str, ...] = (INPUT_BATTERY_VOLTAGE, INPUT_PWM, INPUT_PWM_FILTERED)
+#: The physics model's predicted speed (rad/s): a physics model's output, a hybrid network's input.
+INPUT_PHYSICS_SPEED = "physics_speed"
 PAPER_PWM_TAU_S = 0.25  #: time constant of the paper's PWM input filter
 PAPER_HIDDEN = 25
 

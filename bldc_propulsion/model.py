@@ -1,51 +1,76 @@
-"""The trained speed model: an n-H-1 network (tanh hidden layer, linear output) and its .npz file.
+"""The speed model of every kind and its .npz file: ``network`` (the paper's n-H-1 network, tanh
+hidden layer, linear output), ``physics`` (the plant's constants and effect strengths,
+``plant.py``) and ``hybrid`` (the physics model's speed plus a network trained on what it gets
+wrong, the physics speed among its inputs).
 
-File format (``format_version`` 1), every array required:
+File format (``format_version`` 2; version 1 files, network models without ``kind``, still load):
 
-| key | shape / dtype | meaning |
-|---|---|---|
-| ``format_version`` | () int64 | 1 |
-| ``input_names`` | (n,) unicode | model inputs in order (core/features.py registry) |
-| ``input_min``, ``input_max`` | (n,) float64 | scaling of inputs to [-1, 1] |
-| ``output_min``, ``output_max`` | () float64 | scaling of speed (rad/s) to [-1, 1] |
-| ``W1`` (H, n), ``b1`` (H,), ``W2`` (H,), ``b2`` () | float64 | network weights |
-| ``pwm_tau_s`` | () float64 | time constant of ``pwm_filtered`` (paper: 0.25 s) |
-| ``thrust_coefficient`` | () float64 | b in thrust = b w^2 (N s^2/rad^2) |
-| ``metadata_json`` | () unicode | JSON object: provenance, costs, ``feature_params`` |
+| key | shape / dtype | kinds | meaning |
+|---|---|---|---|
+| ``format_version`` | () int64 | all | 2 |
+| ``kind`` | () unicode | all | ``network``, ``physics`` or ``hybrid`` |
+| ``thrust_coefficient`` | () float64 | all | b in thrust = b w^2 (N s^2/rad^2) |
+| ``metadata_json`` | () unicode | all | JSON object: provenance, costs, ``feature_params`` |
+| ``input_names`` | (n,) unicode | network, hybrid | model inputs in order (core/features.py registry; a hybrid's include ``physics_speed``) |
+| ``input_min``, ``input_max`` | (n,) float64 | network, hybrid | scaling of inputs to [-1, 1] |
+| ``output_min``, ``output_max`` | () float64 | network, hybrid | scaling of the output (rad/s) to [-1, 1] |
+| ``W1`` (H, n), ``b1`` (H,), ``W2`` (H,), ``b2`` () | float64 | network, hybrid | network weights |
+| ``pwm_tau_s`` | () float64 | network, hybrid | time constant of ``pwm_filtered`` (paper: 0.25 s) |
+| ``physics_names``, ``physics_values`` | (m,) unicode, (m,) float64 | physics, hybrid | every ``plant.PlantParams`` constant by name (SI) |
+| ``effect_names``, ``effect_strengths`` | (e,) unicode, (e,) float64 | physics, hybrid | every contract effect's strength (0 off, 1 nominal) |
+| ``supply_v`` | () float64 | physics, hybrid | the stiff supply (V) that battery_voltage strength 0 gives |
+| ``supply_tau_s`` | () float64 | physics, hybrid | the filter the voltage input comes through (s; 0: the terminal's) |
 
 Files are read with ``allow_pickle=False`` (a model file cannot run code) and validated
-completely; every problem is a ``ModelError("<path>: <what is wrong>")``.
+completely; every problem is a ``ModelError("<path>: <field>: <what is wrong>")``.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, NoReturn, Union
 
 import numpy as np
 
 from . import contract as c
 from .atomic import MODEL, atomic_output, describe_path
 from .errors import ModelError, one_line
+from .plant import PLANT_FIELDS, PlantParams, plant_problem, strength_problem
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+NETWORK, PHYSICS, HYBRID = "network", "physics", "hybrid"
+KINDS = (NETWORK, PHYSICS, HYBRID)
+#: The input of a hybrid's network that is the physics part's predicted speed (rad/s).
+PHYSICS_SPEED = c.INPUT_PHYSICS_SPEED
 #: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough, for when nothing is fitted
 NOMINAL_THRUST_COEFFICIENT = 2.8e-5
 
-_FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s", "thrust_coefficient")
-REQUIRED_KEYS: tuple[str, ...] = (
-    "format_version", "input_names", "input_min", "input_max", "output_min", "output_max",
-    "W1", "b1", "W2", "b2", "pwm_tau_s", "thrust_coefficient", "metadata_json",
-)
+_FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s")
+_COMMON_KEYS = ("format_version", "kind", "thrust_coefficient", "metadata_json")
+_NETWORK_KEYS = ("input_names", "input_min", "input_max", "output_min", "output_max",
+                 "W1", "b1", "W2", "b2", "pwm_tau_s")
+_PHYSICS_KEYS = ("physics_names", "physics_values", "effect_names", "effect_strengths", "supply_v",
+                 "supply_tau_s")
+#: The arrays of a file of each kind.
+KEYS: dict[str, tuple[str, ...]] = {
+    NETWORK: _COMMON_KEYS + _NETWORK_KEYS,
+    PHYSICS: _COMMON_KEYS + _PHYSICS_KEYS,
+    HYBRID: _COMMON_KEYS + _NETWORK_KEYS + _PHYSICS_KEYS,
+}
+#: A network model's arrays (what every version 1 file holds, but ``kind``).
+REQUIRED_KEYS: tuple[str, ...] = KEYS[NETWORK]
 
 
 @dataclass
 class NetworkModel:
     """Weights and scaling of the speed network (SI units: inputs as features.py makes them, rad/s)."""
 
+    kind: ClassVar[str] = NETWORK
     input_names: tuple[str, ...]
     input_min: np.ndarray
     input_max: np.ndarray
@@ -99,7 +124,7 @@ class NetworkModel:
     def _arrays(self) -> dict[str, np.ndarray]:
         """The arrays of the .npz file."""
         return {
-            "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+            **_common_arrays(self.kind, self.thrust_coefficient, self.metadata),
             "input_names": np.array(self.input_names, dtype=np.str_),
             "input_min": self.input_min,
             "input_max": self.input_max,
@@ -110,44 +135,199 @@ class NetworkModel:
             "W2": self.W2,
             "b2": np.array(self.b2, dtype=np.float64),
             "pwm_tau_s": np.array(self.pwm_tau_s, dtype=np.float64),
-            "thrust_coefficient": np.array(self.thrust_coefficient, dtype=np.float64),
-            "metadata_json": np.array(json.dumps(self.metadata, sort_keys=True), dtype=np.str_),
         }
 
 
-def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> dict[str, Any]:
-    """Validate the arrays of a model; ModelError(f"{where}: ...") on the first problem.
+def _common_arrays(kind: str, thrust_coefficient: float, metadata: dict[str, Any]) -> dict[str, np.ndarray]:
+    return {
+        "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
+        "kind": np.array(kind, dtype=np.str_),
+        "thrust_coefficient": np.array(thrust_coefficient, dtype=np.float64),
+        "metadata_json": np.array(json.dumps(metadata, sort_keys=True), dtype=np.str_),
+    }
 
-    With ``check_names``, also that every input is a registered feature and its parameters fit.
+
+@dataclass
+class PlantModel:
+    """A ``physics`` model: the plant's constants, every effect's strength and the stiff-supply
+    voltage (what ``discrepancy --physics`` fits); driven by PWM and the filtered battery voltage
+    (``plant.motor_response``, ``core.plant_stream.PlantStream``)."""
+
+    kind: ClassVar[str] = PHYSICS
+    params: PlantParams  #: a BenchParams is cut down to its plant constants
+    effects: dict[str, float]  #: every contract effect
+    supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
+    thrust_coefficient: float | None = None  #: b (N s^2/rad^2); None: the propeller's CT gives it
+    metadata: dict[str, Any] = field(default_factory=dict)
+    #: time constant (s) of the filter the voltage input comes through: the battery filter's
+    #: (None), 0 for a supply measured directly (plant.Supply)
+    supply_tau_s: float | None = None
+
+    def __post_init__(self) -> None:
+        self.params = PlantParams(**{n: float(getattr(self.params, n)) for n in PLANT_FIELDS})
+        self.effects = {str(k): float(v) for k, v in dict(self.effects).items()}
+        self.supply_v = float(self.supply_v)
+        if self.supply_tau_s is None:
+            from .core.battery_filter import BatteryFilterConfig  # late: core imports this module
+
+            self.supply_tau_s = BatteryFilterConfig().tau_s
+        self.supply_tau_s = float(self.supply_tau_s)
+        if self.thrust_coefficient is None:
+            self.thrust_coefficient = self.params.thrust_coefficient
+        self.thrust_coefficient = float(self.thrust_coefficient)
+        if not isinstance(self.metadata, dict):
+            raise ModelError("model: metadata must be a dict")
+        _check(self._arrays(), "model")
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        return {**_common_arrays(self.kind, self.thrust_coefficient, self.metadata),  # type: ignore[arg-type]
+                **self._physics_arrays()}
+
+    def _physics_arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "physics_names": np.array(PLANT_FIELDS, dtype=np.str_),
+            "physics_values": np.array([getattr(self.params, n) for n in PLANT_FIELDS], dtype=np.float64),
+            "effect_names": np.array(list(self.effects), dtype=np.str_),
+            "effect_strengths": np.array(list(self.effects.values()), dtype=np.float64),
+            "supply_v": np.array(self.supply_v, dtype=np.float64),
+            "supply_tau_s": np.array(self.supply_tau_s, dtype=np.float64),
+        }
+
+    @classmethod
+    def _of(cls, a: Mapping[str, np.ndarray], thrust_coefficient: float, metadata: dict[str, Any]) -> "PlantModel":
+        """From validated arrays."""
+        return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))),
+                   dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]))),
+                   float(a["supply_v"]), thrust_coefficient, metadata, float(a["supply_tau_s"]))
+
+    # --- what the estimator and evaluate run (core/estimator.SpeedModel): one input, the speed
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return (PHYSICS_SPEED,)
+
+    @property
+    def input_min(self) -> np.ndarray:
+        return np.array([-np.inf])  # nothing to clip: the physics holds everywhere it is valid
+
+    @property
+    def input_max(self) -> np.ndarray:
+        return np.array([np.inf])
+
+    def feature_params(self) -> dict[str, dict[str, float]]:
+        """The ``physics_speed`` input's parameters: this model (core/plant_stream.STREAM_DEFAULTS)."""
+        from .core.plant_stream import stream_params  # late: core imports this module
+
+        return {PHYSICS_SPEED: stream_params(self.params, self.effects, self.supply_v, self.supply_tau_s)}  # type: ignore[arg-type]
+
+    def forward(self, X_raw: np.ndarray) -> np.ndarray:
+        """Speed (rad/s): the ``physics_speed`` input itself."""
+        return np.asarray(X_raw, dtype=float)[..., 0]
+
+
+@dataclass
+class HybridModel:
+    """A ``hybrid`` model: the physics model's speed plus ``network``'s output, a correction
+    trained on what the physics gets wrong; ``PHYSICS_SPEED`` is among the network's inputs.
+    Thrust coefficient and metadata are the network part's."""
+
+    kind: ClassVar[str] = HYBRID
+    plant: PlantModel
+    network: NetworkModel
+
+    def __post_init__(self) -> None:
+        if PHYSICS_SPEED not in self.network.input_names:
+            raise ModelError(f"model: input_names: a hybrid's network must take {PHYSICS_SPEED} "
+                             f"(has {', '.join(self.network.input_names)})")
+
+    @property
+    def thrust_coefficient(self) -> float:
+        return self.network.thrust_coefficient
+
+    @property
+    def metadata(self) -> dict[str, Any]:
+        return self.network.metadata
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        return {**self.network._arrays(), **self.plant._physics_arrays(), "kind": np.array(HYBRID, dtype=np.str_)}
+
+    # --- what the estimator and evaluate run: the network's inputs; physics_speed is not clipped
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return self.network.input_names
+
+    @property
+    def physics_index(self) -> int:
+        return self.network.input_names.index(PHYSICS_SPEED)
+
+    @property
+    def input_min(self) -> np.ndarray:
+        out = self.network.input_min.copy()
+        out[self.physics_index] = -np.inf
+        return out
+
+    @property
+    def input_max(self) -> np.ndarray:
+        out = self.network.input_max.copy()
+        out[self.physics_index] = np.inf
+        return out
+
+    def feature_params(self) -> dict[str, dict[str, float]]:
+        return {**self.network.feature_params(), **self.plant.feature_params()}
+
+    def forward(self, X_raw: np.ndarray) -> np.ndarray:
+        """Speed (rad/s): the physics speed plus the network's correction."""
+        X = np.asarray(X_raw, dtype=float)
+        return X[..., self.physics_index] + self.network.forward(X)
+
+
+#: A model of any kind, as ``load_model`` returns it.
+Model = Union[NetworkModel, PlantModel, HybridModel]
+
+
+Fail = Callable[[str], NoReturn]
+
+
+def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) -> tuple[str, dict[str, Any]]:
+    """Validate the arrays of a model of any kind; ModelError(f"{where}: ...") on the first
+    problem. Returns the kind and the metadata.
+
+    With ``check_names``, also that every network input is a registered feature (a hybrid's
+    ``physics_speed`` aside) and its parameters fit.
     """
-    from .core.features import feature_class, make_features  # late: features needs no model
-
-    def fail(msg: str) -> None:
+    def fail(msg: str) -> NoReturn:
         raise ModelError(f"{where}: {msg}")
 
+    kind = _check_kind(a, fail)
+    _check_floats(a, {"thrust_coefficient": ()}, fail)
+    if not float(a["thrust_coefficient"]) >= 0:
+        fail("thrust_coefficient must be >= 0")
+    meta = _check_metadata(a, fail)
+    if kind != PHYSICS:
+        _check_network(a, kind, meta, check_names, fail)
+    if kind != NETWORK:
+        _check_physics(a, fail)
+    return kind, meta
+
+
+def _check_kind(a: Mapping[str, np.ndarray], fail: Fail) -> str:
+    """The file's format version and kind (``network`` for version 1)."""
     fv = a["format_version"]
     if fv.shape != () or fv.dtype.kind not in "iu":
         fail(f"format_version must be a scalar integer, got {fv.dtype} shape {fv.shape}")
-    if int(fv) != FORMAT_VERSION:
-        fail(f"format_version {int(fv)} is not supported (this program reads {FORMAT_VERSION})")
-    names = a["input_names"]
-    if names.ndim != 1 or names.dtype.kind != "U" or len(names) == 0:
-        fail(f"input_names must be a non-empty 1-D unicode array, got {names.dtype} shape {names.shape}")
-    name_list = [str(x) for x in names]
-    if len(set(name_list)) != len(name_list):
-        fail(f"input_names repeat a name: {', '.join(name_list)}")
-    for nm in name_list if check_names else ():
-        try:
-            feature_class(nm)
-        except ModelError as exc:
-            fail(str(exc))
-    n = len(name_list)
-    W1 = a["W1"]
-    if W1.ndim != 2 or W1.shape[1] != n or W1.shape[0] < 1:
-        fail(f"W1 must have shape (H, {n}), got {W1.shape}")
-    H = W1.shape[0]
-    shapes = {"input_min": (n,), "input_max": (n,), "b1": (H,), "W2": (H,), "W1": (H, n),
-              **{k: () for k in _FLOAT_KEYS_SCALAR}}
+    if int(fv) not in READABLE_VERSIONS:
+        fail(f"format_version {int(fv)} is not supported (this program reads "
+             f"{', '.join(map(str, READABLE_VERSIONS))})")
+    if int(fv) == 1:
+        return NETWORK
+    kind = a["kind"]
+    if kind.shape != () or kind.dtype.kind != "U":
+        fail(f"kind must be a scalar unicode string, got {kind.dtype} shape {kind.shape}")
+    if str(kind) not in KINDS:
+        fail(f"kind '{kind}' is not known (known: {', '.join(KINDS)})")
+    return str(kind)
+
+
+def _check_floats(a: Mapping[str, np.ndarray], shapes: Mapping[str, tuple[int, ...]], fail: Fail) -> None:
     for k, shape in shapes.items():
         arr = a[k]
         if arr.dtype.kind != "f":
@@ -156,6 +336,59 @@ def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> di
             fail(f"{k} must have shape {shape}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             fail(f"{k} contains NaN or inf")
+
+
+def _check_names(a: Mapping[str, np.ndarray], key: str, fail: Fail) -> list[str]:
+    """A non-empty 1-D unicode array of distinct names."""
+    names = a[key]
+    if names.ndim != 1 or names.dtype.kind != "U" or len(names) == 0:
+        fail(f"{key} must be a non-empty 1-D unicode array, got {names.dtype} shape {names.shape}")
+    out = [str(x) for x in names]
+    if len(set(out)) != len(out):
+        fail(f"{key} repeat a name: {', '.join(out)}")
+    return out
+
+
+def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
+    mj = a["metadata_json"]
+    if mj.shape != () or mj.dtype.kind != "U":
+        fail(f"metadata_json must be a scalar unicode string, got {mj.dtype} shape {mj.shape}")
+    try:
+        meta = json.loads(str(mj))
+    except ValueError as exc:
+        fail(f"metadata_json is not valid JSON ({exc})")
+    if not isinstance(meta, dict):
+        fail("metadata_json must hold a JSON object")
+    fp = meta.get("feature_params", {})
+    if not isinstance(fp, dict) or not all(isinstance(v, dict) for v in fp.values()):
+        fail("metadata_json: feature_params must map input names to parameter objects")
+    return meta
+
+
+def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any], check_names: bool,
+                   fail: Fail) -> None:
+    from .core.features import feature_class, make_features  # late: features needs no model
+
+    name_list = _check_names(a, "input_names", fail)
+    features = [nm for nm in name_list if nm != PHYSICS_SPEED]
+    if check_names:
+        if kind == HYBRID and PHYSICS_SPEED not in name_list:
+            fail(f"input_names: a hybrid's network must take {PHYSICS_SPEED} (has {', '.join(name_list)})")
+        if kind == NETWORK and PHYSICS_SPEED in name_list:
+            fail(f"input_names: {PHYSICS_SPEED} is the physics part's speed: only a hybrid model has it")
+        for nm in features:
+            try:
+                feature_class(nm)
+            except ModelError as exc:
+                fail(str(exc))
+    n = len(name_list)
+    W1 = a["W1"]
+    if W1.ndim != 2 or W1.shape[1] != n or W1.shape[0] < 1:
+        fail(f"W1 must have shape (H, {n}), got {W1.shape}")
+    H = W1.shape[0]
+    shapes = {"input_min": (n,), "input_max": (n,), "b1": (H,), "W2": (H,), "W1": (H, n),
+              **{k: () for k in _FLOAT_KEYS_SCALAR}}
+    _check_floats(a, shapes, fail)
     if not np.all(a["input_min"] < a["input_max"]):
         bad = [name_list[i] for i in np.flatnonzero(~(a["input_min"] < a["input_max"]))]
         fail(f"input_min must be < input_max (not so for {', '.join(bad)})")
@@ -163,8 +396,6 @@ def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> di
         fail("output_min must be < output_max")
     if not float(a["pwm_tau_s"]) > 0:
         fail("pwm_tau_s must be > 0")
-    if not float(a["thrust_coefficient"]) >= 0:
-        fail("thrust_coefficient must be >= 0")
     # finite arrays can still overflow in use (a float128 beyond float64, 1e308 weights):
     # bound every intermediate of forward() for inputs inside the scaling range
     with np.errstate(over="ignore", invalid="ignore"):
@@ -181,26 +412,40 @@ def _check(a: dict[str, np.ndarray], where: str, check_names: bool = True) -> di
               and np.isfinite(worst))
     if not ok:
         fail("weights or scaling too large: the speed would overflow (not finite)")
-    mj = a["metadata_json"]
-    if mj.shape != () or mj.dtype.kind != "U":
-        fail(f"metadata_json must be a scalar unicode string, got {mj.dtype} shape {mj.shape}")
-    try:
-        meta = json.loads(str(mj))
-    except ValueError as exc:
-        fail(f"metadata_json is not valid JSON ({exc})")
-    if not isinstance(meta, dict):
-        fail("metadata_json must hold a JSON object")
-    fp = meta.get("feature_params", {})
-    if not isinstance(fp, dict) or not all(isinstance(v, dict) for v in fp.values()):
-        fail("metadata_json: feature_params must map input names to parameter objects")
     if check_names:
-        params = {k: dict(v) for k, v in fp.items()}
+        params = {k: dict(v) for k, v in meta.get("feature_params", {}).items()}
         params.setdefault(c.INPUT_PWM_FILTERED, {})["tau_s"] = float(a["pwm_tau_s"])
         try:
-            make_features(name_list, params)
+            make_features(features, params)
         except ModelError as exc:
             fail(str(exc))
-    return meta
+
+
+def _check_physics(a: Mapping[str, np.ndarray], fail: Fail) -> None:
+    """Every plant constant and effect strength, by name, within its physical range."""
+    for names_key, values_key, known in (("physics_names", "physics_values", PLANT_FIELDS),
+                                         ("effect_names", "effect_strengths", c.EFFECTS)):
+        names = _check_names(a, names_key, fail)
+        unknown = [n for n in names if n not in known]
+        if unknown:
+            fail(f"{names_key}: '{unknown[0]}' is not known (known: {', '.join(known)})")
+        missing = [n for n in known if n not in names]
+        if missing:
+            fail(f"{names_key}: missing {', '.join(missing)}")
+        _check_floats(a, {values_key: (len(names),)}, fail)
+    params = dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))
+    bad = plant_problem(PlantParams(**params))
+    if bad:
+        fail(f"physics_values: {bad[0]} {bad[1]}")
+    for name, value in zip(map(str, a["effect_names"]), map(float, a["effect_strengths"])):
+        why = strength_problem(name, value)
+        if why:
+            fail(f"effect_strengths: {name} {why}")
+    _check_floats(a, {"supply_v": (), "supply_tau_s": ()}, fail)
+    if not float(a["supply_v"]) > 0:
+        fail(f"supply_v {float(a['supply_v'])!r} must be a voltage > 0")
+    if not float(a["supply_tau_s"]) >= 0:
+        fail(f"supply_tau_s {float(a['supply_tau_s'])!r} must be >= 0")
 
 
 #: Share of the time outside the training range from which commands warn (below: a blip, e.g.
@@ -229,7 +474,7 @@ class RangeReport:
                 f"time ({each}); predictions there are extrapolations (inputs clipped) and not to be trusted")
 
 
-def range_report(model: NetworkModel, X: np.ndarray, where: str) -> RangeReport:
+def range_report(model: Model, X: np.ndarray, where: str) -> RangeReport:
     """RangeReport of raw inputs ``X`` (rows: time, columns: ``model.input_names``); rows with
     an unknown (NaN) input are not counted."""
     X = np.asarray(X, dtype=float)
@@ -243,8 +488,9 @@ def range_report(model: NetworkModel, X: np.ndarray, where: str) -> RangeReport:
                        {n: float(f) for n, f in zip(model.input_names, per) if f > 0})
 
 
-def load_model(path: str | os.PathLike[str]) -> NetworkModel:
-    """Read and validate a model file (never unpickles anything)."""
+def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> Model:
+    """Read and validate a model file (never unpickles anything); ModelError unless its kind is
+    one of ``kinds`` (the uses that only take networks say so)."""
     p = Path(path)
     if not p.exists():
         raise ModelError(f"{p}: no such model file")
@@ -260,27 +506,36 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
         raise ModelError(f"{p}: not a model .npz file ({one_line(exc)})") from None
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise ModelError(f"{p}: not a model .npz archive (a single array)")
-    with npz:
-        missing = [k for k in REQUIRED_KEYS if k not in npz.files]
-        if missing:
-            raise ModelError(f"{p}: missing array(s) {', '.join(missing)}")
-        arrays: dict[str, np.ndarray] = {}
-        for k in REQUIRED_KEYS:
-            try:
-                arrays[k] = np.asarray(npz[k])
-            except ValueError as exc:
-                if "pickle" in str(exc).lower() or "object" in str(exc).lower():
-                    raise ModelError(f"{p}: array '{k}' holds pickled Python objects (refused)") from None
-                raise ModelError(f"{p}: array '{k}' cannot be read ({one_line(exc)})") from None
-            except Exception as exc:  # any other failure to read is damage: zlib.error,
-                # BadZipFile, EOFError, NotImplementedError (compression), RuntimeError (encrypted)
-                raise ModelError(f"{p}: array '{k}' is damaged ({one_line(exc)})") from None
-    for k, arr in arrays.items():
+
+    def read(k: str) -> np.ndarray:
+        try:
+            arr = np.asarray(npz[k])
+        except ValueError as exc:
+            if "pickle" in str(exc).lower() or "object" in str(exc).lower():
+                raise ModelError(f"{p}: array '{k}' holds pickled Python objects (refused)") from None
+            raise ModelError(f"{p}: array '{k}' cannot be read ({one_line(exc)})") from None
+        except Exception as exc:  # any other failure to read is damage: zlib.error,
+            # BadZipFile, EOFError, NotImplementedError (compression), RuntimeError (encrypted)
+            raise ModelError(f"{p}: array '{k}' is damaged ({one_line(exc)})") from None
         if arr.dtype.kind == "O":  # pragma: no cover - np.load refuses these already
             raise ModelError(f"{p}: array '{k}' holds Python objects (refused)")
-    meta = _check(arrays, str(p))
+        return arr
+
+    with npz:
+        keys = _keys_of(npz.files, read)
+        missing = [k for k in keys if k not in npz.files]
+        if missing:
+            raise ModelError(f"{p}: missing array(s) {', '.join(missing)}")
+        arrays = {k: read(k) for k in keys}
+    kind, meta = _check(arrays, str(p))
+    if kind not in kinds:
+        raise ModelError(f"{p}: kind {kind}: a {' or '.join(kinds)} model is needed here")
+    thrust = float(arrays["thrust_coefficient"])
     try:
-        return NetworkModel(
+        plant = PlantModel._of(arrays, thrust, meta) if kind != NETWORK else None
+        if kind == PHYSICS:
+            return plant  # type: ignore[return-value]
+        network = NetworkModel(
             input_names=tuple(str(x) for x in arrays["input_names"]),
             input_min=arrays["input_min"],
             input_max=arrays["input_max"],
@@ -291,14 +546,34 @@ def load_model(path: str | os.PathLike[str]) -> NetworkModel:
             W2=arrays["W2"],
             b2=float(arrays["b2"]),
             pwm_tau_s=float(arrays["pwm_tau_s"]),
-            thrust_coefficient=float(arrays["thrust_coefficient"]),
+            thrust_coefficient=thrust,
             metadata=meta,
         )
+        return network if plant is None else HybridModel(plant, network)
     except ModelError as exc:  # feature parameters that do not fit, e.g.
         raise ModelError(f"{p}: {exc}") from None
 
 
-def save_model(model: NetworkModel, path: str | os.PathLike[str], force: bool = False) -> None:
+def _keys_of(files: Collection[str], read: Callable[[str], np.ndarray]) -> tuple[str, ...]:
+    """The arrays a file must hold, from its version and kind: a version 1 file is a network
+    without ``kind``. A version or kind that cannot be used: only those, for ``_check`` to say
+    what is wrong with them."""
+    if "format_version" not in files:
+        return KEYS[NETWORK]
+    fv = read("format_version")
+    if fv.shape != () or fv.dtype.kind not in "iu" or int(fv) not in READABLE_VERSIONS:
+        return ("format_version",)
+    if int(fv) == 1:
+        return tuple(k for k in KEYS[NETWORK] if k != "kind")
+    if "kind" not in files:
+        return KEYS[NETWORK]
+    kind = read("kind")
+    if kind.shape != () or kind.dtype.kind != "U" or str(kind) not in KINDS:
+        return ("format_version", "kind")
+    return KEYS[str(kind)]
+
+
+def save_model(model: Model, path: str | os.PathLike[str], force: bool = False) -> None:
     """Write the model atomically; refuses an existing file unless ``force`` (OutputExistsError)."""
     arrays = model._arrays()
     _check(arrays, "model")

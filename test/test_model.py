@@ -144,7 +144,7 @@ def test_missing_array(tmp_path, key):
     ("input_names", np.array([1, 2, 3]), "input_names must be"),
     ("input_max", np.array([9.0, 1.0, 1.0]), "input_min must be < input_max"),
     ("output_max", np.array(-1.0), "output_min must be < output_max"),
-    ("format_version", np.array(2, dtype=np.int64), "format_version 2 is not supported"),
+    ("format_version", np.array(3, dtype=np.int64), "format_version 3 is not supported"),
     ("format_version", np.array(1.0), "format_version must be a scalar integer"),
     ("W1", np.ones((25, 3), dtype=np.int64), "W1 must be a float array"),
     ("metadata_json", np.array("{not json"), "metadata_json is not valid JSON"),

@@ -89,7 +89,8 @@ REFUSED = {
                          ["must be a recording", "'.npz'"]),
     "model to a missing folder": (["train", "bag", "--validation", "bag2", "-o", "models/x.npz"], [],
                                   ["directory models does not exist"]),
-    "physics CONFIG as .npz": (["discrepancy", "--physics", "--measured", "bag", "-o", "found.npz"], [],
+    # with --physics, -o is a physics model (.npz) or a CONFIG (.json)
+    "physics CONFIG as .txt": (["discrepancy", "--physics", "--measured", "bag", "-o", "found.txt"], [],
                                ["must be a physics CONFIG file (.json)", ".json"]),
     "model as .json": (["discrepancy", "--model", "model.npz", "--measured", "bag", "-o", "found.json"], [],
                        ["must be a model file (.npz)"]),

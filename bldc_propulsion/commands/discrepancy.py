@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from collections.abc import Callable
 from typing import Any
@@ -44,7 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                           "with every effect OFF; CONFIG is a JSON file {\"params\": {BenchParams field: "
                           "value}, \"effects\": {name: strength}, \"supply_v\": V} in which effects not listed are "
                           "OFF and supply_v (the stiff supply when battery_voltage is off) defaults to the "
-                          "measured median (what -o writes). Kv and CP are calibrated on the measured data first")
+                          "measured median (what -o writes), or a physics model .npz. Kv and CP are calibrated "
+                          "on the measured data first")
     p.add_argument("--measured", nargs="+", required=True, metavar="BAG",
                    help="recordings the model is to be checked against")
     p.add_argument("--reference", nargs="+", metavar="BAG",
@@ -65,7 +67,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=SEED, help="seed of the retraining (--model only; default 0)")
     p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
     p.add_argument("-o", "--output", metavar="NEW",
-                   help="save the model with the effect(s) added (.npz; with --physics a CONFIG .json)")
+                   help="save the model with the effect(s) added (.npz; with --physics a physics model "
+                        ".npz or a CONFIG .json)")
     p.add_argument("--force", action="store_true",
                    help="replace an existing output of the same kind (a model / CONFIG written by this "
                         "tool, a report folder it made)")
@@ -120,20 +123,21 @@ def _has_namespace(path: str, namespace: str | None) -> bool:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..model import load_model, save_model
+    from ..model import NETWORK, load_model, save_model
 
     check_effect_names(args.effects)
     if args.max_effects < 1:
         raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
     if not 0.0 < args.alpha < 1.0:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
-    check_outputs([(args.output, CONFIG if args.physics is not None else MODEL, "-o"),
+    physics_config = args.physics is not None and not _is_npz(args.output)
+    check_outputs([(args.output, CONFIG if physics_config else MODEL, "-o"),
                    (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
                           args.model, args.physics])
     if args.physics is not None:
         return run_physics(args)
-    model = load_model(args.model)
+    model = load_model(args.model, kinds=(NETWORK,))  # the workflow retrains a network's inputs
     warnings: list[str] = []
     if args.reference:
         ref_paths = list(args.reference)
@@ -168,13 +172,14 @@ def run(args: argparse.Namespace) -> CommandResult:
 
 def run_physics(args: argparse.Namespace) -> CommandResult:
     """``--physics [CONFIG]``: the bench physics as the model (see discrepancy/physics_kind.py)."""
-    from ..discrepancy.physics import load_config, save_config
+    from ..discrepancy.physics import save_config, supply_tau_s
     from ..discrepancy.workflow import run_physics_workflow
+    from ..model import PlantModel, save_model
 
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
         if value is not None:
             raise BadInputError(f"{flag}: retrains a network, so it goes with --model, not --physics")
-    model = load_config(args.physics)
+    model = _physics_input(args.physics)
     measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report,
@@ -183,12 +188,34 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
     data = result.data
 
     def save() -> None:
-        save_config(result.model, args.output, args.force, {
-            "base": args.physics or None,
-            "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
-            "measured": [str(p) for p in args.measured]})
+        provenance = {"base": args.physics or None,
+                      "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
+                      "measured": [str(p) for p in args.measured]}
+        if _is_npz(args.output):
+            m = result.model
+            save_model(PlantModel(m.params, m.effects, m.supply_v, metadata={"discrepancy": provenance},
+                                  supply_tau_s=supply_tau_s(measured[0])), args.output, force=args.force)
+        else:
+            save_config(result.model, args.output, args.force, provenance)
 
-    return _finish(args, result, save, "the physics config", [])
+    return _finish(args, result, save, "the physics model" if _is_npz(args.output) else "the physics config", [])
+
+
+def _is_npz(path: str | None) -> bool:
+    return bool(path) and str(path).lower().endswith(".npz")
+
+
+def _physics_input(path: str) -> Any:
+    """``--physics CONFIG``: a JSON CONFIG, or a physics model file (.npz) on the nominal bench."""
+    from ..discrepancy.physics import PhysicsModel, load_config
+    from ..model import PHYSICS, load_model
+
+    if not _is_npz(path):
+        return load_config(path)
+    m = load_model(path, kinds=(PHYSICS,))
+    nominal = load_config(None).params
+    return PhysicsModel(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v,
+                        source=path)
 
 
 def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,

@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         lines.append(
             f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
             f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
+            + (f"; thrust RMSE {s.thrust_rmse_n:.3f} N" if s.thrust_rmse_n is not None else "")
         )
         for b in s.bands:
             lines.append(

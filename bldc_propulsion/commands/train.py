@@ -4,6 +4,7 @@ summary and its report (the paper's Figs. 1, 5-6, 12, 13)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -13,19 +14,20 @@ import numpy as np
 from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import save_model
+from ..model import HybridModel, save_model
 from ..recordings import Signals, load_all
 from ..training.evaluate import predict_speed
 from ..training.train import train_model
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 NAME = "train"
-HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt) from recordings"
+HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt; or the bench physics) from recordings"
 DESCRIPTION = (
     "Train the paper's network (default 3-25-1: filtered battery voltage, PWM, PWM "
     "through a 0.25 s lag) with Levenberg-Marquardt on the training recordings, stop "
     "early on separate validation recordings, and save weights, scaling and "
-    "provenance to an .npz model file."
+    "provenance to an .npz model file. With --kind physics, fit the bench's physics "
+    "(Kv, CP, effect strengths) instead, judged on the validation recordings."
 )
 
 #: b of the nominal bench (12x4.5 propeller, CT ~0.105, rho 1.225, D 0.305 m): used when no
@@ -47,20 +49,32 @@ def _inputs(text: str) -> list[str]:
     return names
 
 
+#: The network's options and their defaults; with --kind physics they are refused (given
+#: explicitly, they would be silently ignored).
+NETWORK_DEFAULTS: dict[str, Any] = {"inputs": list(c.DEFAULT_INPUTS), "hidden": c.PAPER_HIDDEN, "seed": 0,
+                                    "restarts": DEFAULT_RESTARTS, "max_epochs": 1000, "patience": 6}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("train", nargs="+", metavar="TRAIN_BAG", help="training recordings")
     p.add_argument("--validation", nargs="+", required=True, metavar="BAG",
                    help="validation recordings (separate experiments; they stop the training)")
     p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
-    p.add_argument("--inputs", type=_inputs, default=list(c.DEFAULT_INPUTS),
+    p.add_argument("--kind", choices=("network", "physics", "hybrid"), default="network",
+                   help="network: the paper's n-H-1 network (default); physics: the bench's ESC, motor, "
+                        "rotor and thermal physics, Kv, CP and the effects' strengths fitted by least "
+                        "squares, the ESC's braking chosen on the validation recordings; hybrid: that "
+                        "physics plus a network (inputs physics_speed and --inputs) trained on what it "
+                        "gets wrong")
+    p.add_argument("--inputs", type=_inputs,
                    help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
-    p.add_argument("--hidden", type=HIDDEN, default=c.PAPER_HIDDEN, help="hidden neurons, 1..200 (default 25)")
-    p.add_argument("--seed", type=SEED, default=0, help="seed of the initial weights")
-    p.add_argument("--restarts", type=number(int, 1, MAX_RESTARTS), default=DEFAULT_RESTARTS,
+    p.add_argument("--hidden", type=HIDDEN, help="hidden neurons, 1..200 (default 25)")
+    p.add_argument("--seed", type=SEED, help="seed of the initial weights (default 0)")
+    p.add_argument("--restarts", type=number(int, 1, MAX_RESTARTS),
                    help=f"train from the initial weights of seeds SEED, SEED+1, ... and keep the one with "
                         f"the least validation cost (default {DEFAULT_RESTARTS})")
-    p.add_argument("--max-epochs", type=EPOCHS, default=1000, help="epoch limit (default 1000)")
-    p.add_argument("--patience", type=EPOCHS, default=6,
+    p.add_argument("--max-epochs", type=EPOCHS, help="epoch limit (default 1000)")
+    p.add_argument("--patience", type=EPOCHS,
                    help="stop after this many epochs without validation improvement (default 6)")
     p.add_argument("--thrust-coefficient", type=number(float, 0.0, 1e-2, lo_open=True),
                    default=DEFAULT_THRUST_COEFFICIENT,
@@ -79,7 +93,19 @@ def _check_disjoint(train: list[str], validation: list[str]) -> None:
         )
 
 
+def _network_options(args: argparse.Namespace) -> None:
+    """The network's options: refused with --kind physics, else their defaults filled in."""
+    for name, default in NETWORK_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, default)
+        elif args.kind == "physics":
+            raise BadInputError(f"--{name.replace('_', '-')}: trains a network, so it goes with --kind network")
+    if c.INPUT_PHYSICS_SPEED in args.inputs:
+        raise BadInputError(f"--inputs {c.INPUT_PHYSICS_SPEED}: the physics model's speed is no input of a network")
+
+
 def run(args: argparse.Namespace) -> CommandResult:
+    _network_options(args)
     out = Path(args.output)
     check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.train, *args.validation])
@@ -92,6 +118,19 @@ def run(args: argparse.Namespace) -> CommandResult:
         if s.sha256 in by_hash:
             raise BadInputError(f"{s.path}: same recording as training recording {by_hash[s.sha256]}")
 
+    if args.kind == "physics":
+        return _run_physics(args, out, train, validation)
+    plant, inputs, params = None, list(args.inputs), None
+    if args.kind == "hybrid":  # the physics first; the network learns what it gets wrong
+        from ..training.fit_physics import residual_signals, train_physics
+
+        physics = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
+        plant = physics.model
+        progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
+                 f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
+        inputs, params = [c.INPUT_PHYSICS_SPEED, *inputs], plant.feature_params()
+        signals = (train, validation)
+        train, validation = residual_signals(plant, train), residual_signals(plant, validation)
     run = [0]
 
     def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
@@ -101,25 +140,39 @@ def run(args: argparse.Namespace) -> CommandResult:
         progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
 
     outcome = train_model(
-        train, validation, inputs=args.inputs, hidden=args.hidden, seed=args.seed,
+        train, validation, inputs=inputs, hidden=args.hidden, seed=args.seed,
         thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
-        patience=args.patience, progress=report_epoch, restarts=args.restarts,
+        patience=args.patience, progress=report_epoch, restarts=args.restarts, feature_params=params,
+        start_at_zero=plant is not None,
     )
     meta = outcome.model.metadata
+    if plant is not None:  # the physics part's parameters live in its own arrays; b was fitted
+        meta["feature_params"].pop(c.INPUT_PHYSICS_SPEED, None)  # on the speed, not its residual
+        meta["physics"] = plant.metadata
+        meta["thrust_fit"] = plant.metadata["thrust_fit"]
+        outcome.model.thrust_coefficient = plant.thrust_coefficient
+        outcome = dataclasses.replace(outcome, model=HybridModel(plant, outcome.model), train=signals[0],
+                                      validation=signals[1], thrust=physics.thrust)
     runs = len(meta["restarts"])
-    if meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
+    warnings = []
+    if meta["best_epoch"] == 0 and plant is not None:  # its initial weights: the physics alone
+        warnings.append("the network did not improve on the physics on the validation recordings: "
+                        "the hybrid's correction is 0 (the physics model alone)")
+    elif meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
         raise BadInputError(
             f"-o {out}: not written: no training run improved on its initial weights (validation "
             f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
             "validation recordings are the same bench and signals as the training ones "
             "(`bldc-propulsion info`), or give more --restarts")
     stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
-    warnings = [f"{stuck} of {runs} training runs never improved on their initial weights "
-                "(the kept run did)"] if stuck else []
+    if stuck and not warnings:
+        warnings.append(f"{stuck} of {runs} training runs never improved on their initial weights "
+                        "(the kept run did)")
     save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
-        "inputs": list(args.inputs),
+        "kind": args.kind,
+        "inputs": inputs,
         "hidden": args.hidden,
         "epochs": meta["epochs"],
         "best_epoch": meta["best_epoch"],
@@ -139,7 +192,8 @@ def run(args: argparse.Namespace) -> CommandResult:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     fit = outcome.thrust
     text = "\n".join([
-        f"trained {len(args.inputs)}-{args.hidden}-1 on {', '.join(args.inputs)}: "
+        ("physics fitted, then " if plant is not None else "")
+        + f"trained {len(inputs)}-{args.hidden}-1 on {', '.join(inputs)}: "
         f"{meta['epochs']} epochs, best {meta['best_epoch']} ({meta['stop_reason']})"
         + (f"; seed {meta['best_seed']} had the least validation cost of {args.restarts} runs"
            if args.restarts > 1 else ""),
@@ -147,6 +201,42 @@ def run(args: argparse.Namespace) -> CommandResult:
         f"({meta['samples']['train']} / {meta['samples']['validation']} samples)",
         f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source}"
         + (f", residual {fit.residual_rms_n:.3f} N RMS)" if fit.residual_rms_n is not None else ")"),
+        f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
+    ])
+    data["warnings"] = warnings
+    return CommandResult(data, text, warnings=warnings)
+
+
+def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], validation: list[Signals]) -> CommandResult:
+    """``--kind physics``: training/fit_physics.py."""
+    from ..training.fit_physics import train_physics
+
+    outcome = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
+    save_model(outcome.model, out, force=args.force)
+    m, fit = outcome.model, outcome.thrust
+    data: dict[str, Any] = {
+        "model": str(out),
+        "kind": "physics",
+        "fit": m.metadata["fit"],
+        "constants": outcome.candidates[0]["constants"],
+        "effects": m.effects,
+        "train_rmse_rad_s": outcome.train_rmse_rad_s,
+        "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
+        "candidates": outcome.candidates,
+        "thrust_coefficient": fit.coefficient,
+        "thrust_fit": {"source": fit.source, "residual_rms_n": fit.residual_rms_n, "samples": fit.samples},
+    }
+    if args.report:
+        data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
+    consts = ", ".join(f"{k} {v:.4g}" for k, v in data["constants"].items())
+    strengths = ", ".join(f"{k} {v:.2f}" for k, v in m.effects.items())
+    warnings = [f"fitted at the bound of its range: {b}" for b in outcome.candidates[0]["at_bound"]]
+    text = "\n".join([
+        f"fitted the bench physics ({m.metadata['fit']}, the least validation error of "
+        f"{len(outcome.candidates)} fits): {consts}",
+        f"  effect strengths: {strengths}",
+        f"  RMSE training {outcome.train_rmse_rad_s:.2f} rad/s, validation {outcome.validation_rmse_rad_s:.2f} rad/s",
+        f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source})",
         f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
     ])
     data["warnings"] = warnings
@@ -165,10 +255,10 @@ def _training_report(d: Path, outcome: Any) -> None:
     from ..training import report
 
     figs: list[tuple[str, str]] = []
-    h = outcome.lm.history
-    report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch,
-                        d / "fig12_training.png")
-    figs.append(("fig12_training.png", "Fig. 12: training and validation cost per epoch"))
+    if hasattr(outcome, "lm"):  # a network (a physics model has no epochs)
+        h = outcome.lm.history
+        report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch, d / "fig12_training.png")
+        figs.append(("fig12_training.png", "Fig. 12: training and validation cost per epoch"))
     first = outcome.train[0]
     raw = _raw_battery(first)
     if raw is not None:

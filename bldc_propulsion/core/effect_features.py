@@ -37,6 +37,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .. import contract as c
+from ..plant import throttle
 
 PWM_LAG = "pwm_lag"
 PWM_DELAYED = "pwm_delayed"
@@ -88,7 +89,7 @@ def _param(params: Mapping[str, float] | None, name: str, key: str) -> float:
 
 def thermal_proxy(pwm: np.ndarray | float, volts: np.ndarray | float) -> np.ndarray | float:
     """I^2 R proxy (dimensionless, 1 at full throttle on 12 V) from command and battery voltage."""
-    duty = np.clip((np.asarray(pwm, dtype=float) - c.PWM_STOP) / (c.PWM_FULL - c.PWM_STOP), 0.0, 1.0)
+    duty = throttle(np.asarray(pwm, dtype=float), c.PWM_STOP)
     out = (duty * np.asarray(volts, dtype=float) / THERMAL_REFERENCE_V) ** 4
     return float(out) if np.ndim(out) == 0 else out
 

@@ -32,6 +32,8 @@ import numpy as np
 
 from .. import contract as c
 from ..errors import BadInputError, ModelError
+from ..plant import motor_response
+from .plant_stream import STREAM_DEFAULTS, PlantStream, split_params, stream_problem
 
 #: Plausible raw inputs; samples outside are rejected (PWM level is pulse width / 20 ms).
 PWM_LEVEL_MIN = 0.0
@@ -224,6 +226,45 @@ class PwmLowpass(Feature):
         return out
 
 
+class PhysicsSpeed(Feature):
+    """The plant's speed (rad/s) under a physics model's constants (core/plant_stream.py): the
+    whole of a ``physics`` model, an input of a ``hybrid`` one. Parameters: ``STREAM_DEFAULTS``
+    (the model file's physics arrays give them: ``model.PlantModel.feature_params``)."""
+
+    name = c.INPUT_PHYSICS_SPEED
+    signals = ("pwm", "voltage")
+    defaults = dict(STREAM_DEFAULTS)
+
+    def check_params(self) -> None:
+        why = stream_problem(self.params)
+        if why:
+            raise ModelError(f"model input '{self.name}': {why}")
+
+    def reset(self) -> None:
+        self._stream = PlantStream.of(self.params)
+
+    def update_pwm(self, t: float, level: float) -> None:
+        self._stream.update_pwm(t, level)
+
+    def update_voltage(self, t: float, volts: float) -> None:
+        self._stream.update_voltage(t, volts)
+
+    def value_at(self, t: float) -> float:
+        return self._stream.speed_at(t)
+
+    def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+        """The batch twin (``plant.motor_response`` with the supply held: equal to the stream)."""
+        out = np.full(len(grid_t), np.nan)
+        if len(pwm_t) == 0 or len(volt_t) == 0:
+            return out
+        ok = grid_t >= max(pwm_t[0], volt_t[0])  # as streaming: unknown before both signals
+        if ok.any():
+            params, effects, supply_v, tau = split_params(self.params)
+            out[ok] = motor_response(params, effects, (pwm_t, pwm), (volt_t, volt), grid_t[ok], supply_v,
+                                     tau, hold_supply=True)
+        return out
+
+
 # --- registry --------------------------------------------------------------------------------
 
 FEATURES: dict[str, type[Feature]] = {}
@@ -239,7 +280,7 @@ def register_feature(cls: type[Feature]) -> type[Feature]:
     return cls
 
 
-for _cls in (BatteryVoltage, Pwm, PwmLowpass):
+for _cls in (BatteryVoltage, Pwm, PwmLowpass, PhysicsSpeed):
     register_feature(_cls)
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from .. import contract as c
 from ..core import effect_features as ef
+from ..plant import throttle
 from ..recordings import Signals
 
 # --- the dynamic family: which of lag, dead time, spin-down changed ---------------------------------
@@ -107,7 +108,7 @@ def identify_start_level(signals: Sequence[Signals], dyn: Dynamics) -> float:
         u0 = ef._held(pwm_t, pwm, s.t - dyn.delay_s)
         vv = (s.voltage - 11.5)[ok]
         for i, thr in enumerate(ID_START_LEVELS):
-            u = c.PWM_STOP + (c.PWM_FULL - c.PWM_STOP) * np.clip((u0 - thr) / (c.PWM_FULL - thr), 0.0, 1.0)
+            u = c.PWM_STOP + (c.PWM_FULL - c.PWM_STOP) * throttle(u0, thr)
             x = ef.asymmetric_lag_on_times(s.t, u, dyn.tau_up_s, dyn.tau_down_s, c.PWM_STOP)
             x = (x[ok] - 0.075) / 0.025
             A = np.column_stack([np.ones_like(x), x, x**2, x**3, vv, vv * x])
@@ -173,7 +174,7 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
                 & np.isfinite(s.voltage) & np.isfinite(th)
             p = (s.pwm[ok] - 0.075) / 0.025
             v = s.voltage[ok] - 11.5
-            duty = np.clip((s.pwm[ok] - c.PWM_STOP) / (c.PWM_FULL - c.PWM_STOP), 0.0, 1.0)
+            duty = throttle(s.pwm[ok], c.PWM_STOP)
             t_d = th[ok] * duty
             rows.append(np.column_stack([np.ones_like(p), p, p**2, p**3, v, v * p,
                                          t_d * (which == 0), t_d * (which == 1)]))

@@ -1,6 +1,6 @@
 """The bench physics as the model of the discrepancy workflow: config, calibration, effect scores.
 
-The model is the simulator's own ESC/motor/rotor/thermal physics (``sim.bench.motor_response``)
+The model is the simulator's own ESC/motor/rotor/thermal physics (``plant.motor_response``)
 driven by a recording's command events and its measured (filtered) battery voltage: a
 ``BenchParams`` (constants) plus a strength per effect (0 = off, 1 = nominal; see
 ``sim.bench.EFFECT_DOCS``). Before anything is compared, the constants a different motor or
@@ -34,7 +34,7 @@ from .. import contract as c
 from ..atomic import CONFIG, atomic_output
 from ..core.battery_filter import BatteryFilterConfig
 from ..errors import BadInputError
-from ..sim.bench import motor_response, resolve_effects
+from ..plant import motor_response, resolve_effects
 from ..sim.params import BenchParams, params_with_overrides
 from ..recordings import Signals
 from . import scoring as sc

@@ -4,18 +4,9 @@ Model (SI units throughout):
 
 * Battery: open-circuit voltage from a state-of-charge table, a series resistance, one RC
   polarisation branch, coulomb counting. Terminal V = OCV(soc) - Vp - Rs * i_batt.
-* ESC: the PWM level held from each 50 Hz frame, delayed by a dead time, mapped to a duty cycle
-  between the start threshold (no drive below it) and PWM_FULL, applied to the terminal voltage.
-  Averaged (quasi-static) electrics: the winding's L/R (~30 uH / 0.26 Ohm ~ 0.1 ms) is far below
-  the 1 ms step and the ~0.1 s rotor time constant, so i = (duty V - Ke w) / R_total. The motor
-  current is continuous (it freewheels through the low-side switch in the off-time); the battery
-  supplies it only during the on-time, so i_batt = duty * i. With active braking (synchronous
-  rectification) i may go negative (regenerative braking torque); without it the ESC cannot
-  reverse the current and i is clamped at 0, so the rotor coasts down on propeller drag.
-* Motor: Kt = Ke = 1/Kv, friction torque Kt*I0 (no-load current), winding resistance rising with
-  temperature (copper) through a one-node thermal model (I^2 R + friction heat, R_th, C_th).
-* Propeller: drag torque CP rho n^2 D^5 / (2 pi), thrust CT rho n^2 D^4 = b w^2.
-* Rotor: J dw/dt = Kt i - Kt I0 - k w^2, linearly implicit Euler at 1 kHz (stable for any J).
+* ESC, motor, propeller, rotor and the winding's temperature: the plant (``plant.py``), driven by
+  the battery's terminal voltage behind its series resistance. The battery supplies the motor
+  current only during the ESC's on-time: i_batt = duty * i.
 * Sensors: battery ADC through the divider with the ESC's switching modulation (zero-mean,
   proportional to battery current) and ADC noise; IR tachometer at 20 kHz, two blades, first-order
   phototransistor response, noise, 12-bit quantisation.
@@ -29,8 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from ..contract import EFFECTS, PWM_FULL, PWM_STOP
 from ..errors import BadInputError
+from ..plant import check_command, esc_duty, make_step, resolve_effects
+from ..plant import motor_response  # noqa: F401  (re-exported: its home before plant.py)
 from .params import BenchParams, check_params
 from .profiles import check_duration, make_profile
 
@@ -80,26 +72,6 @@ class SimResult:
     seed: int = 0
 
 
-def resolve_effects(effects: dict[str, float] | None) -> dict[str, float]:
-    """All effects at 1.0, overridden by ``effects``; BadInputError naming a bad item."""
-    out = {name: 1.0 for name in EFFECTS}
-    for name, value in (effects or {}).items():
-        if name not in out:
-            raise BadInputError(f"--effect {name}: unknown effect (known: {', '.join(EFFECTS)})")
-        try:
-            s = float(value)
-        except (TypeError, ValueError):
-            raise BadInputError(f"--effect {name}={value!r}: not a number") from None
-        if not math.isfinite(s) or s < 0.0:
-            raise BadInputError(f"--effect {name}={value!r}: strength must be a finite number >= 0")
-        if name == "spin_down_asymmetry" and s > 1.0:
-            raise BadInputError(
-                f"--effect {name}={value!r}: must be in [0, 1] (fraction of braking removed)"
-            )
-        out[name] = s
-    return out
-
-
 def _check_seed(seed: int) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise BadInputError(f"--seed {seed!r}: must be a whole number >= 0")
@@ -116,87 +88,30 @@ def _check_soc(soc: float) -> float:
     return x
 
 
-def _check_command(pwm: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """A caller's (t, level) command: 1-D, same length, finite, time non-decreasing."""
-    try:
-        t, lv = (np.asarray(a, dtype=float) for a in pwm)
-    except (TypeError, ValueError):
-        raise BadInputError("pwm: expected a pair of numeric arrays (t, level)") from None
-    if t.ndim != 1 or lv.shape != t.shape or len(t) == 0:
-        raise BadInputError("pwm: t and level must be 1-D arrays of the same, non-zero length")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(lv))):
-        raise BadInputError("pwm: times and levels must be finite")
-    if np.any(np.diff(t) < 0):
-        raise BadInputError("pwm: times must not decrease")
-    return t, lv
-
-
 def pack_ocv(p: BenchParams, soc: np.ndarray | float) -> np.ndarray:
     """Pack open-circuit voltage (V) at state of charge ``soc`` (clamped to 0..1)."""
     return p.battery_cells * np.interp(soc, p.battery_cell_soc, p.battery_cell_ocv_v)
 
 
-def _duty(level: np.ndarray, threshold: float, exponent: float = 1.0) -> np.ndarray:
-    """ESC throttle map: no drive below the start threshold, then (linear map)**exponent to full
-    duty at PWM_FULL (exponent 1: linear)."""
-    lv = np.clip(level, PWM_STOP, PWM_FULL)
-    x = np.clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
-    return x if exponent == 1.0 else x**exponent
-
-
-def _esc_duty(p: BenchParams, eff: dict[str, float], cmd_t: np.ndarray, cmd: np.ndarray,
-              t: np.ndarray) -> np.ndarray:
-    """Duty cycle at the step times ``t``: the command held from each frame, after the dead time
-    (1e-9: frame times that coincide with a step count as arrived), through the throttle map."""
-    delay = eff["input_delay"] * p.esc_input_delay_s
-    idx = np.searchsorted(cmd_t, t - delay + 1e-9, side="right") - 1
-    level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
-    threshold = PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
-    return _duty(level, threshold, p.esc_throttle_exponent)
-
-
-def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float,
-               supply_v: np.ndarray | None = None, v_ref: float = 0.0, supply_tau_s: float = 0.0,
-               ) -> dict[str, np.ndarray]:
-    """March the rotor, battery and thermal states at the fixed step; returns truth arrays.
+def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float) -> dict[str, np.ndarray]:
+    """March the plant and the battery at the fixed step; returns truth arrays.
 
     A plain Python loop over scalars (locals only, no per-step allocation): the states are
-    coupled nonlinearly, each step is a handful of flops, and vectorising is not possible.
-    With ``supply_v`` (terminal volts per step) the battery model is bypassed: the motor sees
-    v_ref + s_bv (supply_v - v_ref), a given terminal voltage already carrying its own
-    series-resistance drop (the battery states are then irrelevant). If ``supply_v`` is the
-    terminal voltage through a first-order low-pass of time constant ``supply_tau_s`` > 0 (the
-    battery filter), the part of the series-resistance drop the filter has not yet passed,
-    Rs (i_batt - lowpass(i_batt)), is taken off again.
+    coupled nonlinearly, each step is a handful of flops, and vectorising is not possible. The
+    plant's step (``plant.make_step``) sees the pack's open-circuit voltage less its polarisation
+    (``battery_voltage`` strength s scales their deviation from the starting OCV) behind the
+    series resistance s R_s.
     """
     n = len(duty)
     dt = p.sim_step_s
-    ke = p.back_emf_constant_v_s_per_rad
-    kt = ke
-    kq = p.torque_coefficient
-    tf = kt * p.motor_no_load_current_a  # friction torque
-    i0_heat = p.motor_no_load_current_a * kt  # friction power = tf * w
-    rw0 = p.winding_resistance_ohm
-    alpha = eff["motor_heating"] * p.copper_temperature_coefficient_per_k
-    t_ref = p.winding_reference_temperature_c
-    resc = p.esc_resistance_ohm
     sbv = eff["battery_voltage"]
     rs = p.battery_series_resistance_ohm
-    rs_eff = sbv * rs if supply_v is None or supply_tau_s > 0.0 else 0.0
-    a_lp = 1.0 - math.exp(-dt / supply_tau_s) if supply_tau_s > 0.0 else 0.0
-    ib_lp = 0.0
-    sup = None if supply_v is None else (v_ref + sbv * (np.asarray(supply_v, dtype=float) - v_ref)).tolist()
+    step = make_step(p, eff, sbv * rs)
     r1 = p.battery_polarisation_resistance_ohm
     e1 = math.exp(-dt / p.battery_polarisation_time_constant_s)
     r2 = p.battery_polarisation2_resistance_ohm
     e2 = math.exp(-dt / p.battery_polarisation2_time_constant_s)
     q_c = p.battery_capacity_c
-    keep = 1.0 - eff["spin_down_asymmetry"]  # fraction of negative (braking) current allowed
-    jr = eff["rotor_lag"] * p.rotor_inertia_kg_m2
-    lag = jr > 0.0
-    t_amb = p.ambient_temperature_c
-    inv_cth = 1.0 / p.motor_thermal_capacity_j_per_k
-    inv_rth = 1.0 / p.motor_thermal_resistance_k_per_w
 
     grid = np.linspace(0.0, 1.0, _OCV_STEPS + 1)
     ocv_tab = pack_ocv(p, grid)
@@ -206,7 +121,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     steps = float(_OCV_STEPS)
 
     w = 0.0
-    temp = t_amb
+    temp = p.ambient_temperature_c
     soc = soc0
     vp = 0.0
     vp2 = 0.0
@@ -215,51 +130,21 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     out_v = [0.0] * n
     out_temp = [0.0] * n
     out_soc = [0.0] * n
-    sqrt = math.sqrt
     for k, d in enumerate(duty.tolist()):
-        if sup is None:
-            x = soc * steps
-            if x <= 0.0:
-                voc = ocv[0]
-            else:
-                j = int(x)
-                voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
-            veff = v0 + sbv * (voc - vp - vp2 - v0)
+        x = soc * steps
+        if x <= 0.0:
+            voc = ocv[0]
         else:
-            veff = sup[k] + rs_eff * ib_lp
-        rw = rw0 * (1.0 + alpha * (temp - t_ref))
-        rd = rw + resc + rs_eff * d * d
-        if lag:
-            i = (d * veff - ke * w) / rd
-            didw = -ke / rd
-            if i < 0.0:
-                i *= keep
-                didw *= keep
-            f = kt * i - tf - kq * w * w
-            wn = w + dt * f / (jr - dt * (kt * didw - 2.0 * kq * w))
-            if wn < 0.0:
-                wn = 0.0
-        else:
-            # steady state: kq w^2 + (kt ke / rd) w + (tf - kt d veff / rd) = 0
-            c = tf - kt * d * veff / rd
-            if c >= 0.0:
-                w = 0.0
-            else:
-                b = kt * ke / rd
-                w = (-b + sqrt(b * b - 4.0 * kq * c)) / (2.0 * kq)
-            i = (d * veff - ke * w) / rd
-            if i < 0.0:
-                i *= keep
-            wn = w
+            j = int(x)
+            voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
+        out_w[k], w_next, i, temp_next = step(w, temp, d, v0 + sbv * (voc - vp - vp2 - v0))
         ib = d * i
-        out_w[k] = w
         out_ib[k] = ib
-        out_v[k] = v0 + sbv * (voc - vp - vp2 - rs * ib - v0) if sup is None else veff - rs_eff * ib
-        ib_lp += a_lp * (ib - ib_lp)
+        out_v[k] = v0 + sbv * (voc - vp - vp2 - rs * ib - v0)
         out_temp[k] = temp
         out_soc[k] = soc
         # advance the slow states
-        temp += dt * inv_cth * (i * i * rw + i0_heat * w - (temp - t_amb) * inv_rth)
+        temp = temp_next
         soc -= ib * dt / q_c
         if soc < 0.0:
             soc = 0.0  # empty: the model holds the empty-pack voltage (no cutoff modelled)
@@ -267,7 +152,7 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
             soc = 1.0
         vp = vp * e1 + r1 * ib * (1.0 - e1)
         vp2 = vp2 * e2 + r2 * ib * (1.0 - e2)
-        w = wn
+        w = w_next
     return {
         "speed": np.asarray(out_w),
         "current": np.asarray(out_ib),
@@ -397,14 +282,14 @@ def simulate(
         cmd_t, cmd = make_profile(profile, d, rng_profile)
         pwm_t, pwm_lv = cmd_t, cmd
     else:
-        cmd_t, cmd = _check_command(pwm)
+        cmd_t, cmd = check_command(pwm)
         inside = (cmd_t >= 0.0) & (cmd_t < d)
         pwm_t, pwm_lv = cmd_t[inside], cmd[inside]
 
     dt = p.sim_step_s
     n = max(1, int(math.ceil(d / dt - 1e-9)))
     truth_t = np.arange(n) * dt
-    duty = _esc_duty(p, eff, cmd_t, cmd, truth_t)
+    duty = esc_duty(p, eff, cmd_t, cmd, truth_t)
 
     truth = _integrate(p, duty, eff, soc0)
     speed = truth["speed"]
@@ -433,38 +318,3 @@ def simulate(
         profile=str(profile),
         seed=seed,
     )
-
-
-def motor_response(
-    params: BenchParams,
-    effects: dict[str, float],
-    pwm_events: tuple[np.ndarray, np.ndarray],
-    supply: tuple[np.ndarray, np.ndarray],
-    t_out: np.ndarray,
-    v_ref: float,
-    supply_tau_s: float = 0.0,
-) -> np.ndarray:
-    """Rotor speed (rad/s) at the times ``t_out``, driven by a recording's command events
-    (t, level) and a measured supply voltage (t, V) instead of the battery model.
-
-    The same ESC, motor, rotor and thermal physics as ``simulate`` (so a physics model fitted
-    to measurements is the simulator's own): the rotor starts at rest at the first command (or
-    ``t_out[0]`` if earlier), steps of ``params.sim_step_s``; the supply is linearly
-    interpolated onto the steps. ``battery_voltage`` strength s makes the motor see
-    v_ref + s (V - v_ref): 0 is a stiff supply at ``v_ref``, 1 the measured voltage.
-    ``supply_tau_s``: the time constant of the low-pass the voltage was measured through (the
-    battery filter's), 0 for the terminal voltage itself (see ``_integrate``).
-    """
-    eff = resolve_effects(effects)
-    p = check_params(params)
-    cmd_t, cmd = _check_command(pwm_events)
-    t_out = np.asarray(t_out, dtype=float)
-    t0 = min(float(cmd_t[0]), float(t_out[0]))
-    dt = p.sim_step_s
-    n = int(math.ceil((float(t_out[-1]) - t0) / dt - 1e-9)) + 1
-    step_t = t0 + np.arange(n) * dt
-    sup_t, sup_v = (np.asarray(a, dtype=float) for a in supply)
-    volts = np.interp(step_t, sup_t, sup_v)
-    speed = _integrate(p, _esc_duty(p, eff, cmd_t, cmd, step_t), eff, 1.0, volts, float(v_ref),
-                       float(supply_tau_s))["speed"]
-    return np.interp(t_out, step_t, speed)

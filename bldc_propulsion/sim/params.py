@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from ..errors import BadInputError
+from ..plant import PLANT_FIELDS, PlantParams, check_plant, value_problem
 
 # Resting open-circuit voltage of one LiPo cell vs state of charge. Shape compiled from typical
 # hobby LiPo "voltage vs charge" charts (LiCoO2/graphite cells rested after a C/10 discharge):
@@ -23,16 +24,16 @@ _CELL_OCV_V = (3.30, 3.50, 3.60, 3.66, 3.69, 3.71, 3.73, 3.77, 3.82, 3.90, 4.02,
 
 
 @dataclass(frozen=True)
-class BenchParams:
-    """Every physical constant of the bench (SI units, the unit in each name)."""
+class BenchParams(PlantParams):
+    """Every physical constant of the bench (SI units, the unit in each name): the plant's
+    (``plant.PlantParams``: ESC, motor, propeller, the pack's series resistance, the step) and
+    the battery's and sensors' below."""
 
-    # --- 3S 2000 mAh LiPo -----------------------------------------------------------------
+    # --- 3S 2000 mAh LiPo (its series resistance is the plant's) ----------------------------
     battery_cells: int = 3  # paper 2.5: "3 Cell 2000 mAh Lithium Polymer battery"
     battery_capacity_ah: float = 2.0  # paper 2.5
     battery_cell_soc: tuple[float, ...] = _CELL_SOC  # table above
     battery_cell_ocv_v: tuple[float, ...] = _CELL_OCV_V  # table above
-    # ~8 mOhm per cell (a fresh 20-25C 2 Ah pack) + XT60/deans connector + 15 cm of 14 AWG lead
-    battery_series_resistance_ohm: float = 0.035
     # one RC polarisation branch: the slow (tens of s) recovery of a LiPo after a load step
     battery_polarisation_resistance_ohm: float = 0.015
     battery_polarisation_time_constant_s: float = 30.0
@@ -54,45 +55,6 @@ class BenchParams:
     adc_sample_rate_hz: float = 1000.0  # paper: filter (1) runs at 1 kHz
     adc_resolution_v: float = 20.0 / 65536  # DS1104 ADC: 16 bit over +-10 V
 
-    # --- ESC ------------------------------------------------------------------------------
-    # MOSFET on-resistance (two of them conduct, ~2 x 10 mOhm), motor leads, bullet connectors
-    # and the ESC's current path: sum chosen so that full throttle draws ~15 A (see module doc)
-    esc_resistance_ohm: float = 0.06
-    # start threshold above PWM_STOP at effect strength 1: paper 3.2, "motion starts when pwm
-    # level reaches 0.055"
-    esc_deadband_pwm: float = 0.005
-    # dead time at effect strength 1: up to one 20 ms frame before the pulse is read, plus the
-    # ESC's input averaging/throttle filtering (~1 frame) -> 40 ms
-    esc_input_delay_s: float = 0.040
-    # shape of the throttle map above the start threshold: duty = x ** exponent with x the
-    # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
-    # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
-    esc_throttle_exponent: float = 1.0
-
-    # --- AXI 2212/34 outrunner (Model Motors datasheet) -----------------------------------
-    motor_kv_rpm_per_v: float = 710.0  # datasheet: 710 rpm/V
-    winding_resistance_ohm: float = 0.20  # datasheet Ri ~ 200 mOhm (phase-to-phase)
-    motor_no_load_current_a: float = 0.4  # datasheet Io ~ 0.4 A at 10 V, as friction torque Kt*Io
-    winding_reference_temperature_c: float = 25.0  # resistance above is at room temperature
-    copper_temperature_coefficient_per_k: float = 0.00393  # annealed copper, IEC 60028
-    # One thermal node: 57 g motor (~40 J/K at ~0.7 J/(g K) for its copper/steel/aluminium mix)
-    # plus the part of the aluminium mount that follows it -> 70 J/K; the propeller wash cools
-    # an outrunner well: ~1.8 K/W to ambient. Time constant ~2 min.
-    motor_thermal_capacity_j_per_k: float = 70.0
-    motor_thermal_resistance_k_per_w: float = 1.8
-    ambient_temperature_c: float = 25.0
-    # rotating bell (~20 g of steel/magnets at ~13 mm radius): m r^2 ~ 4e-6 kg m^2
-    motor_rotor_inertia_kg_m2: float = 4.0e-6
-
-    # --- 12x4.5 propeller -----------------------------------------------------------------
-    propeller_diameter_m: float = 0.3048  # 12 in
-    propeller_mass_kg: float = 0.020  # typical 12x4.5 slow-fly/CR propeller, 18-22 g
-    # static coefficients of 12 in slow-fly propellers (UIUC propeller database style values for
-    # APC 12x4.7SF / 12x3.8SF at ~5000-6000 rpm: CT ~0.10-0.11, CP ~0.04-0.05)
-    propeller_ct: float = 0.105
-    propeller_cp: float = 0.042
-    air_density_kg_m3: float = 1.225  # ISA sea level, 15 C
-
     # --- phototransistor tachometer (BPW76 + IR LED) --------------------------------------
     tach_sample_rate_hz: float = 20000.0  # contract default
     tach_blade_width_fraction: float = 0.10  # each blade blocks ~10 % of a turn at the beam radius
@@ -108,64 +70,26 @@ class BenchParams:
     tach_adc_bits: int = 12
     tach_adc_full_scale_v: float = 5.0
 
-    # --- integration ------------------------------------------------------------------------
-    sim_step_s: float = 0.001  # 1 kHz: rotor time constant ~0.1 s, thermal/battery slower
-
-    # --- derived quantities (properties, not overridable) ---------------------------------
-    @property
-    def back_emf_constant_v_s_per_rad(self) -> float:
-        """Ke = 1/Kv in SI (V per rad/s); equals the torque constant Kt in N m/A."""
-        return 60.0 / (2.0 * math.pi * self.motor_kv_rpm_per_v)
-
-    @property
-    def propeller_inertia_kg_m2(self) -> float:
-        """Propeller as a thin rod about its centre: m D^2 / 12 (~1.5e-4 kg m^2)."""
-        return self.propeller_mass_kg * self.propeller_diameter_m**2 / 12.0
-
-    @property
-    def rotor_inertia_kg_m2(self) -> float:
-        """Propeller plus motor bell."""
-        return self.propeller_inertia_kg_m2 + self.motor_rotor_inertia_kg_m2
-
-    @property
-    def thrust_coefficient(self) -> float:
-        """b in thrust = b w^2 (N s^2/rad^2): CT rho D^4 / (4 pi^2), since n = w / (2 pi)."""
-        return self.propeller_ct * self.air_density_kg_m3 * self.propeller_diameter_m**4 / (4.0 * math.pi**2)
-
-    @property
-    def torque_coefficient(self) -> float:
-        """k in drag torque = k w^2 (N m s^2/rad^2): CP rho D^5 / (2 pi)^3."""
-        rho_d5 = self.air_density_kg_m3 * self.propeller_diameter_m**5
-        return self.propeller_cp * rho_d5 / (2.0 * math.pi) ** 3
-
     @property
     def battery_capacity_c(self) -> float:
         """Capacity in coulombs."""
         return self.battery_capacity_ah * 3600.0
 
 
-#: Fields that may be zero (a switch-off of a noise or a small term); all others must be > 0.
+#: Battery and sensor fields that may be zero (a switch-off of a noise or a small term); all
+#: others must be > 0 (the plant's rules: ``plant.plant_problem``).
 _MAY_BE_ZERO = frozenset({
-    "battery_series_resistance_ohm",
     "battery_polarisation_resistance_ohm",
     "battery_polarisation2_resistance_ohm",
     "battery_modulation_ohm",
     "adc_noise_v",
     "adc_resolution_v",
-    "esc_resistance_ohm",
-    "esc_deadband_pwm",
-    "esc_input_delay_s",
-    "motor_no_load_current_a",
-    "copper_temperature_coefficient_per_k",
-    "motor_rotor_inertia_kg_m2",
     "tach_blade_spacing_asymmetry_fraction",
     "tach_blade_width_asymmetry_fraction",
     "tach_noise_v",
     "tach_low_v",
     "tach_time_constant_s",
 })
-#: Fields whose value is a temperature (any finite value).
-_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
 #: Tables: not overridable from the command line.
 _TABLES = frozenset({"battery_cell_soc", "battery_cell_ocv_v"})
 _INTEGERS = frozenset({"battery_cells", "tach_adc_bits"})
@@ -177,28 +101,18 @@ def _bad(name: str, why: str) -> BadInputError:
 
 def check_params(p: BenchParams) -> BenchParams:
     """Reject constants that make no physical sense (raises BadInputError naming the field)."""
+    check_plant(p)
     for f in dataclasses.fields(p):
-        value = getattr(p, f.name)
-        if f.name in _TABLES:
+        if f.name in _TABLES or f.name in PLANT_FIELDS:
             continue
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-            raise _bad(f.name, f"{value!r} must be a finite number")
-        if f.name in _INTEGERS and value != int(value):
-            raise _bad(f.name, f"{value!r} must be a whole number")
-        if f.name in _ANY_FINITE:
-            continue
-        if f.name in _MAY_BE_ZERO:
-            if value < 0:
-                raise _bad(f.name, f"{value!r} must be >= 0")
-        elif value <= 0:
-            raise _bad(f.name, f"{value!r} must be > 0")
+        why = value_problem(getattr(p, f.name), f.name in _MAY_BE_ZERO, integer=f.name in _INTEGERS)
+        if why:
+            raise _bad(f.name, why)
     soc, ocv = p.battery_cell_soc, p.battery_cell_ocv_v
     if len(soc) != len(ocv) or len(soc) < 2 or soc[0] != 0.0 or soc[-1] != 1.0 or any(
         b <= a for a, b in zip(soc, soc[1:])
     ):
         raise _bad("battery_cell_soc", "table must rise strictly from 0 to 1, one voltage per entry")
-    if p.esc_deadband_pwm >= 0.04:
-        raise _bad("esc_deadband_pwm", f"{p.esc_deadband_pwm!r} leaves no throttle range (must be < 0.04)")
     if p.tach_low_v >= p.tach_high_v or p.tach_high_v > p.tach_adc_full_scale_v:
         raise _bad("tach_high_v", "need tach_low_v < tach_high_v <= tach_adc_full_scale_v")
     width_2 = p.tach_blade_width_fraction * (1.0 + p.tach_blade_width_asymmetry_fraction)
@@ -206,8 +120,6 @@ def check_params(p: BenchParams) -> BenchParams:
         raise _bad("tach_blade_width_fraction", "blades too wide: the beam must be clear between them")
     if p.tach_adc_bits > 24:
         raise _bad("tach_adc_bits", f"{p.tach_adc_bits!r} must be <= 24")
-    if p.sim_step_s > 0.005:
-        raise _bad("sim_step_s", f"{p.sim_step_s!r} too coarse for the rotor (must be <= 0.005 s)")
     return p
 
 

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from ..model import NetworkModel, RangeReport, range_report
+from ..model import Model, RangeReport, range_report
 from ..recordings import Signals
 from .train import features_of
 
@@ -18,17 +18,17 @@ from .train import features_of
 BANDS_HZ: tuple[tuple[float, float], ...] = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0))
 
 
-def model_inputs(model: NetworkModel, sig: Signals) -> np.ndarray:
+def model_inputs(model: Model, sig: Signals) -> np.ndarray:
     """The model's raw inputs on the recording's grid (rows: time), NaN while unknown."""
     return features_of(sig, model.input_names, model.feature_params())
 
 
-def input_range(model: NetworkModel, sig: Signals) -> RangeReport:
+def input_range(model: Model, sig: Signals) -> RangeReport:
     """How much of the recording lies outside the model's training range (model.range_report)."""
     return range_report(model, model_inputs(model, sig), sig.path)
 
 
-def predict_speed(model: NetworkModel, sig: Signals, X: np.ndarray | None = None) -> np.ndarray:
+def predict_speed(model: Model, sig: Signals, X: np.ndarray | None = None) -> np.ndarray:
     """Predicted speed (rad/s) on the recording's grid, clipped to >= 0 as the estimator does;
     inputs clipped to the training range, as the estimator clips them."""
     X = model_inputs(model, sig) if X is None else X
@@ -74,6 +74,8 @@ class RecordingScore:
     samples: int
     bands: list[dict[str, float]] = field(default_factory=list)
     out_of_range: RangeReport | None = None
+    #: thrust RMSE (N) of b w^2 against /thrust/measured, when the recording has it
+    thrust_rmse_n: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -85,10 +87,11 @@ class RecordingScore:
             "samples": self.samples,
             "bands": self.bands,
             "out_of_training_range": self.out_of_range.as_dict() if self.out_of_range else None,
+            "thrust_rmse_n": self.thrust_rmse_n,
         }
 
 
-def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
+def score(model: Model, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
     """Errors of one recording, and the prediction they were computed from."""
     X = model_inputs(model, sig)
     pred = predict_speed(model, sig, X)
@@ -105,6 +108,10 @@ def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray
         samples=int(ok.sum()),
         out_of_range=range_report(model, X, sig.path),
     )
+    if sig.thrust is not None:  # thrust = b w^2 from the same predicted speed
+        t_err = model.thrust_coefficient * pred**2 - sig.thrust
+        t_ok = np.isfinite(t_err)
+        out.thrust_rmse_n = float(np.sqrt(np.mean(t_err[t_ok] ** 2))) if t_ok.any() else None
     chirp, freq = is_chirp(sig.t, sig.pwm)
     if chirp:
         # the Hilbert transform's frequency is unreliable in the first and last 5 % (edge
@@ -122,7 +129,7 @@ def score(model: NetworkModel, sig: Signals) -> tuple[RecordingScore, np.ndarray
     return out, pred
 
 
-def evaluate(model: NetworkModel, signals: Sequence[Signals]) -> tuple[float, list[RecordingScore], list[np.ndarray]]:
+def evaluate(model: Model, signals: Sequence[Signals]) -> tuple[float, list[RecordingScore], list[np.ndarray]]:
     """Overall RMSE (rad/s) over all samples, per-recording scores and predictions."""
     scores, preds = zip(*(score(model, s) for s in signals)) if signals else ((), ())
     errs = np.concatenate([p - s.speed for p, s in zip(preds, signals)])

@@ -16,7 +16,7 @@ from ..errors import BadInputError
 from ..model import NetworkModel
 from ..recordings import Signals
 from .lm import LMResult, train_lm
-from .network import minmax_apply, minmax_fit, unpack
+from .network import minmax_apply, minmax_fit, nguyen_widrow, pack, unpack
 
 
 def features_of(sig: Signals, names: Sequence[str], params: dict[str, dict[str, float]] | None = None) -> np.ndarray:
@@ -86,13 +86,16 @@ def train_model(
     progress: Callable[[int, float, float, float], None] | None = None,
     phi0: np.ndarray | None = None,
     restarts: int = 1,
+    start_at_zero: bool = False,
 ) -> TrainOutcome:
     """Fit an n-H-1 network on ``train``, early-stopped on ``validation`` (separate recordings).
 
     ``phi0``: initial weights (in the scaling this training derives), e.g. to continue from a
     model; default Nguyen-Widrow from ``seed``. ``restarts``: train from the Nguyen-Widrow
     weights of seeds ``seed .. seed + restarts - 1`` (after ``phi0`` when given) and keep the
-    network with the least validation cost. Why: LM finds a local minimum, and which one
+    network with the least validation cost. ``start_at_zero``: those weights with the output
+    layer at 0 (the network's output 0 rad/s): a hybrid's correction starts from the physics
+    alone, so early stopping keeps a network only where it helps on validation. Why restarts: LM finds a local minimum, and which one
     decides how the network extrapolates between the recordings' operating points; on the
     bundled bags the validation RMSE of single 3-25-1 runs spans 16-30 rad/s over seeds, and the
     validation cost is the unbiased way to choose among them (what trainlm users do by hand).
@@ -127,10 +130,11 @@ def train_model(
     yvs = 2.0 * (yv - ymin) / (ymax - ymin) - 1.0
     runs: list[tuple[int | None, LMResult]] = []
     starts: list[int | None] = ([None] if phi0 is not None else []) + list(range(seed, seed + restarts))
+    zero = 2.0 * (0.0 - ymin) / (ymax - ymin) - 1.0  # the scaled output of 0 rad/s
     for start in starts[:restarts]:
-        runs.append((start, train_lm(Xs, ys, Xvs, yvs, hidden, seed=start or 0,
-                                     phi0=phi0 if start is None else None, max_epochs=max_epochs,
-                                     patience=patience, progress=progress)))
+        p0 = phi0 if start is None else _zero_output(len(inputs), hidden, start, zero) if start_at_zero else None
+        runs.append((start, train_lm(Xs, ys, Xvs, yvs, hidden, seed=start or 0, phi0=p0,
+                                     max_epochs=max_epochs, patience=patience, progress=progress)))
     best_seed, result = min(runs, key=lambda r: r[1].val_cost)
     W1, b1, W2, b2 = unpack(result.phi, len(inputs), hidden)
     fit = fit_thrust_coefficient(train, thrust_coefficient)
@@ -177,6 +181,12 @@ def train_model(
     rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
     rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
     return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
+
+
+def _zero_output(n_in: int, hidden: int, seed: int, b2: float) -> np.ndarray:
+    """Nguyen-Widrow hidden weights of ``seed``, output weights 0 and output bias ``b2``."""
+    W1, b1, W2, _ = unpack(nguyen_widrow(n_in, hidden, np.random.default_rng(seed)), n_in, hidden)
+    return pack(W1, b1, np.zeros_like(W2), b2)
 
 
 def _source(sig: Signals) -> dict[str, str]:

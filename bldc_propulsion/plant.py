@@ -1,0 +1,400 @@
+"""The propulsion plant: ESC throttle map and dead time, motor electrics, rotor + propeller, and
+the winding's temperature. One implementation for everything that predicts the rotor's speed.
+
+The simulator (``sim/bench.py``) drives it with its battery model and writes bags with it; the
+physics model of the discrepancy workflow (``motor_response`` here) and the online estimator
+(``core/plant_stream.py``) drive it with the measured, filtered battery voltage. It imports
+nothing of the simulator's battery or sensors: the supply is an input.
+
+Model (SI units throughout):
+
+* ESC: the PWM level held from each frame, delayed by a dead time, mapped to a duty cycle between
+  the start threshold (no drive below it) and PWM_FULL (``throttle``), applied to the supply.
+  Averaged (quasi-static) electrics: the winding's L/R (~30 uH / 0.26 Ohm ~ 0.1 ms) is far below
+  the 1 ms step and the ~0.1 s rotor time constant, so i = (duty V - Ke w) / R_total, with the
+  source's series resistance seen through the duty (R_s duty^2). The motor current is continuous
+  (it freewheels through the low-side switch in the off-time); the source supplies it only during
+  the on-time, so i_supply = duty * i. With active braking (synchronous rectification) i may go
+  negative (regenerative braking torque); without it the ESC cannot reverse the current and i is
+  clamped at 0, so the rotor coasts down on propeller drag.
+* Motor: Kt = Ke = 1/Kv, friction torque Kt*I0 (no-load current), winding resistance rising with
+  temperature (copper) through a one-node thermal model (I^2 R + friction heat, R_th, C_th).
+* Propeller: drag torque CP rho n^2 D^5 / (2 pi), thrust CT rho n^2 D^4 = b w^2.
+* Rotor: J dw/dt = Kt i - Kt I0 - k w^2, linearly implicit Euler at the fixed step (stable for
+  any J); with no inertia (rotor_lag 0) the speed is the torque balance's steady state.
+
+Effect strengths (contract names; 0 = off, 1 = the realistic nominal strength) scale the
+physics as ``sim.bench.EFFECT_DOCS`` says; ``battery_voltage`` is the supply's business (the
+caller's), every other one is applied here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+
+from .contract import EFFECTS, PWM_FULL, PWM_STOP
+from .errors import BadInputError
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Every constant of the plant (SI units, the unit in each name). ``sim.BenchParams`` extends
+    it with the battery and the sensors; a physics model file stores exactly these fields."""
+
+    # --- the source as the ESC sees it ------------------------------------------------------
+    # ~8 mOhm per cell (a fresh 20-25C 2 Ah pack) + XT60/deans connector + 15 cm of 14 AWG lead
+    battery_series_resistance_ohm: float = 0.035
+
+    # --- ESC ------------------------------------------------------------------------------
+    # MOSFET on-resistance (two of them conduct, ~2 x 10 mOhm), motor leads, bullet connectors
+    # and the ESC's current path: sum chosen so that full throttle draws ~15 A
+    esc_resistance_ohm: float = 0.06
+    # start threshold above PWM_STOP at effect strength 1: paper 3.2, "motion starts when pwm
+    # level reaches 0.055"
+    esc_deadband_pwm: float = 0.005
+    # dead time at effect strength 1: up to one 20 ms frame before the pulse is read, plus the
+    # ESC's input averaging/throttle filtering (~1 frame) -> 40 ms
+    esc_input_delay_s: float = 0.040
+    # shape of the throttle map above the start threshold: duty = x ** exponent with x the
+    # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
+    # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
+    esc_throttle_exponent: float = 1.0
+
+    # --- AXI 2212/34 outrunner (Model Motors datasheet) -----------------------------------
+    motor_kv_rpm_per_v: float = 710.0  # datasheet: 710 rpm/V
+    winding_resistance_ohm: float = 0.20  # datasheet Ri ~ 200 mOhm (phase-to-phase)
+    motor_no_load_current_a: float = 0.4  # datasheet Io ~ 0.4 A at 10 V, as friction torque Kt*Io
+    winding_reference_temperature_c: float = 25.0  # resistance above is at room temperature
+    copper_temperature_coefficient_per_k: float = 0.00393  # annealed copper, IEC 60028
+    # One thermal node: 57 g motor (~40 J/K at ~0.7 J/(g K) for its copper/steel/aluminium mix)
+    # plus the part of the aluminium mount that follows it -> 70 J/K; the propeller wash cools
+    # an outrunner well: ~1.8 K/W to ambient. Time constant ~2 min.
+    motor_thermal_capacity_j_per_k: float = 70.0
+    motor_thermal_resistance_k_per_w: float = 1.8
+    ambient_temperature_c: float = 25.0
+    # rotating bell (~20 g of steel/magnets at ~13 mm radius): m r^2 ~ 4e-6 kg m^2
+    motor_rotor_inertia_kg_m2: float = 4.0e-6
+
+    # --- 12x4.5 propeller -----------------------------------------------------------------
+    propeller_diameter_m: float = 0.3048  # 12 in
+    propeller_mass_kg: float = 0.020  # typical 12x4.5 slow-fly/CR propeller, 18-22 g
+    # static coefficients of 12 in slow-fly propellers (UIUC propeller database style values for
+    # APC 12x4.7SF / 12x3.8SF at ~5000-6000 rpm: CT ~0.10-0.11, CP ~0.04-0.05)
+    propeller_ct: float = 0.105
+    propeller_cp: float = 0.042
+    air_density_kg_m3: float = 1.225  # ISA sea level, 15 C
+
+    # --- integration ------------------------------------------------------------------------
+    sim_step_s: float = 0.001  # 1 kHz: rotor time constant ~0.1 s, thermal/battery slower
+
+    # --- derived quantities (properties, not overridable) ---------------------------------
+    @property
+    def back_emf_constant_v_s_per_rad(self) -> float:
+        """Ke = 1/Kv in SI (V per rad/s); equals the torque constant Kt in N m/A."""
+        return 60.0 / (2.0 * math.pi * self.motor_kv_rpm_per_v)
+
+    @property
+    def propeller_inertia_kg_m2(self) -> float:
+        """Propeller as a thin rod about its centre: m D^2 / 12 (~1.5e-4 kg m^2)."""
+        return self.propeller_mass_kg * self.propeller_diameter_m**2 / 12.0
+
+    @property
+    def rotor_inertia_kg_m2(self) -> float:
+        """Propeller plus motor bell."""
+        return self.propeller_inertia_kg_m2 + self.motor_rotor_inertia_kg_m2
+
+    @property
+    def thrust_coefficient(self) -> float:
+        """b in thrust = b w^2 (N s^2/rad^2): CT rho D^4 / (4 pi^2), since n = w / (2 pi)."""
+        return self.propeller_ct * self.air_density_kg_m3 * self.propeller_diameter_m**4 / (4.0 * math.pi**2)
+
+    @property
+    def torque_coefficient(self) -> float:
+        """k in drag torque = k w^2 (N m s^2/rad^2): CP rho D^5 / (2 pi)^3."""
+        rho_d5 = self.air_density_kg_m3 * self.propeller_diameter_m**5
+        return self.propeller_cp * rho_d5 / (2.0 * math.pi) ** 3
+
+
+#: The plant's constants, in order (a physics model file stores them by these names).
+PLANT_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PlantParams))
+#: Constants that may be zero (a switch-off of a small term); all others must be > 0.
+PLANT_MAY_BE_ZERO = frozenset({
+    "battery_series_resistance_ohm",
+    "esc_resistance_ohm",
+    "esc_deadband_pwm",
+    "esc_input_delay_s",
+    "motor_no_load_current_a",
+    "copper_temperature_coefficient_per_k",
+    "motor_rotor_inertia_kg_m2",
+})
+#: Constants whose value is a temperature (any finite value).
+PLANT_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
+#: Coarsest integration step the rotor tolerates (its time constant is ~0.1 s at nominal inertia).
+MAX_STEP_S = 0.005
+
+
+def value_problem(value: object, may_be_zero: bool = False, any_finite: bool = False,
+                  integer: bool = False) -> str | None:
+    """Why ``value`` is not a valid constant (a number, finite, > 0 unless told), or None."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        return f"{value!r} must be a finite number"
+    if integer and value != int(value):
+        return f"{value!r} must be a whole number"
+    if any_finite:
+        return None
+    if may_be_zero:
+        return f"{value!r} must be >= 0" if value < 0 else None
+    return f"{value!r} must be > 0" if value <= 0 else None
+
+
+def plant_problem(p: PlantParams) -> tuple[str, str] | None:
+    """The first constant of ``p`` that makes no physical sense, as (field, why), or None."""
+    for name in PLANT_FIELDS:
+        why = value_problem(getattr(p, name), name in PLANT_MAY_BE_ZERO, name in PLANT_ANY_FINITE)
+        if why:
+            return name, why
+    if p.esc_deadband_pwm >= 0.04:
+        return "esc_deadband_pwm", f"{p.esc_deadband_pwm!r} leaves no throttle range (must be < 0.04)"
+    if p.sim_step_s > MAX_STEP_S:
+        return "sim_step_s", f"{p.sim_step_s!r} too coarse for the rotor (must be <= {MAX_STEP_S} s)"
+    return None
+
+
+P = TypeVar("P", bound=PlantParams)
+
+
+def check_plant(p: P) -> P:
+    """``p`` if its plant constants make physical sense, else BadInputError('--param NAME: why')."""
+    bad = plant_problem(p)
+    if bad:
+        raise BadInputError(f"--param {bad[0]}: {bad[1]}")
+    return p
+
+
+# --- effect strengths ------------------------------------------------------------------------
+def strength_problem(name: str, value: object) -> str | None:
+    """Why ``value`` is not a strength of the effect ``name`` (finite, >= 0; spin-down's at most
+    1, the fraction of braking removed), or None."""
+    if name not in EFFECTS:
+        return f"unknown effect (known: {', '.join(EFFECTS)})"
+    try:
+        s = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return "not a number"
+    if not math.isfinite(s) or s < 0.0:
+        return "strength must be a finite number >= 0"
+    if name == "spin_down_asymmetry" and s > 1.0:
+        return "must be in [0, 1] (fraction of braking removed)"
+    return None
+
+
+def resolve_effects(effects: Mapping[str, float] | None) -> dict[str, float]:
+    """All effects at 1.0, overridden by ``effects``; BadInputError naming a bad item."""
+    out = {name: 1.0 for name in EFFECTS}
+    for name, value in (effects or {}).items():
+        why = strength_problem(name, value)
+        if why:
+            item = name if name not in EFFECTS else f"{name}={value!r}"
+            raise BadInputError(f"--effect {item}: {why}")
+        out[name] = float(value)
+    return out
+
+
+# --- ESC ---------------------------------------------------------------------------------------
+Level = TypeVar("Level", float, np.ndarray)
+
+
+def _clip(x: Level, lo: float, hi: float) -> Level:
+    """np.clip for arrays; min/max for one float (a stream's step: 20x faster, same value)."""
+    return np.clip(x, lo, hi) if isinstance(x, np.ndarray) else min(max(x, lo), hi)
+
+
+def throttle(level: Level, threshold: float, exponent: float = 1.0) -> Level:
+    """ESC throttle map, PWM level -> duty (0..1): no drive below the start threshold, then
+    (linear map)**exponent to full duty at PWM_FULL (exponent 1: linear). Arrays or one float."""
+    lv = _clip(level, PWM_STOP, PWM_FULL)
+    x = _clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    return x if exponent == 1.0 else x**exponent
+
+
+def start_level(p: PlantParams, eff: Mapping[str, float]) -> float:
+    """PWM level where the ESC starts to drive (esc_deadband scales its distance from PWM_STOP)."""
+    return PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
+
+
+def dead_time_s(p: PlantParams, eff: Mapping[str, float]) -> float:
+    """Dead time between a command frame and the ESC's response (s)."""
+    return eff["input_delay"] * p.esc_input_delay_s
+
+
+#: A frame time within this of a step time counts as arrived at that step (float rounding).
+FRAME_TOLERANCE_S = 1e-9
+
+
+def esc_duty(p: PlantParams, eff: Mapping[str, float], cmd_t: np.ndarray, cmd: np.ndarray,
+             t: np.ndarray) -> np.ndarray:
+    """Duty cycle at the step times ``t``: the command held from each frame (PWM_STOP before the
+    first), after the dead time, through the throttle map."""
+    idx = np.searchsorted(cmd_t, t - dead_time_s(p, eff) + FRAME_TOLERANCE_S, side="right") - 1
+    level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
+    return throttle(level, start_level(p, eff), p.esc_throttle_exponent)
+
+
+def check_command(pwm: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """A caller's (t, level) command: 1-D, same length, finite, time non-decreasing."""
+    try:
+        t, lv = (np.asarray(a, dtype=float) for a in pwm)
+    except (TypeError, ValueError):
+        raise BadInputError("pwm: expected a pair of numeric arrays (t, level)") from None
+    if t.ndim != 1 or lv.shape != t.shape or len(t) == 0:
+        raise BadInputError("pwm: t and level must be 1-D arrays of the same, non-zero length")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(lv))):
+        raise BadInputError("pwm: times and levels must be finite")
+    if np.any(np.diff(t) < 0):
+        raise BadInputError("pwm: times must not decrease")
+    return t, lv
+
+
+# --- motor, rotor, thermal: one step ------------------------------------------------------------
+#: ``step(w, temp, duty, v_source) -> (w_now, w_next, i_motor, temp_next)``: speed at this step
+#: (rad/s; the steady state when the rotor has no inertia), speed at the next step, motor current
+#: (A; the source supplies duty * i) and winding temperature at the next step (deg C).
+Step = Callable[[float, float, float, float], "tuple[float, float, float, float]"]
+
+
+def make_step(p: PlantParams, eff: Mapping[str, float], source_resistance_ohm: float) -> Step:
+    """One step of ``p.sim_step_s`` of the motor, rotor and winding temperature, driven by a duty
+    and the source's open-circuit voltage behind ``source_resistance_ohm``.
+
+    A closure over plain floats: every caller (simulator, batch model, stream) runs the same
+    arithmetic, and a step costs about a microsecond in CPython.
+    """
+    dt = p.sim_step_s
+    ke = p.back_emf_constant_v_s_per_rad
+    kt = ke
+    kq = p.torque_coefficient
+    tf = kt * p.motor_no_load_current_a  # friction torque; friction power = tf * w
+    rw0 = p.winding_resistance_ohm
+    alpha = eff["motor_heating"] * p.copper_temperature_coefficient_per_k
+    t_ref = p.winding_reference_temperature_c
+    resc = p.esc_resistance_ohm
+    rs = float(source_resistance_ohm)
+    keep = 1.0 - eff["spin_down_asymmetry"]  # fraction of negative (braking) current allowed
+    jr = eff["rotor_lag"] * p.rotor_inertia_kg_m2
+    t_amb = p.ambient_temperature_c
+    heat = dt * (1.0 / p.motor_thermal_capacity_j_per_k)  # as dt * (1/C): the simulator's bits
+    inv_rth = 1.0 / p.motor_thermal_resistance_k_per_w
+    sqrt = math.sqrt
+
+    def lagged(w: float, temp: float, d: float, veff: float) -> tuple[float, float, float, float]:
+        rw = rw0 * (1.0 + alpha * (temp - t_ref))
+        rd = rw + resc + rs * d * d
+        i = (d * veff - ke * w) / rd
+        didw = -ke / rd
+        if i < 0.0:
+            i *= keep
+            didw *= keep
+        f = kt * i - tf - kq * w * w
+        wn = w + dt * f / (jr - dt * (kt * didw - 2.0 * kq * w))
+        if wn < 0.0:
+            wn = 0.0
+        return w, wn, i, temp + heat * (i * i * rw + tf * w - (temp - t_amb) * inv_rth)
+
+    def steady(w: float, temp: float, d: float, veff: float) -> tuple[float, float, float, float]:
+        rw = rw0 * (1.0 + alpha * (temp - t_ref))
+        rd = rw + resc + rs * d * d
+        # kq w^2 + (kt ke / rd) w + (tf - kt d veff / rd) = 0
+        c = tf - kt * d * veff / rd
+        if c >= 0.0:
+            w = 0.0
+        else:
+            b = kt * ke / rd
+            w = (-b + sqrt(b * b - 4.0 * kq * c)) / (2.0 * kq)
+        i = (d * veff - ke * w) / rd
+        if i < 0.0:
+            i *= keep
+        return w, w, i, temp + heat * (i * i * rw + tf * w - (temp - t_amb) * inv_rth)
+
+    return lagged if jr > 0.0 else steady
+
+
+# --- driven by a measured supply --------------------------------------------------------------
+@dataclass(frozen=True)
+class Supply:
+    """How a measured battery voltage drives the plant (what the batch model and the stream share).
+
+    ``battery_voltage`` strength s makes the motor see v_ref + s (V - v_ref): 0 is a stiff supply
+    at ``v_ref``, 1 the measured voltage. The measured voltage already carries the series
+    resistance's drop; if it was measured through a first-order low-pass of ``tau_s`` > 0 (the
+    battery filter), the part of the drop the filter has not yet passed, R_s (i - lowpass(i)), is
+    taken off again: the source voltage is V + R_s lowpass(i_supply), behind R_s.
+    """
+
+    v_ref: float
+    strength: float
+    source_resistance_ohm: float  #: s R_s with a filtered voltage, 0 with the terminal's own
+    lowpass_gain: float  #: per step, 1 - exp(-dt / tau_s) (0 without a filter)
+
+    @classmethod
+    def of(cls, p: PlantParams, eff: Mapping[str, float], v_ref: float, tau_s: float) -> "Supply":
+        s = eff["battery_voltage"]
+        rs = s * p.battery_series_resistance_ohm if tau_s > 0.0 else 0.0
+        gain = 1.0 - math.exp(-p.sim_step_s / tau_s) if tau_s > 0.0 else 0.0
+        return cls(float(v_ref), s, rs, gain)
+
+
+def held(sample_t: np.ndarray, sample_v: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The latest sample at or before each time ``t`` (the first sample before it)."""
+    return sample_v[np.maximum(np.searchsorted(sample_t, t, side="right") - 1, 0)]
+
+
+def motor_response(
+    params: PlantParams,
+    effects: Mapping[str, float],
+    pwm_events: tuple[np.ndarray, np.ndarray],
+    supply: tuple[np.ndarray, np.ndarray],
+    t_out: np.ndarray,
+    v_ref: float,
+    supply_tau_s: float = 0.0,
+    hold_supply: bool = False,
+) -> np.ndarray:
+    """Rotor speed (rad/s) at the times ``t_out``, driven by a recording's command events
+    (t, level) and a measured supply voltage (t, V): the batch path of the physics model.
+
+    The rotor starts at rest at the first command (or ``t_out[0]`` if earlier), steps of
+    ``params.sim_step_s``; the speed is linearly interpolated onto ``t_out``. The supply is
+    linearly interpolated onto the steps (held before the first and after the last sample), or
+    with ``hold_supply`` held from the latest sample at or before each step: what a stream knows
+    then, so ``core.plant_stream.PlantStream`` gives the same numbers sample by sample.
+    ``v_ref`` and ``supply_tau_s``: see :class:`Supply`.
+    """
+    eff = resolve_effects(effects)
+    p = check_plant(params)
+    cmd_t, cmd = check_command(pwm_events)
+    t_out = np.asarray(t_out, dtype=float)
+    t0 = min(float(cmd_t[0]), float(t_out[0]))
+    dt = p.sim_step_s
+    n = int(math.ceil((float(t_out[-1]) - t0) / dt - 1e-9)) + 1
+    step_t = t0 + np.arange(n) * dt
+    sup_t, sup_v = (np.asarray(a, dtype=float) for a in supply)
+    sp = Supply.of(p, eff, v_ref, float(supply_tau_s))
+    volts = held(sup_t, sup_v, step_t) if hold_supply else np.interp(step_t, sup_t, sup_v)
+    source = (sp.v_ref + sp.strength * (volts - sp.v_ref)).tolist()
+    duty = esc_duty(p, eff, cmd_t, cmd, step_t).tolist()
+    step = make_step(p, eff, sp.source_resistance_ohm)
+    rs, a_lp = sp.source_resistance_ohm, sp.lowpass_gain
+    w = 0.0
+    temp = p.ambient_temperature_c
+    ib_lp = 0.0
+    speed = [0.0] * n
+    for k in range(n):
+        d = duty[k]
+        speed[k], w, i, temp = step(w, temp, d, source[k] + rs * ib_lp)
+        ib_lp += a_lp * (d * i - ib_lp)
+    return np.interp(t_out, step_t, speed)

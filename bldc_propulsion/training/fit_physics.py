@@ -1,0 +1,111 @@
+"""A physics model from recordings: the plant's constants and effect strengths fitted by least
+squares on the training recordings (the discrepancy workflow's calibration,
+``discrepancy/physics.py``, ``fit_reference``), the candidate with the least validation error
+kept.
+
+Why least squares on the plant instead of a network: the plant carries the rotor's inertia, the
+ESC's dead time and start level and the battery's sag as physics, so a handful of constants
+(Kv, CP, six effect strengths) fitted on staircases and ramps extrapolate to commands and pack
+charges the training never saw, where a static network interpolates only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .. import __version__
+from .. import contract as c
+from ..discrepancy import physics as ph
+from ..errors import BadInputError
+from ..model import PlantModel
+from ..recordings import Signals
+from .evaluate import predict_speed
+from .train import ThrustFit, _source, fit_thrust_coefficient
+
+
+@dataclass
+class PhysicsOutcome:
+    model: PlantModel
+    train: list[Signals]
+    validation: list[Signals]
+    thrust: ThrustFit
+    train_rmse_rad_s: float
+    validation_rmse_rad_s: float
+    candidates: list[dict[str, Any]]  #: every fit tried, with its figures; the kept one first
+
+
+def rmse(model: PlantModel, signals: Sequence[Signals]) -> float:
+    """Speed RMSE (rad/s) of ``model`` on ``signals``, as ``evaluate`` computes it."""
+    err = np.concatenate([predict_speed(model, s) - s.speed for s in signals])
+    err = err[np.isfinite(err)]
+    return float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
+
+
+def _plant_model(m: ph.PhysicsModel, tau_s: float) -> PlantModel:
+    return PlantModel(m.params, m.effects, m.supply_v, supply_tau_s=tau_s)  # type: ignore[arg-type]
+
+
+def train_physics(
+    train: Sequence[Signals],
+    validation: Sequence[Signals],
+    *,
+    thrust_coefficient: float,
+    progress: Callable[[str], None] | None = None,
+) -> PhysicsOutcome:
+    """Fit the nominal bench's plant to ``train`` (Kv, CP and every effect's strength, least
+    squares) from two ESCs, and keep the one ``validation`` prefers: one that brakes actively
+    (spin_down_asymmetry 0, held: BLHeli's default) and one that lets the rotor coast (its
+    strength fitted from 1). Staircases and ramps rarely show how the rotor slows down after a
+    large step, so the training data alone cannot choose; random steps do. The supply is the
+    recordings' filtered battery voltage (the stiff supply of battery_voltage strength 0: their
+    median)."""
+    if not train or not validation:
+        raise BadInputError("training needs at least one training and one validation recording")
+    say = progress or (lambda text: None)
+    taus = {ph.supply_tau_s(s) for s in [*train, *validation]}
+    if len(taus) > 1:
+        raise BadInputError(f"{train[0].path}: the recordings' battery voltages come from different sources "
+                            "(filtered from battery/adc and recorded): a physics model takes one kind")
+    tau = taus.pop()
+    nominal = ph.load_config(None)
+    data = ph.Data.of(train, "training")
+    t0 = time.perf_counter()
+    candidates = []
+    for name, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
+        say(f"fitting Kv, CP and the effects' strengths, {name}")
+        effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
+        start = dataclasses.replace(nominal, effects=effects).with_supply(train)
+        fit = ph.fit_reference(start, data)
+        m = _plant_model(fit.model, tau)
+        at_bound = [f.text() for f in ph.fit_flags(fit, start, "training fit") if f.at_bound]
+        candidates.append({"fit": name, "constants": fit.model.constants(), "effects": dict(fit.model.effects),
+                           "at_bound": at_bound, "train_rmse_rad_s": rmse(m, train),
+                           "validation_rmse_rad_s": rmse(m, validation), "model": m})
+        say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
+            f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s")
+    candidates.sort(key=lambda d: d["validation_rmse_rad_s"])
+    best = candidates[0]
+    thrust = fit_thrust_coefficient(train, thrust_coefficient)
+    model = dataclasses.replace(best["model"], thrust_coefficient=thrust.coefficient, metadata={
+        "package_version": __version__,
+        "sources": {"train": [_source(s) for s in train], "validation": [_source(s) for s in validation]},
+        "fit": best["fit"],
+        "candidates": [{k: v for k, v in d.items() if k != "model"} for d in candidates],
+        "training_seconds": time.perf_counter() - t0,
+        "thrust_fit": {"source": thrust.source, "residual_rms_n": thrust.residual_rms_n, "samples": thrust.samples},
+    })
+    return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
+                          best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k != "model"}
+                                                          for d in candidates])
+
+
+def residual_signals(model: PlantModel, signals: Sequence[Signals]) -> list[Signals]:
+    """The recordings with the speed replaced by what ``model`` gets wrong (measured - physics):
+    the target of a hybrid's network."""
+    return [dataclasses.replace(s, speed=s.speed - predict_speed(model, s)) for s in signals]

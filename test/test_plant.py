@@ -1,0 +1,117 @@
+"""The plant (ESC, motor, rotor, thermal) on its own: what the simulator and the estimator share."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from bldc_propulsion import plant as pl
+from bldc_propulsion.contract import EFFECTS, PWM_FULL, PWM_STOP
+from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.sim import BenchParams
+
+ALL_OFF = {name: 0.0 for name in EFFECTS}
+
+
+def test_plant_imports_nothing_of_the_simulator() -> None:
+    code = ("import sys, bldc_propulsion.plant; "
+            "print(sorted(m for m in sys.modules if m.startswith('bldc_propulsion.sim')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_bench_params_are_plant_params_plus_battery_and_sensors() -> None:
+    b = BenchParams()
+    assert isinstance(b, pl.PlantParams)
+    for name in pl.PLANT_FIELDS:
+        assert getattr(b, name) == getattr(pl.PlantParams(), name)
+    assert not any(n.startswith(("tach_", "adc_")) for n in pl.PLANT_FIELDS)
+    assert [n for n in pl.PLANT_FIELDS if n.startswith("battery_")] == ["battery_series_resistance_ohm"]
+
+
+@pytest.mark.parametrize("exponent", [1.0, 0.8, 1.25])
+@pytest.mark.parametrize("threshold", [PWM_STOP, 0.055, 0.058])
+def test_throttle_map_one_float_equals_the_array(threshold: float, exponent: float) -> None:
+    levels = np.linspace(0.03, 0.12, 181)
+    arr = pl.throttle(levels, threshold, exponent)
+    one = np.array([pl.throttle(float(x), threshold, exponent) for x in levels])
+    np.testing.assert_allclose(one, arr, rtol=1e-15, atol=0.0)
+    assert np.all(arr[levels <= threshold] == 0.0) and np.all(arr[levels >= PWM_FULL] == 1.0)
+    mid = (threshold + PWM_FULL) / 2
+    assert pl.throttle(mid, threshold, exponent) == pytest.approx(0.5**exponent)
+
+
+def test_dead_time_and_start_level_scale_with_the_effects() -> None:
+    p = pl.PlantParams()
+    eff = pl.resolve_effects({"input_delay": 0.5, "esc_deadband": 2.0})
+    assert pl.dead_time_s(p, eff) == pytest.approx(0.020)
+    assert pl.start_level(p, eff) == pytest.approx(0.060)
+    # a frame at 1.000 s reaches the ESC at 1.020 s
+    d = pl.esc_duty(p, eff, np.array([0.0, 1.0]), np.array([PWM_STOP, PWM_FULL]),
+                    np.array([1.019, 1.020, 1.021]))
+    assert d.tolist() == [0.0, 1.0, 1.0]
+
+
+def test_steady_state_is_the_hand_computed_torque_balance() -> None:
+    """No inertia, no friction, cold winding: kq w^2 = kt (V - ke w) / R, solved by hand."""
+    p = dataclasses.replace(pl.PlantParams(), motor_no_load_current_a=0.0, battery_series_resistance_ohm=0.0)
+    step = pl.make_step(p, ALL_OFF, 0.0)
+    w, w_next, i, _ = step(0.0, p.ambient_temperature_c, 1.0, 12.0)
+    ke, kq, r = p.back_emf_constant_v_s_per_rad, p.torque_coefficient, p.winding_resistance_ohm + p.esc_resistance_ohm
+    # kq r w^2 + ke^2 w - ke V = 0
+    expected = (-ke * ke + math.sqrt(ke**4 + 4.0 * kq * r * ke * 12.0)) / (2.0 * kq * r)
+    assert w == w_next == pytest.approx(expected, rel=1e-12)
+    assert i == pytest.approx((12.0 - ke * expected) / r, rel=1e-12)
+    assert 550.0 < w < 700.0  # the nominal bench's full-throttle speed on 12 V (sim tests: ~600)
+
+
+def test_rotor_with_inertia_approaches_the_steady_state_with_its_time_constant() -> None:
+    p = pl.PlantParams()
+    eff = {**ALL_OFF, "rotor_lag": 1.0}
+    w_ss = pl.make_step(p, ALL_OFF, 0.0)(0.0, 25.0, 0.6, 12.0)[0]
+    step = pl.make_step(p, eff, 0.0)
+    w, temp = 0.0, 25.0
+    for _ in range(2000):  # 2 s
+        _, w, _, temp = step(w, temp, 0.6, 12.0)
+    assert w == pytest.approx(w_ss, rel=1e-3)
+    assert temp > 25.0  # copper loss heats the winding
+
+
+def test_without_braking_the_current_never_goes_negative() -> None:
+    p = pl.PlantParams()
+    for braking_removed, brakes in ((0.0, True), (1.0, False)):
+        step = pl.make_step(p, {**ALL_OFF, "rotor_lag": 1.0, "spin_down_asymmetry": braking_removed}, 0.0)
+        _, _, i, _ = step(500.0, 25.0, 0.1, 12.0)  # fast rotor, little drive: back-EMF wins
+        assert (i < 0.0) if brakes else (i == 0.0)
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("motor_kv_rpm_per_v", 0.0, "must be > 0"),
+    ("motor_kv_rpm_per_v", -710.0, "must be > 0"),
+    ("motor_rotor_inertia_kg_m2", -1e-6, "must be >= 0"),
+    ("propeller_mass_kg", 0.0, "must be > 0"),
+    ("propeller_cp", math.nan, "finite"),
+    ("esc_deadband_pwm", 0.05, "no throttle range"),
+    ("sim_step_s", 0.01, "too coarse"),
+])
+def test_unphysical_constants_are_named(field: str, value: float, needle: str) -> None:
+    p = dataclasses.replace(pl.PlantParams(), **{field: value})
+    name, why = pl.plant_problem(p)
+    assert name == field and needle in why
+    with pytest.raises(BadInputError, match=rf"^--param {field}: .*{needle}"):
+        pl.check_plant(p)
+    assert pl.plant_problem(pl.PlantParams()) is None
+
+
+def test_strengths_are_checked_by_one_rule() -> None:
+    assert pl.strength_problem("rotor_lag", 2.0) is None
+    assert "unknown effect" in pl.strength_problem("wobble", 1.0)
+    assert ">= 0" in pl.strength_problem("rotor_lag", -1.0)
+    assert "[0, 1]" in pl.strength_problem("spin_down_asymmetry", 1.5)
+    with pytest.raises(BadInputError, match=r"^--effect rotor_lag='x': not a number"):
+        pl.resolve_effects({"rotor_lag": "x"})

@@ -1,0 +1,107 @@
+"""The plant as a stream (core/plant_stream.py) against its batch path and the simulator's truth."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig
+from bldc_propulsion.core.plant_stream import LATE_S, PlantStream
+from bldc_propulsion.plant import motor_response
+from bldc_propulsion.sim import BenchParams, SimResult, simulate
+from bldc_propulsion.sim import random_bench as rb
+
+PWM, VOLTAGE, PREDICT = 0, 1, 2
+TAU = BatteryFilterConfig().tau_s
+
+
+@pytest.fixture(scope="module")
+def recording() -> SimResult:
+    return simulate("random_steps", 12.0, 5, soc=0.7)
+
+
+def events(res: SimResult, volt_every: int, grid: np.ndarray, seed: int) -> list[tuple[float, int, float]]:
+    """PWM frames, filtered voltage every ``volt_every`` ADC samples and prediction times, in
+    time order; inputs stamped alike in a random order, predictions after them."""
+    v = BatteryFilter().process(res.battery_t, res.battery_adc)
+    rng = np.random.default_rng(seed)
+    ev = ([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
+          + [(t, VOLTAGE, x) for t, x in zip(res.battery_t[::volt_every].tolist(), v[::volt_every].tolist())])
+    ev = [e for _, e in sorted(zip(rng.random(len(ev)), ev))]
+    ev.sort(key=lambda e: e[0])  # stable: ties keep the random order
+    return sorted(ev + [(t, PREDICT, 0.0) for t in grid.tolist()], key=lambda e: (e[0], e[1] == PREDICT))
+
+
+def run(stream: PlantStream, ev: list[tuple[float, int, float]]) -> np.ndarray:
+    out = []
+    for t, kind, x in ev:
+        if kind == PWM:
+            stream.update_pwm(t, x)
+        elif kind == VOLTAGE:
+            stream.update_voltage(t, x)
+        else:
+            out.append(stream.speed_at(t))
+    return np.array(out)
+
+
+CASES = {
+    # the physics model's 5 ms step, every effect at nominal, voltage at the node's 20 Hz
+    "nominal, 20 Hz voltage": (dataclasses.replace(BenchParams(), sim_step_s=0.005), {}, 50, TAU),
+    # another bench (bent throttle map), no dead time (commands act at the step they land on),
+    # a measured terminal voltage at 1 kHz
+    "random bench, no dead time": (rb.draw_bench(1), {"input_delay": 0.0, "battery_voltage": 0.7}, 1, 0.0),
+    "random bench, coasting": (dataclasses.replace(rb.draw_bench(2), sim_step_s=0.002),
+                               {"spin_down_asymmetry": 0.4, "motor_heating": 4.0}, 7, TAU),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_stream_equals_the_batch_path(case: str, recording: SimResult) -> None:
+    params, eff, every, tau = CASES[case]
+    grid = np.arange(0.013, 11.9, 0.01)  # 100 Hz predictions, not on the steps
+    ev = events(recording, every, grid, seed=len(case))
+    got = run(PlantStream(params, eff, 11.5, tau), ev)
+    v = BatteryFilter().process(recording.battery_t, recording.battery_adc)
+    want = motor_response(params, eff, (recording.pwm_t, recording.pwm),
+                          (recording.battery_t[::every], v[::every]), grid, 11.5, tau, hold_supply=True)
+    assert np.max(np.abs(got - want)) < 1e-9
+    assert np.ptp(want) > 200.0  # the rotor did move
+
+
+def test_predicting_more_or_less_often_changes_nothing(recording: SimResult) -> None:
+    params, eff, every, tau = CASES["nominal, 20 Hz voltage"]
+    fine = np.arange(0.013, 11.9, 0.001)
+    a = run(PlantStream(params, eff, 11.5, tau), events(recording, every, fine, 1))
+    b = run(PlantStream(params, eff, 11.5, tau), events(recording, every, fine[::97], 2))
+    np.testing.assert_array_equal(a[::97], b)
+
+
+def test_stream_on_the_terminal_voltage_reproduces_the_simulator() -> None:
+    """Known truth: the simulator's speed, from its command and its terminal voltage."""
+    res = simulate("random_steps", 10.0, 3)
+    s = PlantStream(BenchParams(), {}, 12.0, 0.0)
+    ev = sorted([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
+                + [(t, VOLTAGE, x) for t, x in zip(res.truth_t.tolist(), res.truth_voltage.tolist())]
+                + [(t, PREDICT, 0.0) for t in res.truth_t[1:-1].tolist()], key=lambda e: (e[0], e[1]))
+    err = run(s, ev) - res.truth_speed[1:-1]
+    assert np.max(np.abs(err)) < 0.5
+    assert np.max(res.truth_speed) > 300.0
+
+
+def test_not_ready_at_rest_late_inputs_and_reset() -> None:
+    s = PlantStream(BenchParams(), {}, 12.0, TAU)
+    assert math.isnan(s.speed_at(1.0)) and not s.ready
+    s.update_pwm(1.0, 0.09)
+    assert math.isnan(s.speed_at(1.1))  # no voltage yet
+    s.update_voltage(1.0, 12.0)
+    assert s.ready and s.speed_at(0.5) == 0.0  # before the first command: at rest
+    w = s.speed_at(2.0)
+    assert w > 300.0
+    s.update_voltage(1.2, 12.0)  # stamped before the steps that prediction committed
+    assert s.late_inputs == 1
+    assert s.speed_at(2.0 + LATE_S) > w  # still speeding up
+    s.reset()
+    assert not s.ready and math.isnan(s.speed_at(3.0))
