@@ -36,7 +36,7 @@ $BP discrepancy --model $OUT/model_no_voltage.npz --measured bags/discharge_a \
 step "5. the same question with the bench physics as the model: the nominal motor and propeller, every effect off"
 $BP discrepancy --physics --measured bags/staircase bags/validation --holdout bags/discharge_b \
     --max-effects 4 -o $OUT/physics_found.json --report $OUT/report_physics --force 2>$OUT/physics.log
-grep -E "^step (4|5)" $OUT/physics.log | sed 's/^/  /'
+grep -E "^(step (4|5)|warning)" $OUT/physics.log | sed 's/^/  /'
 
 # one page that links every report
 {

@@ -35,6 +35,7 @@ from std_msgs.msg import Float64  # noqa: E402
 
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import open_recording  # noqa: E402
+from bldc_propulsion.nodes.params import TACH_TIMEOUT_CHECK_PERIOD_S  # noqa: E402
 from bldc_propulsion.replay import replay_bag  # noqa: E402
 from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
@@ -99,6 +100,16 @@ class Recorder:
         while self.running:
             self.executor.spin_once(timeout_sec=0.05)
 
+    def wait_ready(self, *nodes: str, timeout_s: float = 60.0) -> None:
+        """Until each node's diagnostics arrived: it spins and this recorder is matched to it
+        (discovery takes seconds on a loaded machine; outputs before it would be missed), then
+        the nodes' periodic check that someone listens to their outputs (ScalarOutput)."""
+        deadline = time.monotonic() + timeout_s
+        while not set(f"/{n}" for n in nodes) <= {s.name.split(":")[0] for s in self.statuses()}:
+            assert time.monotonic() < deadline, f"no diagnostics from {nodes}: {self.statuses()}"
+            time.sleep(0.05)
+        time.sleep(3 * TACH_TIMEOUT_CHECK_PERIOD_S)
+
     def values(self, topic: str) -> np.ndarray:
         return np.array([m.data for _, m in self.got[topic]])
 
@@ -147,6 +158,7 @@ def test_live_nodes_publish_what_replay_writes(recordings, tmp_path):
     nodes = [start_node(n) for n in MODULES]
     rec = Recorder()
     try:
+        rec.wait_ready(*MODULES)
         player = play(tmp_path, "p", bag=str(d / "steps"))
         t0 = player_t0(player)
         out, err = player.communicate(timeout=60)
@@ -212,6 +224,7 @@ def test_no_wrong_speed_after_a_publisher_fault(recordings, tmp_path, fault):
     node = start_node("tachometer")
     rec = Recorder()
     try:
+        rec.wait_ready("tachometer")
         player = play(tmp_path, "p", bag=str(d / "ramp"), topics=[c.TOPIC_TACH_ADC],
                       **FAULTS[fault])
         _, err = player.communicate(timeout=60)
@@ -231,6 +244,7 @@ def test_no_wrong_speed_after_the_node_stalls(recordings, tmp_path, stall_s):
     node = start_node("tachometer")
     rec = Recorder()
     try:
+        rec.wait_ready("tachometer")
         player = play(tmp_path, "p", bag=str(d / "ramp"), topics=[c.TOPIC_TACH_ADC])
         t0 = player_t0(player)
         time.sleep(max(0.0, t0 + 4.0 - time.time()))
@@ -251,6 +265,7 @@ def test_no_wrong_speed_when_the_publisher_restarts(recordings, tmp_path):
     node = start_node("tachometer")
     rec = Recorder()
     try:
+        rec.wait_ready("tachometer")
         first = play(tmp_path, "a", bag=str(d / "ramp"), topics=[c.TOPIC_TACH_ADC], t_to=4.0)
         t0 = player_t0(first)
         _, err = first.communicate(timeout=60)
