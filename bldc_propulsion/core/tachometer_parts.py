@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -421,22 +422,7 @@ class EdgeDetector:
             prev[1:] = val[:-1]
             trig = ev[val != prev]
             self.state = bool(val[-1])
-        if trig is not None:
-            for kk in trig.tolist():
-                p = self._crossing(r, kk, r_prev0, i0)
-                if p is None:  # the crossing was in an earlier slice
-                    p = self.cross if self.cross is not None else float(i0 + kk)
-                self._switch(p, i0 + kk, out, float(hi[kk]), float(lo[kk]))
-        if low_f <= self.r_last <= high_f:
-            # the slice ends inside a transition: its switch may come in a later slice and
-            # need the midpoint crossing found here
-            p = self._crossing(r, n, r_prev0, i0)
-            if p is not None:
-                self.cross = p
-        # a pending edge is confirmed once no later switch can be close enough to cancel it
-        if self.pending is not None and (i0 + n - self.pending[1]) >= self._min_trig:
-            self._confirm(out)
-            self.pending = None
+        self._finish_slice(r, trig.tolist() if trig is not None else (), hi, lo, r_prev0, i0, out)
 
     # --- many batches' levels at once (the same arithmetic as segment, row by row) ----------
     def plan_rows(self, X: np.ndarray) -> RowPlan:
@@ -519,7 +505,6 @@ class EdgeDetector:
         if plan.enter[j] != (self.tail, self.hi, self.lo):
             return False
         r = plan.R[j]
-        n = len(r)
         self.tail = self.level_now = plan.last[j]
         self.hi, self.lo = plan.hi_end[j], plan.lo_end[j]
         r_prev0 = self.r_last if self.r_last is not None else plan.r_first[j]
@@ -533,21 +518,31 @@ class EdgeDetector:
             if plan.first_val[j] != state:
                 trig.insert(0, first)
             self.state = plan.last_val[j]
-            if trig:
-                hi, lo = plan.HI[j], plan.LO[j]
-                for kk in trig:
-                    p = self._crossing(r, kk, r_prev0, i0)
-                    if p is None:  # the crossing was in an earlier slice
-                        p = self.cross if self.cross is not None else float(i0 + kk)
-                    self._switch(p, i0 + kk, out, hi.item(kk), lo.item(kk))
+        else:
+            trig = ()
+        self._finish_slice(r, trig, plan.HI[j], plan.LO[j], r_prev0, i0, out)
+        return True
+
+    def _finish_slice(self, r: np.ndarray, trig: Sequence[int], hi: np.ndarray, lo: np.ndarray,
+                      r_prev0: float, i0: int, out: TachOutput) -> None:
+        """The end of :meth:`segment` and :meth:`segment_planned` (one place, so the planned
+        path cannot drift from the plain one): the slice's switches at indices ``trig``, the
+        crossing of a slice that ends inside a transition, and the pending edge's confirmation."""
+        for kk in trig:
+            p = self._crossing(r, kk, r_prev0, i0)
+            if p is None:  # the crossing was in an earlier slice
+                p = self.cross if self.cross is not None else float(i0 + kk)
+            self._switch(p, i0 + kk, out, hi.item(kk), lo.item(kk))
         if self._low_f <= self.r_last <= self._high_f:
-            p = self._crossing(r, n, r_prev0, i0)
+            # the slice ends inside a transition: its switch may come in a later slice and
+            # need the midpoint crossing found here
+            p = self._crossing(r, len(r), r_prev0, i0)
             if p is not None:
                 self.cross = p
-        if self.pending is not None and (i0 + n - self.pending[1]) >= self._min_trig:
+        # a pending edge is confirmed once no later switch can be close enough to cancel it
+        if self.pending is not None and (i0 + len(r) - self.pending[1]) >= self._min_trig:
             self._confirm(out)
             self.pending = None
-        return True
 
     def _crossing(self, r: np.ndarray, kk: int, r_prev0: float, i0: int) -> float | None:
         """Position (clock samples) of the last midpoint crossing at or before index kk of the slice.
