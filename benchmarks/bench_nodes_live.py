@@ -9,7 +9,7 @@ subscribes to each motor's predicted/thrust and rotor/speed, as a flight control
 counts what it gets; outputs nobody reads are not serialized by the nodes. Prints figures; not
 a test.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...]
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--pin-nodes 0]
 """
 
 from __future__ import annotations
@@ -52,10 +52,21 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
+#: ``--pin-nodes CPU``: the node processes run on this CPU alone (the bench, the player and the
+#: consumer on the others), so that their CPU time is not lowered by sharing a core with the
+#: player (a node that waits for the CPU finds several messages queued and wakes up less).
+NODE_CPUS: set[int] | None = None
+
+
+def _node_preexec() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if NODE_CPUS is not None:
+        os.sched_setaffinity(0, NODE_CPUS)
+
+
 def start(args: list[str]) -> subprocess.Popen:
     return subprocess.Popen(NODE + args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True, cwd=ROOT,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            text=True, cwd=ROOT, preexec_fn=_node_preexec)
 
 
 def processes(mode: str) -> list[subprocess.Popen]:
@@ -171,7 +182,16 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--modes", nargs="*", default=[
         "one process (events)", "one process (single)", "separate processes"])
+    parser.add_argument("--pin-nodes", type=int, metavar="CPU",
+                        help="run the node processes on this CPU, everything else on the others")
     args = parser.parse_args()
+    if args.pin_nodes is not None:
+        global NODE_CPUS
+        NODE_CPUS = {args.pin_nodes}
+        others = os.sched_getaffinity(0) - NODE_CPUS
+        if not others or args.pin_nodes not in os.sched_getaffinity(0):
+            parser.error(f"--pin-nodes {args.pin_nodes}: needs that CPU and at least one other")
+        os.sched_setaffinity(0, others)
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         bag = tmp / "rec"

@@ -1,5 +1,5 @@
 """LeanExecutor: message info, bursts drained in order, timers, entities added while spinning,
-parameter services (served by the base class) and Ctrl-C-style shutdown."""
+parameter services (woken by their requests, served by the base class) and Ctrl-C-style shutdown."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
+from bldc_propulsion.nodes import lean_executor  # noqa: E402
 from bldc_propulsion.nodes.lean_executor import LeanExecutor  # noqa: E402
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -73,8 +74,11 @@ def test_message_only_callbacks_and_timers(ros):
     assert 0.015 < period < 0.05
 
 
-def test_parameter_services_answer(ros):
-    """Services are not on the lean path; the base class serves them (polled)."""
+@pytest.mark.parametrize("poll_s", [lean_executor.POLL_S, 3600.0])
+def test_parameter_services_answer(ros, monkeypatch, poll_s):
+    """Services and clients are in the lean wait set and wake the base class, which serves them:
+    with the base class's poll an hour apart the request is still answered."""
+    monkeypatch.setattr(lean_executor, "POLL_S", poll_s)
     _, node, helper, executor = ros
     node.declare_parameter("gain", 1.0)
     client = helper.create_client(SetParameters, "/lean_under_test/set_parameters")
