@@ -195,8 +195,9 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
         plant = loaded.plant if loaded.kind == HYBRID else loaded
         model = _physics_of(plant, base)
         if loaded.kind == HYBRID:
+            out = f"; -o {args.output} gets a physics model" if args.output else ""
             warnings.append(f"--model {args.model}: a hybrid: its physics part is checked, without the "
-                            "network's correction" + (f"; -o {args.output} gets a physics model" if args.output else ""))
+                            f"network's correction{out}")
     measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report,
