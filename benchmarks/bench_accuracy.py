@@ -72,7 +72,7 @@ class Size:
 
 
 SIZES = {
-    # ~1 min per bench (all three kinds) on one core: 210 s of training, 60 s of validation
+    # ~1.5 min per bench (all three kinds) on one core: 210 s of training, 60 s of validation
     "small": Size((1.0, 0.88, 0.76, 0.64, 0.52, 0.4, 0.3), (0.95, 0.45), 30.0, 30.0, 50.0, 40.0),
     # the paper's 62,050 patterns: ten charges of 62 s, validation of the same length at three
     "paper": Size((1.0, 0.92, 0.84, 0.76, 0.68, 0.6, 0.52, 0.44, 0.36, 0.28), (0.95, 0.65, 0.35),
@@ -219,7 +219,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="bench seeds: 0-4 (default), 0,2,7 or nominal (the simulator's nominal bench)")
     ap.add_argument("--kinds", default=",".join(KINDS), help="comma-separated model kinds (default: all three)")
     ap.add_argument("--size", choices=tuple(SIZES), default="small",
-                    help="small (default, ~1 min per bench) or paper (ten 62 s training charges)")
+                    help="small (default, ~1.5 min per bench on one core) or paper (ten 62 s training charges)")
     ap.add_argument("--restarts", type=int, default=5, help="LM restarts of each network (default 5, as train)")
     ap.add_argument("--hidden", type=int, default=25)
     ap.add_argument("--keep", metavar="DIR", help="keep (and reuse) the simulated bags here")
