@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The main job end to end on the bundled sample bags: train -> replay -> evaluate -> discrepancy
-# (network and physics models).
+# The main job end to end on the bundled sample bags: train (network, physics, hybrid) -> replay ->
+# evaluate (the three kinds side by side) -> discrepancy (network and physics models).
 # Outputs go to demo/ (git-ignored); every step prints what it found; demo/index.html links
 # every report.
 source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
@@ -21,11 +21,22 @@ step "1. train the paper's 3-25-1 network (battery voltage, PWM, PWM through 0.2
 $BP train bags/staircase bags/triangle bags/staircase_half bags/triangle_half \
     --validation bags/validation -o $OUT/model.npz --report $OUT/report_train --force 2>$OUT/train.log
 
+step "1b. the same recordings, two other kinds of model: the bench physics fitted (Kv, CP, effect strengths), and physics + a network on its error"
+for kind in physics hybrid; do
+    $BP train bags/staircase bags/triangle bags/staircase_half bags/triangle_half \
+        --validation bags/validation --kind $kind -o $OUT/model_$kind.npz --force 2>$OUT/train_$kind.log
+    { grep -E "^warning" $OUT/train_$kind.log || true; } | sed "s/^/  /"
+done
+
 step "2. replay the chirp recording through the nodes' cores (what the ROS nodes would publish)"
 $BP replay bags/chirp -o $OUT/chirp_replay --model $OUT/model.npz --force
 
 step "3. evaluate on recordings the model never saw (chirp: error per command frequency band)"
 $BP evaluate --model $OUT/model.npz bags/chirp bags/discharge_a --report $OUT/report_eval --force
+
+step "3b. the three kinds side by side on the same unseen recordings (table; one figure per recording)"
+$BP evaluate --model $OUT/model.npz --model $OUT/model_physics.npz --model $OUT/model_hybrid.npz \
+    bags/chirp bags/discharge_a --report $OUT/report_compare --force | sed -n '/^side by side/,$p'
 
 step "4. the paper's question: a model WITHOUT battery voltage, trained on full packs, measured on a half-empty one"
 $BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/model_no_voltage.npz \
@@ -44,10 +55,11 @@ grep -E "^(step (4|5)|warning)" $OUT/physics.log | sed 's/^/  /'
     printf '<h1>bldc_propulsion demo</h1>\n<ul>\n'
     for r in report_train:"1. training (paper Figs. 1, 5-6, 12, 13)" \
              report_eval:"3. evaluation on unseen recordings (error per command frequency band)" \
+             report_compare:"3b. network, physics and hybrid side by side on the unseen recordings" \
              report_discrepancy:"4. discrepancy, network model without battery voltage" \
              report_physics:"5. discrepancy, bench physics as the model"; do
         printf '<li><a href="%s/index.html">%s</a></li>\n' "${r%%:*}" "${r#*:}"
     done
     printf '</ul>\n</body></html>\n'
 } > $OUT/index.html
-step "figures: $OUT/index.html (links $OUT/report_train, report_eval, report_discrepancy, report_physics)"
+step "figures: $OUT/index.html (links $OUT/report_train, report_eval, report_compare, report_discrepancy, report_physics)"

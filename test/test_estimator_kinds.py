@@ -189,3 +189,66 @@ def test_cli_train_kind_hybrid_starts_from_the_physics(bench_bags, tmp_path):
     assert m.thrust_coefficient == pytest.approx(m.plant.thrust_coefficient)
     sig = load_signals(bench_bags["test"][0])
     assert np.sqrt(np.nanmean((predict_speed(m, sig) - truth_on(sig, bench_bags["test"][0])) ** 2)) < 10.0
+
+
+# --- evaluate: several models side by side ----------------------------------------------------------
+def test_cli_evaluate_compares_kinds_side_by_side(bench_bags, bag, tmp_path):
+    """`evaluate --model A --model B --model C`: each model's figures are the ones evaluate gives
+    that model alone (computed here in-process), the side-by-side rows carry them per recording
+    and per chirp band, the contract's top-level keys stay the first model's, and the report has
+    one figure per recording."""
+    from _models import good_model
+
+    models = {"net.npz": good_model(), "phys.npz": true_physics(), "hyb.npz": hybrid()}
+    paths = []
+    for name, m in models.items():
+        save_model(m, tmp_path / name)
+        paths.append(str(tmp_path / name))
+    recs = [bench_bags["test"][0], bag]  # a chirp (bands) and random steps
+    report = tmp_path / "report"
+    proc = cli("evaluate", *(x for p in paths for x in ("--model", p)), *recs, "--report", str(report), "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    signals = [load_signals(r) for r in recs]
+    truth = [evaluate(m, signals) for m in models.values()]
+    assert [d["kind"] for d in data["models"]] == ["network", "physics", "hybrid"]
+    assert data["rmse_rad_s"] == pytest.approx(truth[0][0], rel=1e-9)  # the first model's, as before
+    assert data["recordings"][1]["rmse_rad_s"] == pytest.approx(truth[0][1][1].rmse_rad_s, rel=1e-9)
+    rows = {(r["recording"], r["part"]): r for r in data["comparison"]}
+    for p, (rmse, scores, _), d in zip(paths, truth, data["models"]):
+        assert d["rmse_rad_s"] == pytest.approx(rmse, rel=1e-9)
+        for s in scores:
+            row = rows[(s.path, "whole")]
+            assert row["rmse_rad_s"][p] == pytest.approx(s.rmse_rad_s, rel=1e-9)
+            assert row["rmse_percent_of_range"][p] == pytest.approx(s.rmse_percent_of_range, rel=1e-9)
+            for b in s.bands:
+                band = rows[(s.path, f"command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz")]
+                assert band["rmse_rad_s"][p] == pytest.approx(b["rmse_rad_s"], rel=1e-9)
+    assert len(truth[1][1][0].bands) >= 3  # the chirp was scored per band
+    # the physics model is the bench's truth: it must win on both recordings
+    for r in recs:
+        whole = rows[(r, "whole")]["rmse_rad_s"]
+        assert whole[paths[1]] < whole[paths[0]]
+    for k in range(len(recs)):
+        assert (report / f"compare_{k}.png").stat().st_size > 10_000
+    index = (report / "index.html").read_text(encoding="utf-8")
+    assert all(f"{m.kind} ({name})" in index for name, m in models.items())
+
+
+def test_cli_evaluate_side_by_side_text_and_refusals(bench_bags, tmp_path):
+    phys = tmp_path / "phys.npz"
+    save_model(true_physics(), phys)
+    hyb = tmp_path / "hyb.npz"
+    save_model(hybrid(), hyb)
+    chirp = bench_bags["test"][0]
+    proc = cli("evaluate", "--model", str(phys), "--model", str(hyb), chirp)
+    assert proc.returncode == 0, proc.stderr
+    table = proc.stdout[proc.stdout.index("side by side"):].splitlines()
+    assert "physics (phys.npz)" in table[1] and "hybrid (hyb.npz)" in table[1]
+    assert table[2].split()[0] == chirp and table[3].split()[:2] == ["command", "0.0-0.5"]
+    # one model: no side-by-side keys (the contract's output unchanged)
+    proc = cli("evaluate", "--model", str(phys), chirp, "--json")
+    assert proc.returncode == 0 and "models" not in json.loads(proc.stdout)
+    proc = cli("evaluate", "--model", str(phys), "--model", str(phys), chirp)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    assert f"--model {phys}: given twice" in proc.stderr

@@ -175,14 +175,42 @@ def test_constructor_refuses_unphysical_constants():
         PlantModel(PlantParams(), {"rotor_lag": 1.0}, 12.0)
 
 
-def test_cli_discrepancy_model_refuses_a_physics_model(tmp_path):
+def test_cli_discrepancy_model_takes_physics_and_hybrid_models(tmp_path):
+    """`discrepancy --model` of a physics model is `--physics MODEL.npz` (same figures); of a
+    hybrid, the physics path on its physics part, said in one warning line, -o a physics model;
+    network-only options are refused naming the model."""
     from test_discrepancy import cli
+    from test_discrepancy_physics import recordings
 
-    p = tmp_path / "phys.npz"
-    save_model(plant_model(), p)
-    proc = cli("discrepancy", "--model", str(p), "--measured", str(tmp_path / "nonexistent_bag"))
-    assert proc.returncode == 2
-    assert proc.stderr.strip().count("\n") == 0 and f"{p}: kind physics: a network model is needed" in proc.stderr
+    paths = recordings(tmp_path, "rotor_lag")  # the bench with every effect, rotor_lag included
+    lacking = dataclasses.replace(plant_model(), params=dataclasses.replace(BenchParams(), sim_step_s=0.005),
+                                  effects={**EFFECTS, "rotor_lag": 0.0}, metadata={})
+    plant = tmp_path / "plant.npz"
+    save_model(lacking, plant)
+    hyb = tmp_path / "hyb.npz"
+    save_model(dataclasses.replace(hybrid_model(), plant=lacking), hyb)
+    found = tmp_path / "found.npz"
+    common = ["--measured", *paths["measured"], "--holdout", *paths["holdout"], "--max-effects", "1", "--json"]
+    runs = {"physics": cli("discrepancy", "--physics", str(plant), *common),
+            "model": cli("discrepancy", "--model", str(plant), *common),
+            "hybrid": cli("discrepancy", "--model", str(hyb), *common, "-o", str(found))}
+    for name, proc in runs.items():
+        assert proc.returncode == 0, (name, proc.stderr)
+    data = {name: json.loads(proc.stdout) for name, proc in runs.items()}
+    for name in ("model", "hybrid"):
+        assert data[name]["named"] == data["physics"]["named"] == ["rotor_lag"]
+        assert data[name]["holdout_rmse_before"] == pytest.approx(data["physics"]["holdout_rmse_before"], rel=1e-9)
+        assert data[name]["holdout_rmse_after"] == pytest.approx(data["physics"]["holdout_rmse_after"], rel=1e-9)
+    said = [w for w in data["hybrid"]["warnings"] if "hybrid" in w]
+    assert said == [f"--model {hyb}: a hybrid: its physics part is checked, without the network's correction; "
+                    f"-o {found} gets a physics model"]
+    assert not any("hybrid" in w for w in data["model"]["warnings"])
+    m = load_model(found, kinds=(PHYSICS,))
+    assert m.effects["rotor_lag"] > 0.3 and m.metadata["discrepancy"]["base"] == str(hyb)
+    proc = cli("discrepancy", "--model", str(hyb), "--measured", *paths["measured"], "--hidden", "4")
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0
+    assert f"--hidden: retrains a network, so it goes with a network --model, not the hybrid model {hyb}" \
+        in proc.stderr
 
 
 def test_discrepancy_physics_writes_and_reads_a_model_file(tmp_path):

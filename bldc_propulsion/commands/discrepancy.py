@@ -39,7 +39,10 @@ DESCRIPTION = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--model", metavar="MODEL.npz", help="trained network model (.npz from `train`)")
+    src.add_argument("--model", metavar="MODEL.npz",
+                     help="model file (.npz from `train`): a network is retrained with the effect's input; a "
+                          "physics model takes the --physics path (as --physics MODEL.npz); a hybrid its "
+                          "physics part, with a warning (the network's correction is left out)")
     src.add_argument("--physics", nargs="?", const="", metavar="CONFIG",
                      help="the bench physics as the model: without CONFIG the package's nominal bench "
                           "with every effect OFF; CONFIG is a JSON file {\"params\": {BenchParams field: "
@@ -130,14 +133,15 @@ def run(args: argparse.Namespace) -> CommandResult:
         raise BadInputError(f"--max-effects {args.max_effects}: must be at least 1")
     if not 0.0 < args.alpha < 1.0:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
-    physics_config = args.physics is not None and not _is_npz(args.output)
-    check_outputs([(args.output, CONFIG if physics_config else MODEL, "-o"),
+    # any kind: a physics model (or a hybrid's physics part) goes down the physics path
+    model = load_model(args.model) if args.model is not None else None
+    physics = model is None or model.kind != NETWORK
+    check_outputs([(args.output, CONFIG if physics and not _is_npz(args.output) else MODEL, "-o"),
                    (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
                           args.model, args.physics])
-    if args.physics is not None:
-        return run_physics(args)
-    model = load_model(args.model, kinds=(NETWORK,))  # the workflow retrains a network's inputs
+    if physics:
+        return run_physics(args, model)
     warnings: list[str] = []
     if args.reference:
         ref_paths = list(args.reference)
@@ -170,16 +174,30 @@ def run(args: argparse.Namespace) -> CommandResult:
     return _finish(args, result, save, "the model", warnings)
 
 
-def run_physics(args: argparse.Namespace) -> CommandResult:
-    """``--physics [CONFIG]``: the bench physics as the model (see discrepancy/physics_kind.py)."""
+def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
+    """``--physics [CONFIG]``, or ``--model`` of kind physics or hybrid (``loaded``): the bench
+    physics as the model (see discrepancy/physics_kind.py). A hybrid's physics part is checked:
+    the workflow fits physical effects, and a network correction on top would hide the very
+    disagreement it looks for; so it says so, and -o is a physics model or CONFIG."""
     from ..discrepancy.physics import save_config, supply_tau_s
     from ..discrepancy.workflow import run_physics_workflow
-    from ..model import PlantModel, save_model
+    from ..model import HYBRID, PlantModel, save_model
 
+    where = "--physics" if loaded is None else f"the {loaded.kind} model {args.model}"
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
         if value is not None:
-            raise BadInputError(f"{flag}: retrains a network, so it goes with --model, not --physics")
-    model = _physics_input(args.physics)
+            raise BadInputError(f"{flag}: retrains a network, so it goes with a network --model, not {where}")
+    warnings: list[str] = []
+    if loaded is None:
+        base, model = args.physics or None, _physics_input(args.physics)
+    else:
+        base = str(args.model)
+        plant = loaded.plant if loaded.kind == HYBRID else loaded
+        model = _physics_of(plant, base)
+        if loaded.kind == HYBRID:
+            out = f"; -o {args.output} gets a physics model" if args.output else ""
+            warnings.append(f"--model {args.model}: a hybrid: its physics part is checked, without the "
+                            f"network's correction{out}")
     measured, reference, holdout = _recordings(args, list(args.reference or []))
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report,
@@ -188,7 +206,7 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
     data = result.data
 
     def save() -> None:
-        provenance = {"base": args.physics or None,
+        provenance = {"base": base,
                       "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
                       "measured": [str(p) for p in args.measured]}
         if _is_npz(args.output):
@@ -198,7 +216,8 @@ def run_physics(args: argparse.Namespace) -> CommandResult:
         else:
             save_config(result.model, args.output, args.force, provenance)
 
-    return _finish(args, result, save, "the physics model" if _is_npz(args.output) else "the physics config", [])
+    return _finish(args, result, save, "the physics model" if _is_npz(args.output) else "the physics config",
+                   warnings)
 
 
 def _is_npz(path: str | None) -> bool:
@@ -206,16 +225,23 @@ def _is_npz(path: str | None) -> bool:
 
 
 def _physics_input(path: str) -> Any:
-    """``--physics CONFIG``: a JSON CONFIG, or a physics model file (.npz) on the nominal bench."""
-    from ..discrepancy.physics import PhysicsModel, load_config
+    """``--physics CONFIG``: a JSON CONFIG, or a physics model file (.npz)."""
+    from ..discrepancy.physics import load_config
     from ..model import PHYSICS, load_model
 
     if not _is_npz(path):
         return load_config(path)
-    m = load_model(path, kinds=(PHYSICS,))
+    return _physics_of(load_model(path, kinds=(PHYSICS,)), path)
+
+
+def _physics_of(m: Any, source: str) -> Any:
+    """The workflow's physics model of a model file's plant (``model.PlantModel``), on the
+    nominal bench's constants where the file has none."""
+    from ..discrepancy.physics import PhysicsModel, load_config
+
     nominal = load_config(None).params
     return PhysicsModel(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v,
-                        source=path)
+                        source=source)
 
 
 def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,

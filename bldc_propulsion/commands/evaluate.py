@@ -5,15 +5,18 @@ training range, and its report."""
 from __future__ import annotations
 
 import argparse
+import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..atomic import REPORT, check_outputs, report_output
-from ..model import load_model
+from ..errors import BadInputError
+from ..model import Model, load_model
 from ..recordings import Signals, load_signals
-from ..training.evaluate import evaluate
+from ..training.evaluate import RecordingScore, evaluate
 from .common import CommandResult, add_namespace_argument
 
 NAME = "evaluate"
@@ -22,56 +25,165 @@ DESCRIPTION = (
     "Run a model over recordings and compare its predicted rotor speed with the "
     "measured one (/rotor/speed if recorded, else decoded from /tachometer/adc): "
     "RMSE, RMSE as %% of the speed range, maximum error, and for chirp-like "
-    "recordings the error per command frequency band."
+    "recordings the error per command frequency band. Several --model files are "
+    "compared side by side (a table per recording and band, and with --report one "
+    "figure per recording with every model's prediction)."
 )
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--model", required=True, help="model file (.npz) from `train`")
+    p.add_argument("--model", required=True, action="append", metavar="MODEL.npz",
+                   help="model file (.npz) of any kind (network, physics, hybrid); give --model again "
+                        "to compare several models side by side on the same recordings")
     p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
     p.add_argument("--force", action="store_true", help="replace an existing report folder (one this tool made)")
     add_namespace_argument(p)
 
 
+@dataclass
+class Evaluation:
+    """One model's evaluation on the command's recordings (training/evaluate.py ``evaluate``)."""
+
+    path: str
+    model: Model
+    rmse_rad_s: float
+    scores: list[RecordingScore]
+    predictions: list[np.ndarray]
+
+    @property
+    def label(self) -> str:
+        """Its name in side-by-side tables and figures: kind and file name."""
+        return f"{self.model.kind} ({Path(self.path).name})"
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
+                "recordings": [s.as_dict() for s in self.scores]}
+
+    def lines(self) -> list[str]:
+        out = [f"model {self.path} ({self.model.kind}): overall RMSE {self.rmse_rad_s:.2f} rad/s"]
+        for s in self.scores:
+            out.append(
+                f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
+                f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
+                + (f"; thrust RMSE {s.thrust_rmse_n:.3f} N" if s.thrust_rmse_n is not None else "")
+            )
+            for b in s.bands:
+                out.append(
+                    f"      command {_band(b)} Hz: RMSE {b['rmse_rad_s']:.2f} rad/s "
+                    f"({b['rmse_percent_of_range']:.2f} %)"
+                )
+        return out
+
+
+def _band(b: dict[str, float]) -> str:
+    return f"{b['low_hz']:.1f}-{b['high_hz']:.1f}"
+
+
+def _check_distinct(paths: list[str]) -> None:
+    seen: set[str] = set()
+    for p in paths:
+        if os.path.realpath(p) in seen:
+            raise BadInputError(f"--model {p}: given twice")
+        seen.add(os.path.realpath(p))
+
+
 def run(args: argparse.Namespace) -> CommandResult:
     check_outputs([(args.report, REPORT, "--report")], force=args.force,
-                  inputs=[args.model, *args.recordings])
-    model = load_model(args.model)
+                  inputs=[*args.model, *args.recordings])
+    _check_distinct(args.model)
+    models = [load_model(p) for p in args.model]
     signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
-    rmse, scores, preds = evaluate(model, signals)
-    data: dict[str, Any] = {
-        "model": str(args.model),
-        "rmse_rad_s": rmse,
-        "recordings": [s.as_dict() for s in scores],
-    }
-    lines = [f"model {args.model}: overall RMSE {rmse:.2f} rad/s"]
-    for s in scores:
-        lines.append(
-            f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
-            f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
-            + (f"; thrust RMSE {s.thrust_rmse_n:.3f} N" if s.thrust_rmse_n is not None else "")
-        )
-        for b in s.bands:
-            lines.append(
-                f"      command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz: RMSE {b['rmse_rad_s']:.2f} rad/s "
-                f"({b['rmse_percent_of_range']:.2f} %)"
-            )
+    evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models)]
+    first = evals[0]  # the contract's keys: the first (or only) model's figures
+    data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
+                            "recordings": [s.as_dict() for s in first.scores]}
+    lines = [line for e in evals for line in e.lines()]
+    if len(evals) > 1:
+        rows = comparison(evals)
+        data["models"] = [e.as_dict() for e in evals]
+        data["comparison"] = rows
+        lines += comparison_lines(evals, rows)
     if args.report:
-        data["report"] = write_evaluation_report(Path(args.report), signals, preds, scores, force=args.force)
+        data["report"] = write_evaluation_report(Path(args.report), signals, evals, force=args.force)
         lines.append(f"  figures in {data['report']}")
-    warnings = [w for s in scores if s.out_of_range and (w := s.out_of_range.warning())]
+    warnings = [(f"{e.path}: " if len(evals) > 1 else "") + w
+                for e in evals for s in e.scores if s.out_of_range and (w := s.out_of_range.warning())]
     data["warnings"] = warnings
     return CommandResult(data, "\n".join(lines), warnings=warnings)
 
 
+def comparison(evals: list[Evaluation]) -> list[dict[str, Any]]:
+    """The side-by-side table: one row per recording (``part`` "whole") and per command band of
+    a chirp recording, each model's RMSE (rad/s) and its % of the recording's speed range,
+    keyed by the model's file. A band a model has too few samples in is None for it."""
+    rows: list[dict[str, Any]] = []
+    for k, sig_score in enumerate(evals[0].scores):
+        parts: dict[str, dict[str, Any]] = {"whole": {}}
+        for e in evals:
+            s = e.scores[k]
+            parts["whole"][e.path] = (s.rmse_rad_s, s.rmse_percent_of_range)
+            for b in s.bands:
+                parts.setdefault(f"command {_band(b)} Hz", {})[e.path] = (b["rmse_rad_s"], b["rmse_percent_of_range"])
+        for part, by_model in parts.items():
+            rows.append({
+                "recording": sig_score.path, "part": part,
+                "rmse_rad_s": {e.path: by_model.get(e.path, (None, None))[0] for e in evals},
+                "rmse_percent_of_range": {e.path: by_model.get(e.path, (None, None))[1] for e in evals},
+            })
+    return rows
+
+
+def _cell(rmse: float | None, percent: float | None) -> str:
+    return "-" if rmse is None else f"{rmse:.2f} ({percent:.2f} %)"
+
+
+def comparison_lines(evals: list[Evaluation], rows: list[dict[str, Any]]) -> list[str]:
+    """The side-by-side table as text: RMSE rad/s (% of the speed range) per model."""
+    first = max(len(r["recording"]) if r["part"] == "whole" else len(r["part"]) + 2 for r in rows)
+    width = max(18, *(len(e.label) + 2 for e in evals))
+    out = ["side by side: RMSE rad/s (% of the recording's speed range)",
+           f"  {'recording':{first}s}" + "".join(f"{e.label:>{width}s}" for e in evals)]
+    for r in rows:
+        name = r["recording"] if r["part"] == "whole" else "  " + r["part"]
+        out.append(f"  {name:{first}s}" + "".join(
+            f"{_cell(r['rmse_rad_s'][e.path], r['rmse_percent_of_range'][e.path]):>{width}s}" for e in evals))
+    return out
+
+
 # --- report ---------------------------------------------------------------------------------
-def write_evaluation_report(path: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any],
+def write_evaluation_report(path: Path, signals: list[Signals], evals: list[Evaluation],
                             force: bool = False) -> str:
-    """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output)."""
+    """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output):
+    one model's figures, or with several models the side-by-side table and one figure per
+    recording with the measured speed and every model's prediction."""
     with report_output(path, force=force) as d:
-        _evaluation_report(d, signals, preds, scores)
+        if len(evals) == 1:
+            _evaluation_report(d, signals, evals[0].predictions, evals[0].scores)
+        else:
+            _comparison_report(d, signals, evals)
     return str(path)
+
+
+def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation]) -> None:
+    from ..training import report
+
+    figs: list[tuple[str, str]] = []
+    for k, sig in enumerate(signals):
+        name = f"compare_{k}.png"
+        report.fig_compare(sig.t, sig.pwm, sig.speed, [(e.label, e.predictions[k]) for e in evals], d / name,
+                           recording=sig.path)
+        figs.append((name, f"measured speed and every model's prediction: {sig.path}"))
+    side = [{"recording": r["recording"], "part": r["part"]}
+            | {f"{e.label} RMSE (rad/s)": r["rmse_rad_s"][e.path] for e in evals}
+            | {f"{e.label} % of range": r["rmse_percent_of_range"][e.path] for e in evals}
+            for r in comparison(evals)]
+    per_model = [{"model": e.path, "kind": e.model.kind}
+                 | {k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
+                 for e in evals for s in e.scores]
+    report.write_index(d, "bldc_propulsion evaluation report: models side by side", figs,
+                       [("side by side: RMSE per recording and per command frequency band", side),
+                        ("per model and recording", per_model)])
 
 
 def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> None:

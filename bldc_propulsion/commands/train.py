@@ -4,7 +4,6 @@ summary and its report (the paper's Figs. 1, 5-6, 12, 13)."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,7 @@ import numpy as np
 from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import HybridModel, save_model
+from ..model import save_model
 from ..recordings import Signals, load_all
 from ..training.evaluate import predict_speed
 from ..training.train import train_model
@@ -120,17 +119,6 @@ def run(args: argparse.Namespace) -> CommandResult:
 
     if args.kind == "physics":
         return _run_physics(args, out, train, validation)
-    plant, inputs, params = None, list(args.inputs), None
-    if args.kind == "hybrid":  # the physics first; the network learns what it gets wrong
-        from ..training.fit_physics import residual_signals, train_physics
-
-        physics = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
-        plant = physics.model
-        progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
-                 f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
-        inputs, params = [c.INPUT_PHYSICS_SPEED, *inputs], plant.feature_params()
-        signals = (train, validation)
-        train, validation = residual_signals(plant, train), residual_signals(plant, validation)
     run = [0]
 
     def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
@@ -139,23 +127,24 @@ def run(args: argparse.Namespace) -> CommandResult:
             progress(f"run {run[0]} of {args.restarts} (seed {args.seed + run[0] - 1})")
         progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
 
-    outcome = train_model(
-        train, validation, inputs=inputs, hidden=args.hidden, seed=args.seed,
-        thrust_coefficient=args.thrust_coefficient, max_epochs=args.max_epochs,
-        patience=args.patience, progress=report_epoch, restarts=args.restarts, feature_params=params,
-        start_at_zero=plant is not None,
-    )
+    network = {"hidden": args.hidden, "seed": args.seed, "max_epochs": args.max_epochs,
+               "patience": args.patience, "progress": report_epoch, "restarts": args.restarts}
+    hybrid = args.kind == "hybrid"
+    inputs = [c.INPUT_PHYSICS_SPEED, *args.inputs] if hybrid else list(args.inputs)
+    if hybrid:  # the physics first; the network learns what it gets wrong
+        from ..training.fit_physics import train_hybrid, train_physics
+
+        physics = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
+        progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
+                 f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
+        outcome = train_hybrid(physics, inputs=args.inputs, **network)
+    else:
+        outcome = train_model(train, validation, inputs=inputs,
+                              thrust_coefficient=args.thrust_coefficient, **network)
     meta = outcome.model.metadata
-    if plant is not None:  # the physics part's parameters live in its own arrays; b was fitted
-        meta["feature_params"].pop(c.INPUT_PHYSICS_SPEED, None)  # on the speed, not its residual
-        meta["physics"] = plant.metadata
-        meta["thrust_fit"] = plant.metadata["thrust_fit"]
-        outcome.model.thrust_coefficient = plant.thrust_coefficient
-        outcome = dataclasses.replace(outcome, model=HybridModel(plant, outcome.model), train=signals[0],
-                                      validation=signals[1], thrust=physics.thrust)
     runs = len(meta["restarts"])
     warnings = []
-    if meta["best_epoch"] == 0 and plant is not None:  # its initial weights: the physics alone
+    if meta["best_epoch"] == 0 and hybrid:  # its initial weights: the physics alone
         warnings.append("the network did not improve on the physics on the validation recordings: "
                         "the hybrid's correction is 0 (the physics model alone)")
     elif meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
@@ -192,7 +181,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     fit = outcome.thrust
     text = "\n".join([
-        ("physics fitted, then " if plant is not None else "")
+        ("physics fitted, then " if hybrid else "")
         + f"trained {len(inputs)}-{args.hidden}-1 on {', '.join(inputs)}: "
         f"{meta['epochs']} epochs, best {meta['best_epoch']} ({meta['stop_reason']})"
         + (f"; seed {meta['best_seed']} had the least validation cost of {args.restarts} runs"

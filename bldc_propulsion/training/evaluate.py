@@ -112,21 +112,32 @@ def score(model: Model, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
         t_err = model.thrust_coefficient * pred**2 - sig.thrust
         t_ok = np.isfinite(t_err)
         out.thrust_rmse_n = float(np.sqrt(np.mean(t_err[t_ok] ** 2))) if t_ok.any() else None
-    chirp, freq = is_chirp(sig.t, sig.pwm)
-    if chirp:
-        # the Hilbert transform's frequency is unreliable in the first and last 5 % (edge
-        # effects; they also hold the start-up step from rest), so bands leave them out
-        inner = np.zeros(len(ok), dtype=bool)
-        inner[len(ok) // 20: len(ok) - len(ok) // 20] = True
-        for lo, hi in BANDS_HZ:
-            sel = ok & inner & (freq >= lo) & (freq < hi)
-            if sel.sum() >= 50:
-                band_rmse = float(np.sqrt(np.mean(err[sel] ** 2)))
-                out.bands.append({
-                    "low_hz": lo, "high_hz": hi, "samples": int(sel.sum()), "rmse_rad_s": band_rmse,
-                    "rmse_percent_of_range": 100.0 * band_rmse / rng if rng > 0 else float("nan"),
-                })
+    out.bands = band_errors(sig.t, sig.pwm, err, rng)
     return out, pred
+
+
+def band_errors(t: np.ndarray, pwm: np.ndarray, err: np.ndarray, speed_range_rad_s: float) -> list[dict[str, float]]:
+    """RMSE of ``err`` (rad/s, NaN where unknown) per command-frequency band (``BANDS_HZ``) of a
+    chirp-like recording, absolute and in % of the speed range; [] for other recordings."""
+    chirp, freq = is_chirp(t, pwm)
+    if not chirp:
+        return []
+    ok = np.isfinite(err)
+    rng = speed_range_rad_s
+    # the Hilbert transform's frequency is unreliable in the first and last 5 % (edge effects;
+    # they also hold the start-up step from rest), so bands leave them out
+    inner = np.zeros(len(ok), dtype=bool)
+    inner[len(ok) // 20: len(ok) - len(ok) // 20] = True
+    bands = []
+    for lo, hi in BANDS_HZ:
+        sel = ok & inner & (freq >= lo) & (freq < hi)
+        if sel.sum() >= 50:
+            band_rmse = float(np.sqrt(np.mean(err[sel] ** 2)))
+            bands.append({
+                "low_hz": lo, "high_hz": hi, "samples": int(sel.sum()), "rmse_rad_s": band_rmse,
+                "rmse_percent_of_range": 100.0 * band_rmse / rng if rng > 0 else float("nan"),
+            })
+    return bands
 
 
 def evaluate(model: Model, signals: Sequence[Signals]) -> tuple[float, list[RecordingScore], list[np.ndarray]]:

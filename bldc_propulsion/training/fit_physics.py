@@ -23,10 +23,10 @@ from .. import __version__
 from .. import contract as c
 from ..discrepancy import physics as ph
 from ..errors import BadInputError
-from ..model import PlantModel
+from ..model import HybridModel, PlantModel
 from ..recordings import Signals
 from .evaluate import predict_speed
-from .train import ThrustFit, _source, fit_thrust_coefficient
+from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, train_model
 
 
 @dataclass
@@ -109,3 +109,36 @@ def residual_signals(model: PlantModel, signals: Sequence[Signals]) -> list[Sign
     """The recordings with the speed replaced by what ``model`` gets wrong (measured - physics):
     the target of a hybrid's network."""
     return [dataclasses.replace(s, speed=s.speed - predict_speed(model, s)) for s in signals]
+
+
+def train_hybrid(
+    physics: PhysicsOutcome,
+    *,
+    inputs: Sequence[str] = c.DEFAULT_INPUTS,
+    hidden: int = c.PAPER_HIDDEN,
+    seed: int = 0,
+    restarts: int = 1,
+    max_epochs: int = 1000,
+    patience: int = 6,
+    progress: Callable[[int, float, float, float], None] | None = None,
+) -> TrainOutcome:
+    """A hybrid on top of a fitted physics model: a network (inputs ``physics_speed`` and
+    ``inputs``) trained on what the physics gets wrong on the same recordings, starting from a
+    zero output (the physics alone) so early stopping keeps a correction only where it helps on
+    validation. One function for ``train --kind hybrid`` and the accuracy benchmark, which
+    reuses one physics fit for both kinds. The outcome's RMSEs are the hybrid's on the speed."""
+    plant = physics.model
+    names = [c.INPUT_PHYSICS_SPEED, *inputs]
+    outcome = train_model(
+        residual_signals(plant, physics.train), residual_signals(plant, physics.validation),
+        inputs=names, hidden=hidden, seed=seed, thrust_coefficient=plant.thrust_coefficient,
+        max_epochs=max_epochs, patience=patience, progress=progress, restarts=restarts,
+        feature_params=plant.feature_params(), start_at_zero=True,
+    )
+    meta = outcome.model.metadata  # the physics part's parameters live in its own arrays; b was
+    meta["feature_params"].pop(c.INPUT_PHYSICS_SPEED, None)  # fitted on the speed, not its residual
+    meta["physics"] = plant.metadata
+    meta["thrust_fit"] = plant.metadata["thrust_fit"]
+    outcome.model.thrust_coefficient = plant.thrust_coefficient
+    return dataclasses.replace(outcome, model=HybridModel(plant, outcome.model), train=physics.train,
+                               validation=physics.validation, thrust=physics.thrust)

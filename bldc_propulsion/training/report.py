@@ -296,6 +296,44 @@ def fig_band_error(bands: Sequence[dict[str, float]], out: PathLike, recording: 
     return _save(fig, out)
 
 
+def fig_compare(
+    t: Any,
+    pwm: Any,
+    speed_measured: Any,
+    predictions: Sequence[tuple[str, Any]],
+    out: PathLike,
+    recording: str = "",
+) -> Path:
+    """Several models on one recording, on one time base ``t``: the PWM input (top), the
+    measured speed with every model's prediction (middle) and each model's error (bottom), so
+    where one kind beats another shows at a glance. ``predictions``: (label, speed rad/s)."""
+    fig, axes = _figure(3, 1, (11.0, 8.0), sharex=True, gridspec_kw={"height_ratios": [1, 2, 1.4]})
+    _line(axes[0, 0], t, pwm, color="C1", lw=0.9)
+    axes[0, 0].set_ylabel("PWM level")
+    axes[0, 0].set_title("PWM input")
+    _line(axes[1, 0], t, speed_measured, color="0.2", lw=1.4, label="measured")
+    m = _arr(speed_measured)
+    colors = ("C3", "C0", "C2", "C4", "C5", "C6")
+    for k, (label, pred) in enumerate(predictions):
+        color = colors[k % len(colors)]
+        _line(axes[1, 0], t, pred, color=color, lw=0.9, label=label)
+        err = m - _arr(pred)
+        _line(axes[2, 0], t, err, color=color, lw=0.8, label=f"{label}: RMSE {_rmse(err):.1f} rad/s")
+    axes[1, 0].set_ylabel("angular speed (rad/s)")
+    axes[1, 0].set_title("measured and predicted speed")
+    axes[1, 0].legend(fontsize=8, loc="best")
+    axes[2, 0].set_ylabel("error (rad/s)")
+    axes[2, 0].set_title("error measured - predicted")
+    axes[2, 0].legend(fontsize=8, loc="best")
+    axes[2, 0].set_xlabel("time (s)")
+    for ax in axes.ravel():
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"models side by side{': ' + recording if recording else ''}", fontsize=10)
+    fig.tight_layout()
+    _name_recording(fig, recording)
+    return _save(fig, out)
+
+
 # -- discrepancy figures ---------------------------------------------------------------------
 
 
