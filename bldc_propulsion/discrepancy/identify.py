@@ -466,10 +466,11 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
 
     With ``steps`` (``compare_steps``), lag, dead time and spin-down are decided from the step
     responses: the spin-up time constant at the same speed, the rising steps' onset and the
-    falling steps' time constant relative to the rising ones, each changed significantly and by
-    its margin. A quantity with too few clean steps on one of the sets falls back to the fit of
-    the whole recordings (``identify_dynamics``): spin-up time constant up by 50 % and at least
-    50 ms; dead time up by 15 ms; spin-down time constant up by 0.1 s more than the spin-up one.
+    falling steps' time constant, each compared with the reference's steps at similar speeds and
+    changed significantly and by its margin; a quantity with too few such steps is not named.
+    Without ``steps``, the fit of the whole recordings (``identify_dynamics``) decides: spin-up
+    time constant up by 50 % and at least 50 ms; dead time up by 15 ms; spin-down time constant
+    up by 0.1 s more than the spin-up one.
     ESC start level: the measured rotor gets no drive at a held level where the reference's
     spins (``start_level_rose``), or the fitted start level (when identified, else PWM_STOP on both)
     up by START_LEVEL_MARGIN."""
@@ -502,8 +503,11 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
                 f"(p = {x.p_value:.2g}; {x.n_measured} vs {x.n_reference} steps)")),
         }
         for name, (chg, why) in from_steps.items():
-            if chg is not None:
-                changes[name] = (chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg))
+            # too few steps at speeds the reference also has is no evidence: the fit of the whole
+            # recordings is not asked instead (its spin-down time constant takes a rotor running
+            # down with no drive below a raised start level, or other speeds, for a change)
+            changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
+                             else (-1.0, 0.0, ""))
     changes["esc_deadband"] = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
                                f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
                                f"{ref.start_level:.3f} on the reference (with the identified dead time and "
