@@ -39,7 +39,7 @@ ID_TAU_DOWN = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)
 #: level goes in before the lag, since a rotor commanded below it coasts down to zero like one that is
 #: not braked, so a coast to zero is not taken for a slower spin-down), and the rise that counts.
 ID_START_LEVELS = tuple(round(0.05 + 0.001 * k, 3) for k in range(11))  # 0.050 ... 0.060
-START_LEVEL_MARGIN = 0.004  #: PWM level: twice the grid step, so one step of noise is no change
+START_LEVEL_MARGIN = 0.002  #: PWM level: twice the grid step (0.001), so one step of noise is no change
 DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
 
 
