@@ -4,9 +4,14 @@ Two kinds of change cannot be told apart by a residual correction (``scoring.py`
 
 - the dynamic family (rotor lag, dead time, spin-down, and the ESC start level that goes with
   them): a residual explained by one is partly explained by the others, so which one CHANGED is
-  decided by identifying dead time, spin-up/spin-down time constants and start level from
-  command -> measured speed on the measured and on the reference recordings
-  (``identify_dynamics``, ``identify_start_level``, ``which_dynamic``);
+  decided from command -> measured speed on the measured and on the reference recordings, by
+  what physically identifies each (``step_dynamics``, ``which_dynamic``): a dead time moves the
+  onset of the response to a rising command step and leaves its shape; a heavier rotor slows
+  the rising steps at the same speed; an ESC that does not brake slows only the falling steps;
+  a raised start level leaves the rotor without drive (running down, or at rest) at held
+  levels where the reference's spins. Fitted over whole recordings (``identify_dynamics``,
+  ``identify_start_level``: the parameters the network's added input gets), the three time
+  quantities trade off against each other and against the operating points each set visits;
 - motor heating, a changed response to a thermal state both sets share (``identify_heating``).
 
 ``refine`` is the rule that applies them to a round of candidate scores (the network path: its
