@@ -6,9 +6,9 @@ residual-correction model of ``scoring.py``, and the model input (name + paramet
 network gets when the effect is added. The grids are chosen so the dynamic candidates are
 specific: ``rotor_lag`` is a first-order lag judged on the spin-UP (command above the lagged
 state), ``input_delay`` a pure dead time (no lag change), ``spin_down_asymmetry`` a lag whose
-falling time constant is at least twice its rising one, judged on the spin-DOWN only. Since an
-asymmetry of the spin-down only means something for a rotor that lags at all,
-``identify.which_dynamic`` names ``rotor_lag`` before ``spin_down_asymmetry`` when both changed.
+falling time constant is at least twice its rising one, judged on the spin-DOWN only. Which of
+them CHANGED is decided from the step responses themselves (``identify.which_dynamic``; a
+heavier rotor slows both directions, so ``rotor_lag`` comes before ``spin_down_asymmetry``).
 
 Two effects change how the speed RESPONDS to something both data sets share, so a residual
 correction fitted on the pooled sets cannot see them: the ESC start level (identified with the

@@ -4,9 +4,14 @@ Two kinds of change cannot be told apart by a residual correction (``scoring.py`
 
 - the dynamic family (rotor lag, dead time, spin-down, and the ESC start level that goes with
   them): a residual explained by one is partly explained by the others, so which one CHANGED is
-  decided by identifying dead time, spin-up/spin-down time constants and start level from
-  command -> measured speed on the measured and on the reference recordings
-  (``identify_dynamics``, ``identify_start_level``, ``which_dynamic``);
+  decided from command -> measured speed on the measured and on the reference recordings, by
+  what physically identifies each (``step_dynamics``, ``which_dynamic``): a dead time moves the
+  onset of the response to a rising command step and leaves its shape; a heavier rotor slows
+  the rising steps at the same speed; an ESC that does not brake slows only the falling steps;
+  a raised start level leaves the rotor without drive (running down, or at rest) at held
+  levels where the reference's spins. Fitted over whole recordings (``identify_dynamics``,
+  ``identify_start_level``: the parameters the network's added input gets), the three time
+  quantities trade off against each other and against the operating points each set visits;
 - motor heating, a changed response to a thermal state both sets share (``identify_heating``).
 
 ``refine`` is the rule that applies them to a round of candidate scores (the network path: its
@@ -22,10 +27,13 @@ from typing import Any
 
 import numpy as np
 
+from scipy import stats
+
 from .. import contract as c
 from ..core import effect_features as ef
 from ..plant import throttle
 from ..recordings import Signals
+from .residuals import robust_sigma
 
 # --- the dynamic family: which of lag, dead time, spin-down changed ---------------------------------
 #: Grids of the direct identification of the rotor's response (s).
@@ -36,7 +44,7 @@ ID_TAU_DOWN = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)
 #: level goes in before the lag, since a rotor commanded below it coasts down to zero like one that is
 #: not braked, so a coast to zero is not taken for a slower spin-down), and the rise that counts.
 ID_START_LEVELS = tuple(round(0.05 + 0.001 * k, 3) for k in range(11))  # 0.050 ... 0.060
-START_LEVEL_MARGIN = 0.004  #: PWM level: twice the grid step, so one step of noise is no change
+START_LEVEL_MARGIN = 0.002  #: PWM level: twice the grid step (0.001), so one step of noise is no change
 DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
 
 
@@ -117,6 +125,275 @@ def identify_start_level(signals: Sequence[Signals], dyn: Dynamics) -> float:
     return float(ID_START_LEVELS[int(np.argmin(sse))])
 
 
+# --- step responses: what physically identifies each dynamic effect --------------------------------
+#: A command step is analysed when the command was held STEP_HOLD_S before it and after it (the
+#: rotor settles within a few ~0.1-0.3 s time constants) and changed by at least STEP_MIN_PWM (a
+#: step, not a frame of a ramp); the speeds before and at the end of the hold are the medians of
+#: the last STEP_SETTLE_S, and the step's speed change must exceed STEP_MIN_SIGMAS x their noise.
+STEP_HOLD_S = 0.5
+STEP_MIN_PWM = 0.005
+STEP_SETTLE_S = 0.1
+STEP_MIN_SIGMAS = 10.0
+#: Least number of analysed steps of a kind (rising/falling) on each set for a comparison.
+STEP_MIN_COUNT = 4
+#: Least relative change of a time constant (at the same operating point) that counts, with
+#: significance: the two-point estimate scatters ~5-10 % per step, so a shift of the median by
+#: less than that is no physical change even when many steps make it significant.
+TAU_MIN_RATIO = 1.1
+#: One-sided significance of a change between the two sets' steps (Mann-Whitney U).
+STEP_ALPHA = 0.01
+
+
+@dataclass
+class StepResponse:
+    """One command step and the rotor's response, as a first-order-plus-dead-time fit (Smith's
+    two-point method: tau = 1.5 (t63 - t28), dead time = t63 - tau, times from the command step)."""
+
+    rising: bool
+    pwm_from: float
+    pwm_to: float
+    speed_from: float
+    speed_to: float
+    dead_time_s: float
+    tau_s: float
+
+    @property
+    def speed_mid(self) -> float:
+        """The speed halfway between the two crossings the time constant is read from (28 % and
+        63 % of the way): the operating point it belongs to."""
+        return self.speed_from + 0.46 * (self.speed_to - self.speed_from)
+
+
+def _crossing(t: np.ndarray, y: np.ndarray, level: float) -> float:
+    """First time y reaches ``level`` (linear interpolation between samples), NaN if never/at once."""
+    j = np.flatnonzero(y >= level)
+    if len(j) == 0 or j[0] == 0:
+        return float("nan")
+    k = int(j[0])
+    return float(t[k - 1] + (level - y[k - 1]) / (y[k] - y[k - 1]) * (t[k] - t[k - 1]))
+
+
+def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
+    """Every clean command step of the recordings with its dead time and time constant.
+
+    A pure dead time shifts the response's onset and leaves its shape; a lag (inertia) changes
+    its slope and not its onset; a rotor that coasts (no braking) has a longer time constant on
+    falling steps only. Read from the step responses themselves, these three do not trade off
+    against each other as they do in a fit of the whole recording."""
+    out: list[StepResponse] = []
+    for s in signals:
+        pt, pv = s.pwm_events
+        if len(pt) < 3:
+            continue
+        first = np.r_[0, np.flatnonzero(np.diff(pv) != 0) + 1]  # where the level changes
+        tc, lv = pt[first], pv[first]
+        ends = np.r_[tc[1:], min(pt[-1], s.t[-1])]
+        for k in range(1, len(tc)):
+            t0, hold, before = tc[k], ends[k] - tc[k], tc[k] - tc[k - 1]
+            if abs(lv[k] - lv[k - 1]) < STEP_MIN_PWM or before < STEP_HOLD_S or hold < STEP_HOLD_S:
+                continue
+            pre = (s.t >= t0 - STEP_SETTLE_S) & (s.t < t0) & np.isfinite(s.speed)
+            post = (s.t >= t0 + hold - STEP_SETTLE_S) & (s.t < t0 + hold) & np.isfinite(s.speed)
+            if pre.sum() < 3 or post.sum() < 3:
+                continue
+            w0, w1 = float(np.median(s.speed[pre])), float(np.median(s.speed[post]))
+            noise = max(robust_sigma(np.r_[s.speed[pre] - w0, s.speed[post] - w1]), 0.5)
+            if abs(w1 - w0) < STEP_MIN_SIGMAS * noise:
+                continue
+            seg = (s.t >= t0) & (s.t < t0 + hold) & np.isfinite(s.speed)
+            tt, frac = s.t[seg] - t0, (s.speed[seg] - w0) / (w1 - w0)
+            t28, t63 = _crossing(tt, frac, 0.283), _crossing(tt, frac, 0.632)
+            if not (np.isfinite(t28) and np.isfinite(t63)):
+                continue
+            tau = 1.5 * (t63 - t28)
+            out.append(StepResponse(bool(lv[k] > lv[k - 1]), float(lv[k - 1]), float(lv[k]), w0, w1,
+                                    float(t63 - tau), float(tau)))
+    return out
+
+
+#: Reference steps a step's time constant is compared with: the STEP_NEIGHBOURS nearest in
+#: ``speed_mid``, within STEP_NEAR of the reference's speed range. The time constant depends on
+#: the operating point (drag grows with speed; the tachometer averages over a revolution, long
+#: at low speed), so only steps at similar speeds are compared.
+STEP_NEIGHBOURS = 3
+STEP_NEAR = 0.15
+
+
+def _relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse],
+                  leave_one_out: bool = False) -> np.ndarray:
+    """Each step's time constant / the median of its nearest reference steps' (same direction;
+    steps with no reference step near are left out)."""
+    if len(reference) < STEP_NEIGHBOURS + int(leave_one_out):
+        return np.zeros(0)
+    ref_w = np.array([x.speed_mid for x in reference])
+    ref_tau = np.array([x.tau_s for x in reference])
+    scale = max(float(np.max([max(abs(x.speed_from), abs(x.speed_to)) for x in reference])), 1.0)
+    out = []
+    for i, x in enumerate(steps):
+        dist = np.abs(ref_w - x.speed_mid) / scale
+        if leave_one_out:
+            dist[i] = np.inf
+        near = np.argsort(dist)[:STEP_NEIGHBOURS]
+        if dist[near[-1]] > STEP_NEAR:
+            continue
+        out.append(x.tau_s / max(float(np.median(ref_tau[near])), 1e-3))
+    return np.array(out)
+
+
+@dataclass
+class StepChange:
+    """How one quantity of the step responses moved from the reference to the measured data."""
+
+    measured: float
+    reference: float
+    change: float  #: measured - reference (dead time, s) or measured / reference (time constants)
+    p_value: float
+    n_measured: int
+    n_reference: int
+    margin: float
+
+    @property
+    def changed(self) -> bool:
+        return self.p_value < STEP_ALPHA and self.change >= self.margin
+
+    def as_dict(self) -> dict[str, float]:
+        return {"measured": self.measured, "reference": self.reference, "change": self.change,
+                "p_value": self.p_value, "steps_measured": self.n_measured, "steps_reference": self.n_reference,
+                "margin": self.margin}
+
+
+def _compare(meas: np.ndarray, ref: np.ndarray, ratio: bool, margin: float) -> StepChange | None:
+    if len(meas) < STEP_MIN_COUNT or len(ref) < STEP_MIN_COUNT:
+        return None
+    m, r = float(np.median(meas)), float(np.median(ref))
+    p = float(stats.mannwhitneyu(meas, ref, alternative="greater").pvalue)
+    return StepChange(m, r, m / r if ratio and r > 0 else m - r, p, len(meas), len(ref), margin)
+
+
+@dataclass
+class StepDynamics:
+    """Which dynamic quantity changed from the reference to the measured step responses (None:
+    too few clean steps on one of the sets to say)."""
+
+    dead_time: StepChange | None  #: rising steps' onset (s)
+    spin_up: StepChange | None  #: rising steps' time constant / the reference's at similar speeds
+    spin_down: StepChange | None  #: falling steps' time constant / the reference's at similar speeds
+    start_level: tuple[bool, str] = (False, "")  #: ``start_level_rose`` on the holds
+
+    def as_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {k: (v.as_dict() if v is not None else None) for k, v in
+                               (("dead_time_s", self.dead_time), ("spin_up_time_constant_ratio", self.spin_up),
+                                ("spin_down_time_constant_ratio", self.spin_down))}
+        out["start_level_rose"] = {"changed": self.start_level[0], "because": self.start_level[1]}
+        return out
+
+
+def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResponse],
+                  resolution_s: float = 0.01) -> StepDynamics:
+    """The step responses of the two sets compared quantity by quantity:
+
+    - dead time: the rising steps' onsets (a falling step's onset depends on braking), a change
+      of at least ``resolution_s`` (the recordings' grid step);
+    - spin-up: the rising steps' time constants relative to the reference's rising steps
+      at similar speeds (1 = unchanged; the reference's own: leave-one-out), up by
+      TAU_MIN_RATIO;
+    - spin-down: the same for the falling steps. A heavier rotor slows both; an ESC that does
+      not brake only the falling ones (``which_dynamic`` takes a lag first)."""
+    mu = [x for x in measured if x.rising]
+    md = [x for x in measured if not x.rising]
+    ru = [x for x in reference if x.rising]
+    rd = [x for x in reference if not x.rising]
+    dead = _compare(np.array([x.dead_time_s for x in mu]), np.array([x.dead_time_s for x in ru]), False,
+                    resolution_s)
+    up = _compare(_relative_tau(mu, ru), _relative_tau(ru, ru, True), True, TAU_MIN_RATIO)
+    down = _compare(_relative_tau(md, rd), _relative_tau(rd, rd, True), True, TAU_MIN_RATIO)
+    return StepDynamics(dead, up, down)
+
+# --- the ESC start level from where the rotor gets no drive --------------------------------------
+#: A measured hold "gets no drive" when the rotor ends it (not rising) below NO_DRIVE_FRACTION of
+#: the speed the reference's rotor settles at for that level: a lower supply or a hotter winding
+#: lowers the speed by some per cent, only the loss of drive halves it.
+NO_DRIVE_FRACTION = 0.5
+#: The end of a hold the speed is read from: a line fitted to it gives the end speed and whether
+#: the rotor had settled (drift <= 2 % + twice the noise) or was still rising.
+SETTLED_S = 0.3
+
+
+@dataclass
+class Holds:
+    """Held command levels (each at least STEP_HOLD_S, above PWM_STOP) and the rotor at their end."""
+
+    levels: np.ndarray  #: PWM level
+    speed: np.ndarray  #: speed at the end of the hold (rad/s)
+    settled: np.ndarray  #: the speed no longer drifted
+    rising: np.ndarray  #: the speed was still rising (spinning up towards the level's speed)
+
+
+def holds(signals: Sequence[Signals]) -> Holds:
+    """Every hold of at least STEP_HOLD_S above PWM_STOP with the rotor's state at its end."""
+    rows = []
+    for s in signals:
+        pt, pv = s.pwm_events
+        ok = np.isfinite(s.speed)
+        if len(pt) < 2 or not ok.any():
+            continue
+        first = np.r_[0, np.flatnonzero(np.diff(pv) != 0) + 1]
+        tc, lv = pt[first], pv[first]
+        ends = np.r_[tc[1:], min(pt[-1], s.t[-1])]
+        for k in range(len(tc)):
+            if ends[k] - tc[k] < STEP_HOLD_S or lv[k] <= c.PWM_STOP:
+                continue
+            last = (s.t >= ends[k] - SETTLED_S) & (s.t < ends[k]) & ok
+            if last.sum() < 5:
+                continue
+            tl = s.t[last] - ends[k]
+            slope, icpt = np.polyfit(tl, s.speed[last], 1)
+            noise = max(robust_sigma(s.speed[last] - (icpt + slope * tl)), 0.5)
+            drift = slope * SETTLED_S
+            rows.append((float(lv[k]), max(float(icpt), 0.0), abs(drift) <= 0.02 * abs(icpt) + 2.0 * noise,
+                         drift > 2.0 * noise))
+    a = np.array(rows, dtype=float).reshape(-1, 4)
+    return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool))
+
+
+def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
+    """Whether the measured rotor gets no drive at a level where the reference's has it, and why.
+
+    An ESC gives no drive below its start level: the rotor runs down to rest there (braked or
+    coasting, however long that takes) whatever it did before. A measured hold at a level within
+    the range where the reference's rotor settles spinning, ending (not rising) below
+    NO_DRIVE_FRACTION of the reference's speed at that level, had no drive: the start level rose.
+    Read from the holds, not from a fit of the throttle map (which the network re-weights, and a
+    lag would take for a slower spin-down)."""
+    spin = reference.settled & (reference.speed > 0) & ~reference.rising
+    if spin.sum() < 2:
+        return False, "the reference recordings hold too few levels at which the rotor settles spinning"
+    order = np.argsort(reference.levels[spin])
+    lv_r, w_r = reference.levels[spin][order], reference.speed[spin][order]
+    # the reference's rotor at rest at a level bounds its start level from below: levels at or
+    # below that are no evidence
+    inside = (measured.levels >= lv_r[0]) & (measured.levels <= lv_r[-1]) & ~measured.rising
+    expect = np.interp(measured.levels, lv_r, w_r)
+    none = inside & (measured.speed < NO_DRIVE_FRACTION * expect)
+    if not none.any():
+        return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
+                       f"measured rotor spins as well")
+    k = int(np.argmax(np.where(none, measured.levels, -np.inf)))
+    return True, (f"the rotor runs at less than half the reference's speed, or stops, at {int(none.sum())} held "
+                  f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
+                  f"at the end of the hold, not rising, where the reference's settles at {expect[k]:.0f} rad/s; "
+                  f"its rotor spins from PWM {lv_r[0]:.4f})")
+
+
+def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals]) -> StepDynamics:
+    """What changed from the reference to the measured recordings, read from their command steps
+    and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``)."""
+    dts = [np.diff(s.t) for s in measured if len(s.t) > 1]
+    grid = float(np.median(np.concatenate(dts))) if dts else 0.01
+    out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid)
+    out.start_level = start_level_rose(holds(measured), holds(reference))
+    return out
+
 # --- motor heating: did the speed's response to the thermal state change --------------------------
 HEATING_TAU_S = 120.0  #: thermal time constant of the identification (s)
 HEATING_MIN_DROP = 5.0  #: rad/s: least extra speed loss at the measured data's hottest state
@@ -188,12 +465,20 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
     return Heating(float(beta[6]), float(beta[7]), hottest)
 
 
-def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] = ()) -> tuple[str | None, str]:
+def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] = (),
+                  steps: StepDynamics | None = None) -> tuple[str | None, str]:
     """The dynamic effect whose parameter changed from reference to measured, and why.
 
-    Margins: spin-up time constant up by 50 % and at least 50 ms; dead time up by 15 ms;
-    spin-down time constant up by 0.1 s more than the spin-up one; ESC start level (when
-    identified, else PWM_STOP on both) up by START_LEVEL_MARGIN."""
+    With ``steps`` (``compare_steps``), lag, dead time and spin-down are decided from the step
+    responses: the spin-up time constant at the same speed, the rising steps' onset and the
+    falling steps' time constant, each compared with the reference's steps at similar speeds and
+    changed significantly and by its margin; a quantity with too few such steps is not named.
+    Without ``steps``, the fit of the whole recordings (``identify_dynamics``) decides: spin-up
+    time constant up by 50 % and at least 50 ms; dead time up by 15 ms; spin-down time constant
+    up by 0.1 s more than the spin-up one.
+    ESC start level: the measured rotor gets no drive at a held level where the reference's
+    spins (``start_level_rose``), or the fitted start level (when identified, else PWM_STOP on both)
+    up by START_LEVEL_MARGIN."""
     if ref is None:
         return None, "no reference data to compare the identified dynamics with"
     changes = {
@@ -208,13 +493,37 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
                         f"the dead time is {1000 * meas.delay_s:.0f} ms on the measured data vs "
                         f"{1000 * ref.delay_s:.0f} ms on the reference"),
     }
+    if steps is not None:
+        from_steps = {
+            "rotor_lag": (steps.spin_up, lambda x: (
+                f"on rising command steps the rotor's time constant at the same speed is {x.change:.2f}x "
+                f"the reference's (p = {x.p_value:.2g}; {x.n_measured} vs {x.n_reference} steps)")),
+            "input_delay": (steps.dead_time, lambda x: (
+                f"on rising command steps the response starts {1000 * x.measured:.0f} ms after the command on "
+                f"the measured data vs {1000 * x.reference:.0f} ms on the reference, the time constant at the "
+                f"same speed unchanged (p = {x.p_value:.2g}; {x.n_measured} vs {x.n_reference} steps)")),
+            "spin_down_asymmetry": (steps.spin_down, lambda x: (
+                f"on falling command steps the rotor slows down with a time constant {x.change:.2f}x the "
+                f"reference's at similar speeds while its rising steps are unchanged: it is not braked "
+                f"(p = {x.p_value:.2g}; {x.n_measured} vs {x.n_reference} steps)")),
+        }
+        for name, (chg, why) in from_steps.items():
+            # too few steps at speeds the reference also has is no evidence: the fit of the whole
+            # recordings is not asked instead (its spin-down time constant takes a rotor running
+            # down with no drive below a raised start level, or other speeds, for a change)
+            changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
+                             else (-1.0, 0.0, ""))
     changes["esc_deadband"] = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
                                f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
                                f"{ref.start_level:.3f} on the reference (with the identified dead time and "
                                f"spin-up/spin-down time constants)")
+    if steps is not None and steps.start_level[0]:
+        # the direct evidence: no drive where the reference's rotor has it
+        changes["esc_deadband"] = (1.0, 0.0, steps.start_level[1])
     # in order of precedence: a start level that rose explains a coast to zero (no drive) and a
-    # compressed throttle map, which the lags would otherwise take for a slower spin-down; a rotor
-    # that lags at all comes before an asymmetry of its lag
+    # compressed throttle map, which the lags would otherwise take for a slower spin-down; a
+    # heavier rotor also delays the step response's apparent onset, so a lag comes before a
+    # dead time; the asymmetry is measured against the set's own rising steps
     for name in ("esc_deadband", "rotor_lag", "input_delay", "spin_down_asymmetry"):
         if name in exclude:
             continue
@@ -247,8 +556,10 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
     candidates, changed in place; ``best``: the proposal from the scores; ``cache`` keeps the
     identified dynamics across rounds). Needs reference recordings (else nothing changes):
 
-    - motor_heating, when nothing else is new: named when ``identify_heating`` says its response
-      changed;
+    - motor_heating, when nothing but a dynamic candidate is new: named when ``identify_heating``
+      says its response to the thermal state changed (first: a hotter winding also brakes and
+      drives a little less, which the step responses would take for a slower rotor, while no
+      dynamic effect makes the steady speed depend on the thermal state);
     - the dynamic family, when a dynamic candidate is significant on the measured data alone or
       the measured residual RMSE is GAP_RATIO x the reference's with nothing new: the one
       ``which_dynamic`` finds changed is named (at the identified parameters); when none
@@ -257,7 +568,7 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
     if not reference:
         return out
     offered = list(ev)
-    if "motor_heating" in ev and out.best is None:
+    if "motor_heating" in ev and (out.best is None or out.best in DYNAMIC_EFFECTS):
         # a changed response to the same thermal state: the feature (driven by the command) is
         # the same on both sets, so the pooled residual score cannot see it; identified on the
         # speed directly, the measured and the reference sets fitted together
@@ -297,9 +608,12 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
             for dy, sigs in zip(dyn, (measured, reference)):
                 dy.start_level = identify_start_level(sigs, dy)
         cache["dynamics"] = dyn
+        cache["steps"] = step_dynamics(measured, reference)
     m, r = cache["dynamics"]
-    choice, why = which_dynamic(m, r, exclude=[*named, *(set(c.EFFECTS) - set(offered))])
-    info = {"measured": m.as_dict(), "reference": r.as_dict(), "changed": choice, "because": why}
+    steps: StepDynamics = cache["steps"]
+    choice, why = which_dynamic(m, r, exclude=[*named, *(set(c.EFFECTS) - set(offered))], steps=steps)
+    info = {"measured": m.as_dict(), "reference": r.as_dict(), "step_responses": steps.as_dict(),
+            "changed": choice, "because": why}
     progress(f"  identified dynamics: {why}")
     if choice is None:
         # the response to the command did not change: the residual's dynamic structure is the
@@ -320,7 +634,8 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
                                               "tau_down_s": max(m.tau_down_s, 0.04)},
                       "esc_deadband": {"threshold": m.start_level},
                       # the model already has the reference's own dead time: add the change
-                      "input_delay": {"delay_s": max(m.delay_s - r.delay_s, 0.01)},
+                      "input_delay": {"delay_s": max(steps.dead_time.change if steps.dead_time is not None
+                                                     else m.delay_s - r.delay_s, 0.01)},
                       }.get(choice)
         if choice == "esc_deadband":
             out.reference_params = {"threshold": r.start_level}
