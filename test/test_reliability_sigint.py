@@ -88,13 +88,28 @@ def interrupt(args: list, out: Path, *, when: str, timeout: float = 120.0):
 #: after printing its "interrupted" line (cause not established); both mean "interrupted"
 INTERRUPTED = (130, -signal.SIGINT)
 
+#: Long enough that the output is still being written seconds after its staging directory
+#: appears (simulate writes ~100 s of recording per second here, replay ~200): the test's
+#: poll, descheduled on a loaded machine, must not miss the window (a 120 s simulate and the
+#: 50 s sample chirp were written in under a second and once finished before the signal came).
+LONG_S = "600"
+
 CASES = {
-    "simulate": (lambda out: ["simulate", "--profile", "chirp", "--duration", "120", "--seed", "1", "-o", out],
-                 "staging"),
-    "replay": (lambda out: ["replay", BAGS / "chirp", "-o", out], "staging"),
-    "train": (lambda out: ["train", BAGS / "staircase", "--validation", BAGS / "validation", "-o", out,
-                           "--max-epochs", "100000", "--patience", "100000"], "epoch"),
+    "simulate": (lambda out, _: ["simulate", "--profile", "chirp", "--duration", LONG_S, "--seed", "1",
+                                 "-o", out], "staging"),
+    "replay": (lambda out, long_bag: ["replay", long_bag, "-o", out], "staging"),
+    "train": (lambda out, _: ["train", BAGS / "staircase", "--validation", BAGS / "validation", "-o", out,
+                              "--max-epochs", "100000", "--patience", "100000"], "epoch"),
 }
+
+
+@pytest.fixture(scope="module")
+def long_bag(tmp_path_factory) -> Path:
+    """A recording that takes replay seconds to write (LONG_S of random steps)."""
+    path = tmp_path_factory.mktemp("long") / "long_bag"
+    subprocess.run([*PY, "simulate", "--profile", "random_steps", "--duration", LONG_S, "--seed", "2",
+                    "-o", str(path)], check=True, env=_env(), capture_output=True, timeout=300)
+    return path
 
 
 def _old_output(tmp_path: Path, command: str) -> Path:
@@ -111,11 +126,11 @@ def _old_output(tmp_path: Path, command: str) -> Path:
 
 
 @pytest.mark.parametrize("command", sorted(CASES))
-def test_sigint_with_force_keeps_the_previous_output(tmp_path, command):
+def test_sigint_with_force_keeps_the_previous_output(tmp_path, command, long_bag):
     make_args, when = CASES[command]
     out = _old_output(tmp_path, command)
     before = digest(out)
-    rc, err = interrupt([*make_args(out), "--force"], out, when=when)
+    rc, err = interrupt([*make_args(out, long_bag), "--force"], out, when=when)
     assert digest(out) == before
     assert not leftovers(tmp_path, out.name)
     assert "interrupted" in err and "Traceback" not in err
@@ -123,10 +138,10 @@ def test_sigint_with_force_keeps_the_previous_output(tmp_path, command):
 
 
 @pytest.mark.parametrize("command", ["simulate", "replay"])
-def test_sigint_leaves_no_half_written_output(tmp_path, command):
+def test_sigint_leaves_no_half_written_output(tmp_path, command, long_bag):
     make_args, when = CASES[command]
     out = tmp_path / "new_bag"
-    rc, err = interrupt(make_args(out), out, when=when)
+    rc, err = interrupt(make_args(out, long_bag), out, when=when)
     assert not out.exists()
     assert not leftovers(tmp_path, out.name)
     assert sorted(p.name for p in tmp_path.iterdir()) == []
@@ -139,7 +154,7 @@ def test_existing_output_refused_without_force(tmp_path, command):
     make_args, _ = CASES[command]
     out = _old_output(tmp_path, command)
     before = digest(out)
-    proc = subprocess.run([*PY, *map(str, make_args(out))], cwd=tmp_path, env=_env(),
+    proc = subprocess.run([*PY, *map(str, make_args(out, BAGS / "chirp"))], cwd=tmp_path, env=_env(),
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "already exists" in proc.stderr and "--force" in proc.stderr
     assert "Traceback" not in proc.stderr
