@@ -147,14 +147,20 @@ def train_kinds(train: list[Signals], val: list[Signals], kinds: Sequence[str], 
     return {k: out[k] for k in kinds}
 
 
-def row_of(model: Model, tests: dict[str, Signals]) -> dict[str, float]:
-    """RMSE in % of the speed range per test recording and per chirp band (``evaluate``)."""
+def band_column(lo_hz: float, hi_hz: float) -> str:
+    """The column of a chirp band in every table."""
+    return f"chirp {lo_hz:.1f}-{hi_hz:.1f} Hz"
+
+
+def row_of(model: Model, tests: dict[str, Signals], truths: dict[str, np.ndarray]) -> dict[str, float]:
+    """RMSE in % of the speed range per test recording and per chirp band (``evaluate``), and
+    against the simulator's true speed (``truths``, per test, from ``truth_on``)."""
     _, scores, preds = evaluate(model, list(tests.values()))
     row = {name: s.rmse_percent_of_range for name, s in zip(tests, scores)}
-    for (name, sig), s, pred in zip(tests.items(), scores, preds):  # what a perfect tachometer would show
-        row[f"{name} vs truth"] = 100.0 * float(np.sqrt(np.nanmean((pred - truth_on(sig)) ** 2))) / s.speed_range_rad_s
+    for name, s, pred in zip(tests, scores, preds):  # what a perfect tachometer would show
+        row[f"{name} vs truth"] = 100.0 * float(np.sqrt(np.nanmean((pred - truths[name]) ** 2))) / s.speed_range_rad_s
     for b in scores[0].bands:
-        row[f"chirp {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz"] = b["rmse_percent_of_range"]
+        row[band_column(b["low_hz"], b["high_hz"])] = b["rmse_percent_of_range"]
     row["chirp rad/s"] = scores[0].rmse_rad_s
     row["low charge rad/s"] = scores[1].rmse_rad_s
     return row
@@ -167,21 +173,21 @@ def truth_on(sig: Signals) -> np.ndarray:
         return np.interp(sig.t, *rec.scalars(c.TOPIC_TRUTH_SPEED))
 
 
-def floor_of(tests: dict[str, Signals]) -> dict[str, float]:
+def floor_of(tests: dict[str, Signals], truths: dict[str, np.ndarray]) -> dict[str, float]:
     """The measurement's own error, as a row: the decoded speed against the simulator's truth,
     in % of the measured range. No model scored against the measured speed goes much below it."""
     row: dict[str, float] = {}
     for name, sig in tests.items():
-        err = sig.speed - truth_on(sig)
+        err = sig.speed - truths[name]
         rng = float(np.ptp(sig.speed[np.isfinite(sig.speed)]))
         row[name] = 100.0 * float(np.sqrt(np.nanmean(err**2))) / rng
         for b in band_errors(sig.t, sig.pwm, err, rng) if name == "chirp" else []:
-            row[f"chirp {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz"] = b["rmse_percent_of_range"]
+            row[band_column(b["low_hz"], b["high_hz"])] = b["rmse_percent_of_range"]
     return row
 
 
 def columns() -> list[str]:
-    return [*TESTS, *(f"chirp {lo:.1f}-{hi:.1f} Hz" for lo, hi in BANDS_HZ)]
+    return [*TESTS, *(band_column(lo, hi) for lo, hi in BANDS_HZ)]
 
 
 def print_table(results: dict[str, list[tuple[str, dict[str, float]]]], cols: list[str], title: str) -> None:
@@ -244,12 +250,13 @@ def main(argv: list[str] | None = None) -> None:
         train, val, tests = recordings(d, seed, size)
         t_sim = time.perf_counter() - t0
         models = train_kinds(train, val, kinds, args.hidden, args.restarts)
+        truths = {name: truth_on(sig) for name, sig in tests.items()}  # read once per bench
         line = []
         for kind, (model, seconds) in models.items():
-            row = row_of(model, tests)
+            row = row_of(model, tests, truths)
             results[kind].append((label, row))
             line.append(f"{kind} {row['chirp']:.2f} / {row['low charge']:.2f} % ({seconds:.0f} s)")
-        results[FLOOR].append((label, floor_of(tests)))
+        results[FLOOR].append((label, floor_of(tests, truths)))
         print(f"{label}: data {t_sim:.0f} s; chirp / low charge: " + "; ".join(line), flush=True)
     print_table(results, columns(), "RMSE against the measured speed, % of each recording's speed range")
     print_table({k: v for k, v in results.items() if k != FLOOR}, [f"{t} vs truth" for t in TESTS],

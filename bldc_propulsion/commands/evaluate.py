@@ -99,13 +99,13 @@ def run(args: argparse.Namespace) -> CommandResult:
     data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
                             "recordings": [s.as_dict() for s in first.scores]}
     lines = [line for e in evals for line in e.lines()]
-    if len(evals) > 1:
-        rows = comparison(evals)
+    rows = comparison(evals) if len(evals) > 1 else []
+    if rows:
         data["models"] = [e.as_dict() for e in evals]
         data["comparison"] = rows
         lines += comparison_lines(evals, rows)
     if args.report:
-        data["report"] = write_evaluation_report(Path(args.report), signals, evals, force=args.force)
+        data["report"] = write_evaluation_report(Path(args.report), signals, evals, rows, force=args.force)
         lines.append(f"  figures in {data['report']}")
     warnings = [(f"{e.path}: " if len(evals) > 1 else "") + w
                 for e in evals for s in e.scores if s.out_of_range and (w := s.out_of_range.warning())]
@@ -153,19 +153,21 @@ def comparison_lines(evals: list[Evaluation], rows: list[dict[str, Any]]) -> lis
 
 # --- report ---------------------------------------------------------------------------------
 def write_evaluation_report(path: Path, signals: list[Signals], evals: list[Evaluation],
-                            force: bool = False) -> str:
+                            rows: list[dict[str, Any]], force: bool = False) -> str:
     """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output):
-    one model's figures, or with several models the side-by-side table and one figure per
-    recording with the measured speed and every model's prediction."""
+    one model's figures, or with several models the side-by-side table (``rows``, from
+    ``comparison``) and one figure per recording with the measured speed and every model's
+    prediction."""
     with report_output(path, force=force) as d:
         if len(evals) == 1:
             _evaluation_report(d, signals, evals[0].predictions, evals[0].scores)
         else:
-            _comparison_report(d, signals, evals)
+            _comparison_report(d, signals, evals, rows)
     return str(path)
 
 
-def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation]) -> None:
+def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation],
+                       rows: list[dict[str, Any]]) -> None:
     from ..training import report
 
     figs: list[tuple[str, str]] = []
@@ -177,7 +179,7 @@ def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation])
     side = [{"recording": r["recording"], "part": r["part"]}
             | {f"{e.label} RMSE (rad/s)": r["rmse_rad_s"][e.path] for e in evals}
             | {f"{e.label} % of range": r["rmse_percent_of_range"][e.path] for e in evals}
-            for r in comparison(evals)]
+            for r in rows]
     per_model = [{"model": e.path, "kind": e.model.kind}
                  | {k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
                  for e in evals for s in e.scores]
@@ -203,7 +205,7 @@ def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray],
             name = f"band_error_{k}.png"
             report.fig_band_error(s.bands, d / name, recording=s.path)
             figs.append((name, f"speed error per command frequency band: {s.path}"))
-            bands += [{"recording": s.path, "band (Hz)": f"{b['low_hz']:.1f}-{b['high_hz']:.1f}",
+            bands += [{"recording": s.path, "band (Hz)": _band(b),
                        "samples": b["samples"], "RMSE (rad/s)": b["rmse_rad_s"],
                        "% of speed range": b["rmse_percent_of_range"]} for b in s.bands]
     rows = [{k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}

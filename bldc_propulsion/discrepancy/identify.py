@@ -173,6 +173,16 @@ def _crossing(t: np.ndarray, y: np.ndarray, level: float) -> float:
     return float(t[k - 1] + (level - y[k - 1]) / (y[k] - y[k - 1]) * (t[k] - t[k - 1]))
 
 
+def _levels(s: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The recording's command as held levels: when each starts (s), its PWM level, and when it
+    ends (the next level's start; the last at the end of the recording). One place for the
+    steps and the holds, so both see the same levels."""
+    pt, pv = s.pwm_events
+    first = np.r_[0, np.flatnonzero(np.diff(pv) != 0) + 1]  # where the level changes
+    tc, lv = pt[first], pv[first]
+    return tc, lv, np.r_[tc[1:], min(pt[-1], s.t[-1])]
+
+
 def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
     """Every clean command step of the recordings with its dead time and time constant.
 
@@ -182,12 +192,9 @@ def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
     against each other as they do in a fit of the whole recording."""
     out: list[StepResponse] = []
     for s in signals:
-        pt, pv = s.pwm_events
-        if len(pt) < 3:
+        if len(s.pwm_events[0]) < 3:
             continue
-        first = np.r_[0, np.flatnonzero(np.diff(pv) != 0) + 1]  # where the level changes
-        tc, lv = pt[first], pv[first]
-        ends = np.r_[tc[1:], min(pt[-1], s.t[-1])]
+        tc, lv, ends = _levels(s)
         for k in range(1, len(tc)):
             t0, hold, before = tc[k], ends[k] - tc[k], tc[k] - tc[k - 1]
             if abs(lv[k] - lv[k - 1]) < STEP_MIN_PWM or before < STEP_HOLD_S or hold < STEP_HOLD_S:
@@ -333,13 +340,10 @@ def holds(signals: Sequence[Signals]) -> Holds:
     """Every hold of at least STEP_HOLD_S above PWM_STOP with the rotor's state at its end."""
     rows = []
     for s in signals:
-        pt, pv = s.pwm_events
         ok = np.isfinite(s.speed)
-        if len(pt) < 2 or not ok.any():
+        if len(s.pwm_events[0]) < 2 or not ok.any():
             continue
-        first = np.r_[0, np.flatnonzero(np.diff(pv) != 0) + 1]
-        tc, lv = pt[first], pv[first]
-        ends = np.r_[tc[1:], min(pt[-1], s.t[-1])]
+        tc, lv, ends = _levels(s)
         for k in range(len(tc)):
             if ends[k] - tc[k] < STEP_HOLD_S or lv[k] <= c.PWM_STOP:
                 continue
