@@ -9,7 +9,7 @@ subscribes to each motor's predicted/thrust and rotor/speed, as a flight control
 counts what it gets; outputs nobody reads are not serialized by the nodes. Prints figures; not
 a test.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--pin-nodes 0]
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--repeat 5] [--pin-nodes 0]
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import argparse
 import json
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -148,9 +149,12 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
     t0 = float(player.stdout.readline().split()[1])
     time.sleep(max(0.0, t0 - time.time()))
     cpu0 = [cpu_s(p.pid) for p in procs]
-    out, err = player.communicate()
-    t_end = float(out.split("t_end")[1])
+    done = player.stdout.readline()  # "published N t_end T", then the player lingers
     cpu1 = [cpu_s(p.pid) for p in procs]
+    if "t_end" not in done:
+        raise SystemExit(f"player: {done!r} {player.communicate()[1][-500:]}")
+    t_end = float(done.split("t_end")[1])
+    player.communicate()
     wall = t_end - t0
     time.sleep(2.5)  # diagnostics after the last input
     diag.close()
@@ -169,12 +173,17 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
         "pwm": diag.total("thrust_estimator: thrust estimator", "pwm_accepted"),
     }
     lost = {k: counts[k] * (1 if k == "battery/adc" else n) - received[k] for k in received}
+    # Where a loss happened: sequence-number jumps are losses in DDS (queue overflow, SHM).
+    in_transport = {k: diag.total(name, key) for k, name, key in (
+        ("battery/adc", "battery_filter: battery filter", "lost_in_transport"),
+        ("tachometer/adc", "tachometer: input", "lost_in_transport"),
+        ("pwm", "thrust_estimator: input", "pwm_lost"))}
     handled = sum(received.values()) + n * counts["battery/voltage"]
     cpu = sum(b - a for a, b in zip(cpu0, cpu1))
     return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),
             "consumed": dict(diag.consumed),
             "us_per_input_message": 1e6 * cpu / max(handled, 1),
-            "lost": lost, "received": received}
+            "lost": lost, "lost_in_transport": in_transport, "received": received}
 
 
 def main() -> int:
@@ -182,6 +191,8 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--modes", nargs="*", default=[
         "one process (events)", "one process (single)", "separate processes"])
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="play each quadrotor mode N times; prints the median [min, max]")
     parser.add_argument("--pin-nodes", type=int, metavar="CPU",
                         help="run the node processes on this CPU, everything else on the others")
     args = parser.parse_args()
@@ -206,10 +217,17 @@ def main() -> int:
         print("rclpy floor on this machine class: ~150 us/message single-threaded executor, "
               "~60 us EventsExecutor")
         for mode in args.modes:
-            r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp)
-            print(f"quadrotor, {mode:<22} {r['processes']} process(es): CPU "
-                  f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
-                  f"per input message, lost {r['lost']}, consumed {r['consumed']}")
+            cpus = []
+            for _ in range(args.repeat):
+                r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp)
+                cpus.append(r["cpu_core_pct"])
+                print(f"quadrotor, {mode:<22} {r['processes']} process(es): CPU "
+                      f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
+                      f"per input message, lost {r['lost']} (sequence jumps "
+                      f"{r['lost_in_transport']}), consumed {r['consumed']}", flush=True)
+            if len(cpus) > 1:
+                print(f"quadrotor, {mode:<22} CPU over {len(cpus)} runs: median "
+                      f"{statistics.median(cpus):.1f} % [{min(cpus):.1f}, {max(cpus):.1f}]")
         r = run(bag, one_motor(), [""], 5.0, counts, tmp)
         print(f"one motor at 5x: CPU {r['cpu_core_pct']:.1f} % of one core, lost {r['lost']}")
         t = time.perf_counter()

@@ -90,3 +90,19 @@ def test_dead_time_is_read_from_the_onset_not_traded_for_a_lag(bags):
     ch = idf.compare_steps(heavy, light)
     assert ch.spin_up is not None and ch.spin_up.change > 1.6
     assert ch.dead_time is not None and ch.dead_time.change < 0.025
+
+
+def test_clustered_standard_error_of_a_mean_by_hand():
+    """The heating test's standard error (holds as the units) against the hand formula for a
+    mean: var = g/(g-1) * sum over clusters of (sum of residuals)^2 / n^2, and it grows when the
+    samples of a cluster share their error (the textbook one would not)."""
+    y = np.array([1.0, 2.0, 3.0, 10.0, 11.0, 12.0, 5.0, 6.0])
+    cluster = np.array([0, 0, 0, 1, 1, 1, 2, 2])
+    A = np.ones((len(y), 1))
+    u = y - y.mean()
+    g, n = 3, len(y)
+    sums = np.array([u[cluster == k].sum() for k in range(g)])
+    expected = np.sqrt(g / (g - 1) * np.sum(sums ** 2) / n ** 2)
+    assert idf._clustered_se(A, u, cluster, np.array([1.0])) == pytest.approx(expected, rel=1e-12)
+    textbook = np.sqrt(np.sum(u ** 2) / (n - 1) / n)
+    assert expected > 1.5 * textbook

@@ -302,7 +302,6 @@ def check_speeds(rec: Recorder, d: Path, min_fraction: float) -> None:
 
 
 def diagnostics_values(rec: Recorder) -> dict[str, str]:
-    timing = [s for s in rec.statuses() if s.name.endswith("input timing")
-              or s.name.endswith(": input")]
+    timing = [s for s in rec.statuses() if s.name.endswith(": input")]
     assert timing, [s.name for s in rec.statuses()]
     return {kv.key: kv.value for kv in timing[-1].values}

@@ -21,6 +21,8 @@ itself, which is its identification).
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -414,6 +416,8 @@ class Heating:
     measured: float
     reference: float
     hottest: float  #: largest thermal state on the measured data
+    #: standard error of reference - measured (rad/s per unit), clustered by hold
+    se: float = math.inf
 
     @property
     def drop_rad_s(self) -> float:
@@ -421,18 +425,13 @@ class Heating:
         return (self.reference - self.measured) * self.hottest
 
     @property
+    def z(self) -> float:
+        """The drop in standard errors (holds as the independent units)."""
+        return (self.reference - self.measured) / self.se if self.se > 0 else 0.0
+
+    @property
     def changed(self) -> bool:
         return self.hottest >= HEATING_MIN_STATE and self.drop_rad_s >= HEATING_MIN_DROP
-
-    def describe(self) -> str:
-        return (f"at the measured data's hottest thermal state ({self.hottest:.2f}, time constant "
-                f"{HEATING_TAU_S:.0f} s) the steady speed is {self.drop_rad_s:.1f} rad/s lower than the "
-                f"reference's response to the same state predicts (margin {HEATING_MIN_DROP:g} rad/s)")
-
-    def as_dict(self) -> dict[str, float]:
-        return {"measured_rad_s_per_unit": self.measured, "reference_rad_s_per_unit": self.reference,
-                "hottest_thermal_state": self.hottest, "extra_drop_rad_s": self.drop_rad_s}
-
 
 def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) -> Heating:
     """Thermal sensitivity on the measured and on the reference data, fitted together.
@@ -442,8 +441,9 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
     alike, so the shared voltage terms take that, and only a response to the winding's heat that
     differs between the sets goes into k_measured - k_reference. Samples at least 0.7 s after a
     command change (the rotor's dynamics do not enter)."""
-    rows, ys = [], []
+    rows, ys, holds_ = [], [], []
     hottest = 0.0
+    n_holds = 0
     for which, sigs in ((0, measured), (1, reference)):
         for s in sigs:
             pwm_t, pwm = s.pwm_events
@@ -460,13 +460,35 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
             rows.append(np.column_stack([np.ones_like(p), p, p**2, p**3, v, v * p,
                                          t_d * (which == 0), t_d * (which == 1)]))
             ys.append(s.speed[ok])
+            holds_.append(n_holds + k[ok])  # the hold each sample belongs to: the unit of the test
+            n_holds += len(change)
             if which == 0 and ok.any():
                 hottest = max(hottest, float(np.max(th[ok])))
     A, y = np.vstack(rows), np.concatenate(ys)
     if len(y) < 20:
         return Heating(0.0, 0.0, 0.0)
     beta, *_ = np.linalg.lstsq(A, y, rcond=None)
-    return Heating(float(beta[6]), float(beta[7]), hottest)
+    return Heating(float(beta[6]), float(beta[7]), hottest,
+                   _clustered_se(A, y - A @ beta, np.concatenate(holds_), np.array([0, 0, 0, 0, 0, 0, -1, 1])))
+
+
+def _clustered_se(A: np.ndarray, resid: np.ndarray, cluster: np.ndarray, contrast: np.ndarray) -> float:
+    """Standard error of ``contrast @ beta`` with residuals correlated within a cluster (CR1).
+
+    By hand because the samples of one hold share a slow error (noise filtered by the rotor, the
+    battery's drift), so the textbook standard error is far too small; scipy and numpy offer
+    no cluster-robust covariance and statsmodels is not worth a dependency for one sandwich."""
+    pinv = np.linalg.pinv(A.T @ A)
+    _, inverse = np.unique(cluster, return_inverse=True)
+    g = inverse.max() + 1
+    if g < 3:
+        return math.inf
+    scores = np.zeros((g, A.shape[1]))
+    np.add.at(scores, inverse, A * resid[:, None])
+    n, k = A.shape
+    meat = scores.T @ scores * (g / (g - 1)) * ((n - 1) / max(n - k, 1))
+    var = float(contrast @ pinv @ meat @ pinv @ contrast)
+    return math.sqrt(var) if var > 0 else math.inf
 
 
 def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] = (),

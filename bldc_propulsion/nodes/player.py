@@ -15,7 +15,7 @@ Jazzy. SPEC (JSON) keys:
   hold       [[a, b], ...]: such batches are held and published together at bag time b
   namespace  prefix of every topic ('' = root names)
 It waits (up to 60 s) for a subscriber on every topic, prints "t0 <wall time>", plays, prints
-"published N" and exits.
+"published N t_end <wall time>", stays LINGER_S for the last messages to be taken, and exits.
 """
 
 from __future__ import annotations
@@ -31,6 +31,9 @@ from std_msgs.msg import Float32MultiArray, Float64
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
+
+#: Seconds the player stays after its last message, so that every subscriber takes it.
+LINGER_S = 1.0
 
 TYPES = {c.TOPIC_PWM: Float64, c.TOPIC_BATTERY_ADC: Float64, c.TOPIC_TACH_ADC: Float32MultiArray}
 
@@ -100,6 +103,9 @@ def main(spec_path: str) -> int:
                 continue
         publish(topic, data)
     print(f"published {n} t_end {time.time()!r}", flush=True)
+    # Linger before leaving: a subscriber whose last messages were not yet taken when their
+    # writer left lost them (3 of 4 tachometers lost the final batch in one benchmark run).
+    time.sleep(LINGER_S)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0

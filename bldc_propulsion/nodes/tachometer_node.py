@@ -95,7 +95,7 @@ class TachometerNode(Node):
                 f'no tachometer/adc batch for {now_s(self) - self.last_receipt_s:.2f} s: '
                 'nothing published', counters(**timing)))
         else:
-            statuses.append(CoreStatus('input timing', OK, 'ok', counters(**timing)))
+            statuses.append(CoreStatus('input', OK, 'ok', counters(**timing)))
         self.diagnostics_pub.publish(diagnostic_array(self, statuses))
 
 
