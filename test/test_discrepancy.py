@@ -183,13 +183,10 @@ def run(s: Scenario, **kw) -> dict:
 # --- hidden effects --------------------------------------------------------------------------------
 #: Effects that do not meet the bar yet, with what was measured (seed 0 of the scenarios above).
 #: strict: the day one of them passes, the mark must go.
-KNOWN_FAILURES = {
-    "input_delay": "named first, delay fitted as the identified dead-time change (60 - 20 ms = 40 ms), and the "
-                   "delay's share of the holdout error is gone, but the 30 % bar lies below the base model's "
-                   "own floor: holdout RMSE 20.5 -> 16.3 rad/s (-21 %) while the base model's RMSE on the same "
-                   "holdout simulated WITHOUT the delay is 16.4 rad/s (its lag structure, not the delay); a "
-                   "delayed pwm_filtered, or pwm/pwm_filtered replaced by delayed inputs: 16.5-17.0 rad/s",
-}
+#: effect -> why it is expected to fail (a strict xfail). input_delay was here until the dead time
+#: replaced the model's command inputs with the reference kept at its own timing (before: holdout
+#: RMSE 20.5 -> 16.3 rad/s, -21 %, one network fitting two timings).
+KNOWN_FAILURES: dict[str, str] = {}
 
 
 @pytest.mark.parametrize("effect", [
@@ -208,8 +205,7 @@ def test_hidden_effect_is_named_first_and_the_gap_shrinks(effect, bags_dir):
 
 def test_input_delay_removes_the_delays_share_of_the_holdout_error(bags_dir):
     """What adding the dead time can do: close the gap between the base model's holdout error
-    and its error on the same holdout command simulated without the delay (its own floor, which
-    lies above the 30 % bar: see KNOWN_FAILURES)."""
+    and its error on the same holdout command simulated without the delay (its own floor)."""
     from bldc_propulsion.discrepancy.base import rmse as _rmse
     from bldc_propulsion.discrepancy.network import run_model
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import contract as c
 from ..core import effect_features as ef
+from ..core.features import zero_order_hold
 from ..recordings import Signals
 
 Params = dict[str, float]
@@ -123,6 +124,18 @@ def _reference_at_own_start_level(sig: Signals, meas: Params, ref: Params) -> Si
                                pwm=remap(sig.pwm), pwm_events=(pt, remap(pv)))
 
 
+def _reference_at_own_dead_time(sig: Signals, meas: Params, ref: Params) -> Signals:
+    """The reference's command moved earlier by the dead time the measured data have beyond its
+    own, so that the delayed inputs (delay = the measured change) give it its own timing: the
+    network is not pulled towards a delay halfway between the two sets."""
+    shift = float(meas["delay_s"]) - float(ref["delay_s"])
+    pt, pv = sig.pwm_events
+    pt, pv = np.asarray(pt, dtype=float) - shift, np.asarray(pv, dtype=float)
+    tag = f"#earlier{1000 * shift:.0f}ms"
+    return dataclasses.replace(sig, path=f"{sig.path}{tag}", sha256=f"{sig.sha256}{tag}",
+                               pwm=zero_order_hold(pt, pv, sig.t), pwm_events=(pt, pv))
+
+
 def _heating_columns(ctx: Context, params: Params) -> np.ndarray:
     # a hotter winding lowers the speed in proportion to the load: terms in theta * speed only
     th = _feature(ctx, ef.THERMAL_LOAD, params)
@@ -155,6 +168,8 @@ CANDIDATES: dict[str, Candidate] = {
         [{"delay_s": d} for d in (0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12)],
         _delay_columns,
         lambda p: f"the command delayed by a dead time of {_pct(p['delay_s'])}",
+        replaces={c.INPUT_PWM: ef.PWM_DELAYED, c.INPUT_PWM_FILTERED: ef.PWM_DELAYED_FILTERED},
+        on_reference=_reference_at_own_dead_time,
     ),
     "esc_deadband": Candidate(
         "esc_deadband", ef.PWM_ABOVE_START,

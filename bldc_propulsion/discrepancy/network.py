@@ -12,7 +12,8 @@ Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``)
 - step 4: the network retrained with the effect's input (fitted parameters) on reference +
   measured recordings, early-stopped on the measured recordings' last part, starting from the
   base model's own weights (the new input's at 0). An effect that maps the command before the
-  ESC (the start level) replaces the model's command inputs by the mapped ones, weights carried over;
+  ESC (the start level, the dead time) replaces the model's command inputs by the mapped ones,
+  weights carried over, and the reference recordings are mapped at their own identified value;
 - step 5 without --holdout: judged on the measured recordings' early-stopping tail (never
   trained on), else on step 3's held-out blocks.
 """
