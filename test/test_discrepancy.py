@@ -339,6 +339,31 @@ def test_effect_features_stream_as_they_batch(name, params):
     np.testing.assert_allclose(stream[ok], batch[ok], atol=1e-10)
 
 
+def test_reference_keeps_its_own_timing_when_the_dead_time_is_added():
+    """input_delay's mapping of the reference: its command moved earlier by the measured change,
+    so that the delayed inputs (delay = the change) give the reference back its own command, on
+    the grid and as events, and the measured data's delayed command is the delay itself."""
+    from bldc_propulsion.core.features import zero_order_hold
+    from bldc_propulsion.discrepancy import effects as fx
+    from bldc_propulsion.recordings import Signals
+
+    grid = np.arange(0.0, 5.0, 0.01)
+    pwm_t = np.array([0.0, 1.003, 2.5, 3.2])
+    pwm = np.array([0.05, 0.08, 0.06, 0.09])
+    sig = Signals(path="ref", sha256="x", t=grid, pwm=np.zeros_like(grid), voltage=np.full_like(grid, 12.0),
+                  speed=np.zeros_like(grid), thrust=None, pwm_events=(pwm_t, pwm),
+                  voltage_events=(np.array([0.0, 5.0]), np.array([12.0, 12.0])))
+    mapped = fx.CANDIDATES["input_delay"].on_reference(sig, {"delay_s": 0.03}, {"delay_s": 0.0})
+    assert mapped.path != sig.path and mapped.sha256 != sig.sha256  # never mistaken for the original
+    own = ef.compute(ef.PWM_DELAYED, grid, pwm_t, pwm, *sig.voltage_events, {"delay_s": 0.0})
+    delayed = ef.compute(ef.PWM_DELAYED, grid, *mapped.pwm_events, *sig.voltage_events, {"delay_s": 0.03})
+    ok = grid >= 0.03
+    np.testing.assert_array_equal(delayed[ok], own[ok])
+    np.testing.assert_array_equal(mapped.pwm, zero_order_hold(pwm_t, pwm, grid + 0.03))  # 30 ms earlier
+    assert fx.CANDIDATES["input_delay"].replaces == {c.INPUT_PWM: ef.PWM_DELAYED,
+                                                     c.INPUT_PWM_FILTERED: ef.PWM_DELAYED_FILTERED}
+
+
 def test_effect_features_are_registered_as_model_inputs():
     from bldc_propulsion.core.features import known_features
 
