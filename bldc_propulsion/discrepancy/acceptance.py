@@ -75,15 +75,19 @@ class Acceptance:
     alpha: float
     #: a fitted parameter that ended at a bound of its range (in words): not a basis for a verdict
     at_bound: str | None = None
+    #: the identification on measured vs reference contradicts it (in words): not added
+    contradicted: str | None = None
 
     @property
     def accepted(self) -> bool:
         return (self.p_value < self.alpha and self.mse_reduction >= self.margin
-                and not self.rmse_after > self.rmse_before and self.at_bound is None)
+                and not self.rmse_after > self.rmse_before and self.at_bound is None
+                and self.contradicted is None)
 
     def describe(self) -> str:
         verdict = "added" if self.accepted else (
             f"not added ({self.at_bound}: not a basis for a verdict)" if self.at_bound else
+            f"not added ({self.contradicted})" if self.contradicted else
             f"not added (needs >= {100 * self.margin:.0f} % and p < {self.alpha:g})")
         return (f"{self.source}: RMSE {self.rmse_before:.2f} -> {self.rmse_after:.2f} rad/s, "
                 f"{100 * self.mse_reduction:.1f} % of the mean squared error, {self.blocks_improved} of "
@@ -93,7 +97,7 @@ class Acceptance:
         return {"source": self.source, "rmse_before_rad_s": self.rmse_before, "rmse_after_rad_s": self.rmse_after,
                 "mse_reduction": self.mse_reduction, "p_value": self.p_value, "blocks": self.blocks,
                 "blocks_improved": self.blocks_improved, "min_mse_reduction": self.margin, "alpha": self.alpha,
-                "at_bound": self.at_bound, "accepted": self.accepted}
+                "at_bound": self.at_bound, "contradicted": self.contradicted, "accepted": self.accepted}
 
 
 def judge(effect: str, signals: Sequence[Signals], before: Sequence[np.ndarray], after: Sequence[np.ndarray],
@@ -146,6 +150,8 @@ def considered(evidence: dict[str, Any], named: Sequence[str]) -> list[dict[str,
         acc = ev.get("acceptance")
         if acc is not None and acc.get("at_bound"):
             why = f"fitted, but {acc['at_bound']}: not a basis for a verdict"
+        elif acc is not None and acc.get("contradicted"):
+            why = f"fitted, but {acc['contradicted']}"
         elif acc is not None and not acc["accepted"]:
             why = "fitted, but it did not improve held-out data enough"
         elif ev["verdict"] == "new":

@@ -130,6 +130,10 @@ class ModelKind(Protocol):
     def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
         """Step 5 without --holdout: the trial judged on the kind's own held-out data."""
 
+    def contradicted(self, name: str) -> str | None:
+        """Why the kind's identification on measured vs reference contradicts adding ``name``
+        whatever the held-out figure (in words), or None."""
+
     def keep(self, trial: Trial) -> None:
         """The trial becomes the current model."""
 

@@ -301,6 +301,9 @@ class NetworkKind:
         except BadInputError:
             return acc.from_score(name, scores.measured, "held-out blocks of the measured data (step 3)", alpha)
 
+    def contradicted(self, name: str) -> str | None:
+        return None  # the identification already decided what was proposed (identify.refine)
+
     def keep(self, trial: Trial) -> None:
         self._model = trial.model
         self.added_inputs.append(trial.extra["input"])

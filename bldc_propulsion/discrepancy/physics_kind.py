@@ -30,6 +30,7 @@ from ..recordings import Signals
 from . import acceptance as acc
 from . import physics as ph
 from .base import DataSet, Progress, Scores, Trial, rmse
+from .identify import identify_heating
 
 
 def constants_text(model: ph.PhysicsModel) -> str:
@@ -141,6 +142,16 @@ class PhysicsKind:
     def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
         # step 3's score refits the constants per fold: its blocks are held out of the fit
         return acc.from_score(name, scores.measured, "held-out blocks of the measured data (step 3)", alpha)
+
+    def contradicted(self, name: str) -> str | None:
+        """Heating, when the speed's response to the thermal state is the reference's: a slow
+        drift the model lacks (a second battery RC branch, a drifting sensor) is fitted by a
+        thermal state as well, and held-out data of the same drift confirm it. The network
+        path's rule (``identify_heating``), which compares the response on both sets."""
+        if name != "motor_heating" or self.ref_data is None:
+            return None
+        heat = identify_heating(self.meas_data.signals, self.ref_data.signals)
+        return None if heat.changed else f"the speed's response to the thermal state is the reference's ({heat.describe()})"
 
     def keep(self, trial: Trial) -> None:
         self.cur = trial.model

@@ -213,6 +213,9 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
             judged = kind.heldout(name, trial, scores[name], opts.alpha)
         if trial.flags:
             judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
+        against = kind.contradicted(name)
+        if against:
+            judged = dataclasses.replace(judged, contradicted=against)
         ev.acceptance = judged
         ev.refit(trial.parameters, trial.feature, trial.value)
         rounds[-1] = Round(round_ev, name, trial.parameters, rmse(trial.hold.residuals), judged, extra=trial.extra)
