@@ -182,8 +182,7 @@ def run(s: Scenario, **kw) -> dict:
 
 # --- hidden effects --------------------------------------------------------------------------------
 #: Effects that do not meet the bar yet, with what was measured (seed 0 of the scenarios above).
-#: strict: the day one of them passes, the mark must go.
-#: effect -> why it is expected to fail (a strict xfail). input_delay was here until the dead time
+#: strict: the day one of them passes, the mark must go. input_delay was here until the dead time
 #: replaced the model's command inputs with the reference kept at its own timing (before: holdout
 #: RMSE 20.5 -> 16.3 rad/s, -21 %, one network fitting two timings).
 KNOWN_FAILURES: dict[str, str] = {}
@@ -341,8 +340,8 @@ def test_effect_features_stream_as_they_batch(name, params):
 
 def test_reference_keeps_its_own_timing_when_the_dead_time_is_added():
     """input_delay's mapping of the reference: its command moved earlier by the measured change,
-    so that the delayed inputs (delay = the change) give the reference back its own command, on
-    the grid and as events, and the measured data's delayed command is the delay itself."""
+    on the grid and as events, so that the delayed inputs (delay = the change) give the reference
+    back its own command."""
     from bldc_propulsion.core.features import zero_order_hold
     from bldc_propulsion.discrepancy import effects as fx
     from bldc_propulsion.recordings import Signals

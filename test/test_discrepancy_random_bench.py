@@ -38,9 +38,13 @@ def _run(d: Path, effect: str, hidden_in_measured: bool) -> tuple[dict, float]:
     meas = [load_signals(_bag(d, f"m{k}_{hidden_in_measured}", "steps", 5000 + k, on, 1.0, 30.0, bench))
             for k in range(2)]
     hold = [load_signals(_bag(d, f"h_{hidden_in_measured}", "steps", 6000, on, 1.0, 30.0, bench))]
+    return workflow(effect, meas, ref, hold), rb.model_strength(effect, strength, bench)
+
+
+def workflow(effect: str, meas: list, ref: list, hold: list) -> dict:
+    """The physics path with the nominal bench, every effect on but ``effect``, as the model."""
     model = ph.PhysicsModel(ph.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
-    data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
-    return data, rb.model_strength(effect, strength, bench)
+    return run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
 
 
 _RUNS: dict[tuple[str, bool], tuple[dict, float]] = {}
@@ -100,8 +104,7 @@ def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
 
     ref = recordings([*REF, *ref_extra], "hr", 4000)
     meas, hold = recordings(meas_spec, "hm", 5000), recordings(hold_spec, "hh", 6000)
-    model = ph.PhysicsModel(ph.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, "motor_heating": 0.0})
-    data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
+    data = workflow("motor_heating", meas, ref, hold)
     assert data["named"] == [], data["iterations"]
     acceptance = data["evidence"]["motor_heating"]["acceptance"]
     assert acceptance["mse_reduction"] >= acceptance["min_mse_reduction"], acceptance  # the drift fits

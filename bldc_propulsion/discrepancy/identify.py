@@ -452,6 +452,7 @@ class Heating:
                 "hottest_thermal_state": self.hottest, "extra_drop_rad_s": self.drop_rad_s,
                 "extra_drop_z": self.z}
 
+
 def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) -> Heating:
     """Thermal sensitivity on the measured and on the reference data, fitted together.
 
