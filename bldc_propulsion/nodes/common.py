@@ -6,10 +6,13 @@ without ROS; this module only puts those values into messages.
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
+import signal
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import rclpy
 from builtin_interfaces.msg import Time as TimeMsg
@@ -19,6 +22,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from std_msgs.msg import Float64
 
@@ -92,18 +96,53 @@ def events_executor() -> Any:
     return EventsExecutor()
 
 
-def spin(executor: Any) -> None:
-    """Spin until shutdown. The EventsExecutor's own ``spin`` does not return on Ctrl-C
-    (rclpy 7.1.6: the context's shutdown does not wake it), so it is spun in slices of 0.1 s
-    until a future that never completes: ``spin_once`` would return to Python after every
-    event, which cost a fifth of the quadrotor's CPU (benchmarks/bench_nodes_live.py)."""
-    if isinstance(executor, SingleThreadedExecutor):
-        executor.spin()
-        return
-    never = Future()
-    while rclpy.ok():
-        executor.spin_until_future_complete(never, timeout_sec=0.1)
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[threading.Event]:
+    """While in the block, SIGINT and SIGTERM set the yielded event and do nothing else; the
+    previous handlers come back after it. ``rclpy.init`` is then called without its own signal
+    handlers (``SignalHandlerOptions.NO``).
 
+    Why: rclpy's handlers shut the context down from another thread the moment the signal lands,
+    so a callback running then fails ("publisher's context is invalid", exit 1) or rcl is torn
+    down under it (SIGSEGV); and Python's KeyboardInterrupt lands at whatever bytecode runs,
+    often inside rclpy's C++ (a pybind11 RuntimeError, a hang in ``shutdown``). Here the spin
+    loop sees the event between two callbacks, and the context is shut down after the
+    executors stopped and the nodes are destroyed (test/test_nodes_stop.py).
+    """
+    stop = threading.Event()
+    signums = (signal.SIGINT, signal.SIGTERM)
+    previous = [signal.signal(signum, lambda *_: stop.set()) for signum in signums]
+    try:
+        yield stop
+    finally:
+        for signum, handler in zip(signums, previous):
+            signal.signal(signum, handler)
+
+
+def spin(executor: Any, stop: threading.Event) -> None:
+    """Spin until ``stop`` is set or the context shuts down, in slices of at most
+    ``SPIN_SLICE_S`` (a signal does not end a wait: without rclpy's handlers nothing wakes it).
+
+    The EventsExecutor is spun until a future that never completes (a new one each slice: a
+    future keeps every done callback added to it): ``spin_once`` would return to Python after
+    every event, which cost a fifth of the quadrotor's CPU (benchmarks/bench_nodes_live.py).
+    """
+    events = not isinstance(executor, SingleThreadedExecutor)
+    try:
+        while rclpy.ok() and not stop.is_set():
+            if events:
+                executor.spin_until_future_complete(Future(), timeout_sec=SPIN_SLICE_S)
+            else:
+                executor.spin_once(timeout_sec=SPIN_SLICE_S)
+    except ExternalShutdownException:  # someone else shut rclpy down
+        pass
+
+
+#: Longest a spin waits before it looks at the stop event, s: the most Ctrl-C waits on an idle
+#: node (a wake-up costs ~30 us: 4 a second are 0.01 % of a core).
+SPIN_SLICE_S = 0.25
+#: How long stopping waits for an executor's callbacks and spinning threads, s.
+SHUTDOWN_TIMEOUT_S = 2.0
 
 #: Which executor spins which nodes: the first pair on the calling thread, the others each on
 #: a thread of its own (propulsion_all's mixed mode).
@@ -128,9 +167,18 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
     Exit status 0 on Ctrl-C or shutdown, 2 on a bad parameter or model (one line on stderr,
     no traceback), as the command line does.
     """
-    rclpy.init(args=args)
+    with contextlib.suppress(ValueError, OSError):  # no file descriptor (a captured stderr)
+        faulthandler.enable(sys.__stderr__)  # a crash in rclpy's C++ prints the Python stack
+    with stop_on_signals() as stop:
+        return _run(name, build, args, plan, stop)
+
+
+def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] | None,
+         plan: Plan, stop: threading.Event) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # stop_on_signals
     nodes: list[Node] = []
     executors: list[Any] = []
+    threads: list[threading.Thread] = []
     try:
         built = build()
         nodes = list(built) if isinstance(built, (list, tuple)) else [built]
@@ -140,16 +188,18 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
             for node in members:
                 executor.add_node(node)
         for executor, _ in pairs[1:]:
-            threading.Thread(target=spin, args=(executor,), daemon=True).start()
-        spin(pairs[0][0])
+            threads.append(threading.Thread(target=spin, args=(executor, stop), daemon=True))
+            threads[-1].start()
+        spin(pairs[0][0], stop)
     except BadInputError as e:
         print(f"{name}: {one_line(e, 400)}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
     finally:
+        stop.set()
         for executor in executors:
-            executor.shutdown()
+            executor.shutdown(timeout_sec=SHUTDOWN_TIMEOUT_S)
+        for thread in threads:  # no entity is destroyed under a spinning executor
+            thread.join(SHUTDOWN_TIMEOUT_S)
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
