@@ -11,6 +11,7 @@ from scipy.signal import lfilter, lfilter_zi
 from bldc_propulsion.contract import EFFECTS, PWM_FRAME_HZ, PWM_FULL, PWM_STOP
 from bldc_propulsion.sim.profiles import ARMING_S
 from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.plant import motor_response
 from bldc_propulsion.sim import (
     EFFECT_DOCS,
     PROFILES,
@@ -20,6 +21,7 @@ from bldc_propulsion.sim import (
     params_with_overrides,
     simulate,
 )
+from bldc_propulsion.sim.random_bench import model_strength
 
 # the paper's battery filter, eq. (1), at 1 kHz
 FILTER_B = [4.9975e-4, 4.9975e-4]
@@ -175,6 +177,26 @@ def test_battery_voltage_zero_is_a_stiff_supply() -> None:
     assert stiff.truth_speed[-1] > real.truth_speed[-1]
     half = simulate("constant", 20.0, 0, effects={"battery_voltage": 0.5})
     assert real.truth_voltage[-1] < half.truth_voltage[-1] < stiff.truth_voltage[-1]
+
+
+@pytest.mark.parametrize("bench_strength", [0.5, 1.75])
+def test_the_recorded_voltage_is_what_the_motor_sees_at_any_battery_strength(bench_strength) -> None:
+    """Why ``random_bench.model_strength`` maps every battery_voltage strength to 1: driven by the
+    recorded (modulation-free) terminal voltage, the physics model reproduces the bench's speed
+    at strength 1 and not at the bench's own strength (the record carries the same scaling)."""
+    effects = {e: 1.0 for e in EFFECTS} | {"battery_voltage": bench_strength}
+    r = simulate("random_steps", 20.0, 3, effects=effects, soc=0.4)
+    supply = (r.truth_t, r.truth_voltage)
+
+    def rms_at(model_strength: float) -> float:
+        speed = motor_response(BenchParams(), effects | {"battery_voltage": model_strength},
+                               (r.pwm_t, r.pwm), supply, r.truth_t, float(r.truth_voltage[0]))
+        return float(np.sqrt(np.mean((speed - r.truth_speed) ** 2)))
+
+    assert model_strength("battery_voltage", bench_strength, BenchParams()) == 1.0
+    assert rms_at(1.0) < 0.05  # rad/s: the same physics, the same numbers
+    assert rms_at(bench_strength) > 1.0
+    assert model_strength("battery_voltage", 0.0, BenchParams()) == 0.0
 
 
 def test_motor_heats_under_load_and_loses_speed() -> None:

@@ -88,7 +88,15 @@ def draw_strength(effect: str, seed: int) -> float:
 def model_strength(effect: str, strength: float, bench: BenchParams, model: BenchParams | None = None) -> float:
     """The strength the physics model with constants ``model`` (default nominal) needs to
     reproduce ``effect`` at ``strength`` on ``bench``: the effects scale bench constants (dead
-    time, start level, inertia), so a drawn bench's truth is in the model's units only after this."""
+    time, start level, inertia), so a drawn bench's truth is in the model's units only after this.
+
+    ``battery_voltage``: 1 whenever the effect is on. The bench's strength scales the sag the
+    motor sees AND the terminal voltage the battery ADC records (``bench._integrate``), so the
+    recorded voltage is exactly what the motor saw; the model's strength scales the recorded
+    voltage's deviation from a stiff supply, and 1 reproduces the bench at any true strength
+    (test_sim.py::test_the_recorded_voltage_is_what_the_motor_sees_at_any_battery_strength)."""
+    if effect == "battery_voltage":
+        return 1.0 if strength > 0.0 else 0.0
     m = model or BenchParams()
     ratio = {
         "input_delay": bench.esc_input_delay_s / m.esc_input_delay_s,
