@@ -57,7 +57,7 @@ def one(effect: str, seed: int) -> dict:
     # as refine applies them: heating first (its response to the thermal state), then the dynamics
     choice, why = ("motor_heating", heat.describe()) if heat.changed else idf.which_dynamic(m, r, steps=steps)
     return {"effect": effect, "seed": seed, "strength": strength, "choice": choice or "(nothing)", "why": why,
-            "measured": m, "reference": r, "steps": steps, "heating_changed": heat.changed, "heating": heat,
+            "measured": m, "reference": r, "steps": steps, "heating": heat,
             "seconds": time.perf_counter() - t0}
 
 
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{e:20s} seed {seed} s={r['strength']:.2f} -> {r['choice']:20s} {'ok ' if ok else 'BAD'} "
                   f"d {1000 * f.delay_s:.0f}->{1000 * m.delay_s:.0f} ms  up {f.tau_up_s:.2f}->{m.tau_up_s:.2f}  "
                   f"down {f.tau_down_s:.2f}->{m.tau_down_s:.2f}  start {f.start_level:.3f}->{m.start_level:.3f}  "
-                  f"heat {r['heating_changed']} drop {r['heating'].drop_rad_s:.1f} rad/s z {r['heating'].z:.1f} "
+                  f"heat {r['heating'].changed} drop {r['heating'].drop_rad_s:.1f} rad/s z {r['heating'].z:.1f} "
                   f"hottest {r['heating'].hottest:.2f}  ({r['seconds']:.0f} s)", flush=True)
             if args.verbose:
                 st = r["steps"]
