@@ -180,7 +180,12 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
         ("pwm", "thrust_estimator: input", "pwm_lost"))}
     handled = sum(received.values()) + n * counts["battery/voltage"]
     cpu = sum(b - a for a, b in zip(cpu0, cpu1))
+    by_node: dict[str, float] = {}  # % of one core by node kind, summed over the motors
+    for p, a, b in zip(procs, cpu0, cpu1):
+        kind = p.args[2].rsplit(".", 1)[1]
+        by_node[kind] = by_node.get(kind, 0.0) + 100.0 * (b - a) / wall
     return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),
+            "cpu_by_node_pct": by_node,
             "consumed": dict(diag.consumed),
             "us_per_input_message": 1e6 * cpu / max(handled, 1),
             "lost": lost, "lost_in_transport": in_transport, "received": received}
@@ -225,6 +230,9 @@ def main() -> int:
                       f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
                       f"per input message, lost {r['lost']} (sequence jumps "
                       f"{r['lost_in_transport']}), consumed {r['consumed']}", flush=True)
+                if len(r["cpu_by_node_pct"]) > 1:
+                    print("    by node: " + ", ".join(
+                        f"{k} {v:.1f} %" for k, v in r["cpu_by_node_pct"].items()), flush=True)
             if len(cpus) > 1:
                 print(f"quadrotor, {mode:<22} CPU over {len(cpus)} runs: median "
                       f"{statistics.median(cpus):.1f} % [{min(cpus):.1f}, {max(cpus):.1f}]")

@@ -79,11 +79,6 @@ def recording(tmp_path_factory):
     return d / "steps"
 
 
-def start_all_in_one(executor: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "bldc_propulsion.nodes.all_in_one", "--executor", executor],
-                            env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
 @pytest.mark.parametrize("sig,after_s,nodes", [
     ("SIGINT", 0.4, "separate"), ("SIGTERM", 1.1, "separate"), ("SIGINT", 2.3, "separate"),
     ("SIGINT", 0.8, "events"), ("SIGTERM", 1.5, "single"), ("SIGINT", 1.9, "mixed")])
@@ -93,7 +88,8 @@ def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, 
         names = ("battery_filter", "tachometer", "thrust_estimator")
         nodes = [start_node(n) for n in names]
     else:
-        names, nodes = (f"propulsion_all --executor {nodes}",), [start_all_in_one(nodes)]
+        names = (f"propulsion_all --executor {nodes}",)
+        nodes = [start_node("propulsion_all", options=("--executor", nodes))]
     time.sleep(2.0)
     player = play(tmp_path, "p", bag=str(recording))
     try:

@@ -304,16 +304,15 @@ class TachometerDecoder:
             self._check_time(clock.last_sample_t())
             return self._result(out) if result else None
         lim = self.config.max_abs_v
-        if not (x.max() <= lim and x.min() >= -lim):  # NaN/inf or absurd values: all as NaN
-            x = np.where(np.abs(x) <= lim, x, np.nan)
         segment, chunk = edges.segment, self._CHUNK
-        if math.isfinite(x.sum()):  # no NaN/inf (the sum of volts cannot overflow)
+        if np.abs(x).max() <= lim:  # every sample finite and in range (a NaN max fails this)
             if n <= chunk:
                 segment(x, i0, out)
             else:
                 for a in range(0, n, chunk):
                     segment(x[a:a + chunk], i0 + a, out)
-        else:
+        else:  # NaN/inf or absurd values, all as NaN
+            x = np.where(np.abs(x) <= lim, x, np.nan)
             fin = np.isfinite(x)
             self.counts.nonfinite_samples += int(n - np.count_nonzero(fin))
             # runs of finite samples: [starts[i], stops[i])

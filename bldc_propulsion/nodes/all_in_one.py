@@ -15,13 +15,11 @@ thrust estimator under ``motor<i>`` for each motor, every estimator reading the 
 node of the process, which is why config/propulsion.yaml addresses nodes as ``/**/<node>``.
 
 ``--executor``: ``events`` (default) runs every node on rclpy's EventsExecutor, the cheapest
-in one process (benchmarks/bench_nodes_live.py): it waits through middleware listeners rather
-than a wait set of every node's entities. It cannot hand callbacks the message info, so the
-motors judge lateness on receipt times: a stall of the process breaks their streams (one
-revolution withheld) instead of being absorbed, and a batch lost in transport is only seen as
-lateness. ``single`` runs every node on ``LeanExecutor`` with message info (sequence numbers,
-publisher timestamps), at about a fifth more CPU with four motors. ``mixed``: the battery filter
-on the EventsExecutor in a thread of its own, the motors on ``LeanExecutor``.
+(benchmarks/bench_nodes_live.py): it waits through middleware listeners rather than a wait
+set of every node's entities. ``single`` runs every node on ``LeanExecutor`` (a single-threaded
+executor, about a fifth more CPU with four motors); ``mixed``: the battery filter on the
+EventsExecutor in a thread of its own, the motors on ``LeanExecutor``. Every executor hands
+the callbacks the message info (sequence numbers, publisher timestamps; ``common.WithInfo``).
 """
 
 from __future__ import annotations
@@ -30,13 +28,13 @@ import argparse
 import sys
 from typing import Any
 
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
 from bldc_propulsion.nodes.common import (
     Plan, events_executor, on_events, run_node, single_threaded)
+from bldc_propulsion.nodes.lean_executor import LeanExecutor
 from bldc_propulsion.nodes.params import namespaces
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
@@ -47,15 +45,15 @@ EXECUTORS = ('events', 'single', 'mixed')
 MAX_MOTORS = 16
 
 
-def build_nodes(motors: int, message_info: bool = True, **kwargs: Any) -> list[Node]:
+def build_nodes(motors: int, **kwargs: Any) -> list[Node]:
     """The battery filter, then a tachometer and an estimator per motor (``kwargs``: Node args)."""
     nodes: list[Node] = [BatteryFilterNode(**kwargs)]
     for namespace in namespaces(motors):
         ns: dict[str, Any] = {'namespace': namespace} if namespace else {}
-        nodes.append(TachometerNode(message_info=message_info, **ns, **kwargs))
+        nodes.append(TachometerNode(**ns, **kwargs))
         if namespace:
             ns['cli_args'] = SHARED_VOLTAGE
-        nodes.append(ThrustEstimatorNode(message_info=message_info, **ns, **kwargs))
+        nodes.append(ThrustEstimatorNode(**ns, **kwargs))
     return nodes
 
 
@@ -78,7 +76,7 @@ def plan_for(executor: str) -> Plan:
         return on_events
     if executor == 'single':
         return single_threaded
-    return lambda nodes: [(SingleThreadedExecutor(), nodes[1:]), (events_executor(), nodes[:1])]
+    return lambda nodes: [(LeanExecutor(), nodes[1:]), (events_executor(), nodes[:1])]
 
 
 def main(args: list[str] | None = None) -> int:
@@ -86,8 +84,7 @@ def main(args: list[str] | None = None) -> int:
     options = parse_args(remove_ros_args(args=argv)[1:])
     return run_node(
         'propulsion_all',
-        lambda: build_nodes(options.motors, message_info=options.executor != 'events'),
-        argv, plan_for(options.executor))
+        lambda: build_nodes(options.motors), argv, plan_for(options.executor))
 
 
 if __name__ == '__main__':

@@ -7,7 +7,7 @@ count over. The filter's time constant is 2 s, so a sample timed a few milliseco
 nothing; what matters is that a gap is not bridged as if it were one step. The core rejects
 implausible samples (NaN, out of [min_adc_v, max_adc_v]) and counts them; diagnostics say so.
 battery/voltage is published at publish_rate_hz (sample time); header.stamp is the time of the
-sample. No message info is needed, so this node runs on rclpy's EventsExecutor (cheapest).
+sample. Runs on rclpy's EventsExecutor (cheapest), like the other nodes.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConf
 from bldc_propulsion.core.status import counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.nodes.common import (
-    declare_parameters, diagnostic_array, input_qos, now_s, on_events, run_node, to_stamp)
+    WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node, to_stamp)
 from bldc_propulsion.nodes.params import (
     BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -35,7 +35,7 @@ from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStrea
 
 class BatteryFilterNode(Node):
 
-    def __init__(self, message_info: bool = False, **kwargs: Any) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(BATTERY_FILTER, **kwargs)
         params = declare_parameters(self, BATTERY_FILTER_PARAMS)
         config = BatteryFilterConfig(**core_kwargs(BATTERY_FILTER_PARAMS, params))
@@ -47,9 +47,9 @@ class BatteryFilterNode(Node):
         self.voltage_pub = self.create_publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE, 10)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
-        callback = self.on_adc if message_info else (lambda msg: self.on_adc(msg, None))
         self.adc_sub = self.create_subscription(
-            Float64, contract.TOPIC_BATTERY_ADC, callback, input_qos(params['queue_depth']))
+            Float64, contract.TOPIC_BATTERY_ADC, WithInfo(self.on_adc),
+            input_qos(params['queue_depth']))
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def on_adc(self, msg: Float64, info: dict | None) -> None:
@@ -89,7 +89,7 @@ def battery_state(t_s, volts):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(BATTERY_FILTER, BatteryFilterNode, args, on_events)
+    return run_node(BATTERY_FILTER, BatteryFilterNode, args)
 
 
 if __name__ == '__main__':

@@ -1,11 +1,11 @@
 """LeanExecutor: rclpy's single-threaded executor with a cheap path for messages and timers.
 
-Why by hand: rclpy 7.1.6 offers two executors and neither fits a vehicle's companion computer.
+Why by hand: ``propulsion_all --executor single`` (and ``mixed``) is the choice for an rclpy
+whose experimental EventsExecutor (every node's default) misbehaves, and rclpy 7.1.6's
 ``SingleThreadedExecutor`` rebuilds its entity lists, a wait set, a task and a coroutine for
-every message (~150 µs per message here, most of a tachometer node's CPU); the
-``EventsExecutor`` is cheaper but cannot hand callbacks the message info (it raises
-SystemError for two-argument callbacks), and our timing rules (``stream_time.py``) need the
-publisher's sequence numbers and timestamps. This executor waits on one wait set of the nodes'
+every message (~150 µs per message here, most of a tachometer node's CPU). Our timing rules
+(``stream_time.py``) need the publisher's sequence numbers and timestamps, which any executor
+gives (``common.WithInfo``). This executor waits on one wait set of the nodes'
 subscriptions and timers, takes EVERY queued message of a ready subscription with
 ``take_message`` (message info included: a burst after a stall costs one wake-up, not one per
 message) and calls the callbacks directly. Services (parameters), clients and the nodes' guard

@@ -3,7 +3,7 @@
 ``pwm``, ``battery/adc`` and ``tachometer/adc`` are Float64 / Float32MultiArray: no header.
 Guessing their times from receipt alone turns a stall into a wrong number (a batch that arrives
 100 ms late looks like the next one, so the edges across a hole give a speed 60 % too high).
-What rclpy does give, with the single-threaded executor, is the message info of each message:
+What rclpy does give, with every executor (``common.WithInfo``), is the message info of each message:
 the publisher's clock when it published (``source_timestamp``) and the publisher's sequence
 number (``publication_sequence_number``). The rules (README "Timing and faults"):
 

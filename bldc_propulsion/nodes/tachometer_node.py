@@ -25,7 +25,7 @@ from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
-    ScalarOutput, declare_parameters, diagnostic_array, input_qos, now_s, run_node)
+    ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -33,7 +33,7 @@ from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStrea
 
 class TachometerNode(Node):
 
-    def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(TACHOMETER, **kwargs)
         params = declare_parameters(self, TACHOMETER_PARAMS)
         config = TachometerConfig(**core_kwargs(TACHOMETER_PARAMS, params))
@@ -48,9 +48,8 @@ class TachometerNode(Node):
         self.rpm_out = ScalarOutput(self, contract.TOPIC_ROTOR_RPM)
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
-        callback = self.on_batch if message_info else (lambda msg: self.on_batch(msg, None))
         self.adc_sub = self.create_subscription(
-            Float32MultiArray, contract.TOPIC_TACH_ADC, callback,
+            Float32MultiArray, contract.TOPIC_TACH_ADC, WithInfo(self.on_batch),
             input_qos(params['queue_depth']))
         self.timeout_timer = self.create_timer(TACH_TIMEOUT_CHECK_PERIOD_S, self.check_signal)
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
@@ -66,7 +65,7 @@ class TachometerNode(Node):
         for place, data in settled:
             if place.event == NEW_STREAM and self.stream.streams > 1:
                 self.core.reset()  # a restarted publisher: its samples do not follow the old
-            self.core.process_batch(place.t_last, data)
+            self.core.process_batch(place.t_last, data, result=False)  # state is enough
             speed = self.output.after_batch()
             if speed is not None:
                 self.speed_out.publish(float(speed))

@@ -37,7 +37,8 @@ from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    ScalarOutput, declare_parameters, diagnostic_array, input_qos, now_s, run_node, stamp_s)
+    ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node,
+    stamp_s)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
@@ -48,7 +49,7 @@ FALLBACK_TIMER_HZ = 25.0
 
 class ThrustEstimatorNode(Node):
 
-    def __init__(self, message_info: bool = True, **kwargs: Any) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__(THRUST_ESTIMATOR, **kwargs)
         params = declare_parameters(self, THRUST_ESTIMATOR_PARAMS)
         self.thrust_coefficient = params['thrust_coefficient'] or None
@@ -67,8 +68,8 @@ class ThrustEstimatorNode(Node):
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
         qos = input_qos(params['queue_depth'])
-        on_pwm = self.on_pwm if message_info else (lambda msg: self.on_pwm(msg, None))
-        self.pwm_sub = self.create_subscription(Float64, contract.TOPIC_PWM, on_pwm, qos)
+        self.pwm_sub = self.create_subscription(
+            Float64, contract.TOPIC_PWM, WithInfo(self.on_pwm), qos)
         self.voltage_sub = self.create_subscription(
             BatteryState, contract.TOPIC_BATTERY_VOLTAGE, self.on_voltage, qos)
         # Inputs emit the grid up to their own time; the timer only covers quiet inputs, so
