@@ -41,8 +41,9 @@ from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-MODULES = {"battery_filter": "battery_filter_node", "tachometer": "tachometer_node",
-           "thrust_estimator": "thrust_estimator_node", "propulsion_all": "all_in_one"}
+#: The three node executables (one motor), and the modules behind every executable started here.
+NODES = ("battery_filter", "tachometer", "thrust_estimator")
+MODULES = {**{n: f"{n}_node" for n in NODES}, "propulsion_all": "all_in_one"}
 
 
 def env() -> dict[str, str]:
@@ -156,10 +157,10 @@ def reference(d: Path, name: str, topic: str) -> np.ndarray:
 
 def test_live_nodes_publish_what_replay_writes(recordings, tmp_path):
     d = recordings
-    nodes = [start_node(n) for n in MODULES]
+    nodes = [start_node(n) for n in NODES]
     rec = Recorder()
     try:
-        rec.wait_ready(*MODULES)
+        rec.wait_ready(*NODES)
         player = play(tmp_path, "p", bag=str(d / "steps"))
         t0 = player_t0(player)
         out, err = player.communicate(timeout=60)

@@ -20,7 +20,7 @@ from _ros import require_rclpy
 
 require_rclpy()
 
-from test_nodes_live import ROOT, env, play, player_t0, start_node  # noqa: E402
+from test_nodes_live import NODES, ROOT, env, play, player_t0, start_node  # noqa: E402
 
 from bldc_propulsion.nodes import common  # noqa: E402
 
@@ -85,7 +85,7 @@ def recording(tmp_path_factory):
 def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, after_s, nodes):
     """``separate``: the three node executables; else propulsion_all with that ``--executor``."""
     if nodes == "separate":
-        names = ("battery_filter", "tachometer", "thrust_estimator")
+        names = NODES
         nodes = [start_node(n) for n in names]
     else:
         names = (f"propulsion_all --executor {nodes}",)
