@@ -8,6 +8,7 @@ ends of the window by the same amount, so it does not bias the estimate.
 
 from __future__ import annotations
 
+import array
 import math
 import sys
 from pathlib import Path
@@ -19,6 +20,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _tachsignal import first_order_steps, make_signal  # noqa: E402
 
 from bldc_propulsion.core.status import OK, WARN  # noqa: E402
+from bldc_propulsion.core.tachometer_parts import EdgeDetector  # noqa: E402
 from bldc_propulsion.core.tachometer import (  # noqa: E402
     BLOCKED, NO_EDGES, SPINNING, STARTING, STOPPED, STUCK, TachometerConfig, TachometerDecoder)
 from bldc_propulsion.errors import BadInputError  # noqa: E402
@@ -334,27 +336,36 @@ def test_against_simulator_truth():
     assert rel_rms(out.speed[fast], truth[fast]) < 0.01
 
 
+def _state(d: TachometerDecoder) -> tuple:
+    e = d._edges
+    return (e.hi, e.lo, e.tail, e.cross, e.pending, e.state, e.r_last, e.level_now)
+
+
 def _planned_vs_plain(batches: list[tuple[float, np.ndarray]], cfg=None) -> int:
-    """Feed the batches to a decoder told them in advance (expect) and to one that is not:
-    every batch's result, the state and the diagnostics must be identical. Returns how many
-    batches went through a plan."""
+    """Feed the batches to a decoder told them in advance (expect), to one that is not (short
+    batches go through segment_small, as rclpy's array.array or as float arrays, in turn) and
+    to one that decodes everything with numpy (SMALL_BATCH = 0): every batch's result, the
+    state and the diagnostics must be identical. Returns how many batches went through a plan."""
     plain = TachometerDecoder(cfg)
     planned = TachometerDecoder(cfg)
+    numpy_only = TachometerDecoder(cfg)
+    numpy_only.SMALL_BATCH = 0
     planned.expect([x for _, x in batches])
     for k, (t, x) in enumerate(batches):
-        a = plain.process_batch(t, x)
+        a = plain.process_batch(t, array.array('f', x.tolist()) if k % 2 else x)
         b = planned.process_batch(t, x)
+        c = numpy_only.process_batch(t, x)
         for f in ("edge_t", "speed", "all_edge_t"):
             np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+            np.testing.assert_array_equal(getattr(a, f), getattr(c, f))
         assert (a.speed_now, a.signal_ok, a.state) == (b.speed_now, b.signal_ok, b.state)
-        assert plain.counts == planned.counts
-        assert (plain._edges.hi, plain._edges.lo, plain._edges.tail, plain._edges.cross,
-                plain._edges.pending, plain._edges.state, plain._edges.r_last) == (
-                planned._edges.hi, planned._edges.lo, planned._edges.tail, planned._edges.cross,
-                planned._edges.pending, planned._edges.state, planned._edges.r_last)
+        assert (a.speed_now, a.signal_ok, a.state) == (c.speed_now, c.signal_ok, c.state)
+        assert plain.counts == planned.counts == numpy_only.counts
+        assert _state(plain) == _state(planned) == _state(numpy_only)
         if k == len(batches) // 2:  # a diagnostics timeout check between two batches
-            assert plain.check_timeout(t + 0.5) == planned.check_timeout(t + 0.5)
-    assert plain.status() == planned.status()
+            assert (plain.check_timeout(t + 0.5) == planned.check_timeout(t + 0.5)
+                    == numpy_only.check_timeout(t + 0.5))
+    assert plain.status() == planned.status() == numpy_only.status()
     return planned.planned_batches
 
 
@@ -362,13 +373,24 @@ def _cut(x: np.ndarray, n: int = 200, t0: float = 0.0, rate: float = 20000.0):
     return [(t0 + (a + n - 1) / rate, x[a:a + n].astype(np.float32)) for a in range(0, len(x) - n + 1, n)]
 
 
-def test_planned_batches_equal_plain_ones():
-    """TachometerDecoder.expect (replay's planned level trackers) changes nothing: clean
+def test_planned_batches_equal_plain_ones(monkeypatch):
+    """TachometerDecoder.expect (replay's planned level trackers) and the live nodes' per-sample
+    form of short batches (EdgeDetector.segment_small) change nothing: clean
     signal, steps, noise and glitches, NaN and absurd samples, gaps, late and repeated
-    batches, a sample-rate mismatch, short batches."""
+    batches, a weak signal, a sample-rate mismatch, short batches."""
+    small = [0, 0]  # segment_small calls: [all, decoded]
+    real_small = EdgeDetector.segment_small
+
+    def counted(self, *args):
+        done = real_small(self, *args)
+        small[0] += 1
+        small[1] += done
+        return done
+    monkeypatch.setattr(EdgeDetector, "segment_small", counted)
     steps = make_signal(first_order_steps(0.0, [(0.05, 600.0), (0.6, 150.0), (1.1, 0.0)]), 1.6, seed=2)
     batches = _cut(steps.x)
     assert _planned_vs_plain(batches) > 0.9 * len(batches)
+    assert small == [len(batches), len(batches)]
     noisy = make_signal(400.0, 0.8, noise_v=0.4, seed=3)
     x = noisy.x.copy()
     x[1000:1003] = 0.2  # spikes (glitches)
@@ -381,6 +403,10 @@ def test_planned_batches_equal_plain_ones():
     batches[50] = (batches[50][0] + 0.02, batches[50][1])  # late
     batches.insert(60, (batches[59][0] + 0.004, batches[60][1][:80]))  # a short batch
     assert _planned_vs_plain(batches) > 0.8 * len(batches)
+    assert 0 < small[1] < small[0]  # the batches with NaN or absurd samples fell back to numpy
+    # a weak signal: its levels closer than min_contrast_v, so the blocked level is clamped
+    weak = make_signal(300.0, 0.5, high_v=0.8, low_v=0.45, seed=5)
+    assert _planned_vs_plain(_cut(weak.x)) > 0
     # batch stamps at half the rate the samples have: a sample-rate mismatch
     fast = make_signal(300.0, 0.6, seed=4)
     assert _planned_vs_plain([(t * 2, x) for t, x in _cut(fast.x)]) > 0

@@ -67,6 +67,7 @@ step 6 combines the gate's signal loss with the detector's levels.
 
 from __future__ import annotations
 
+import array
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -184,6 +185,9 @@ class TachometerDecoder:
     """
 
     _CHUNK = 16384  #: long inputs are processed in slices of this size (cache, precision)
+    #: batches up to this size (float arrays) are decoded by EdgeDetector.segment_small, without
+    #: numpy calls (cheaper with a live node's cold caches); 0 decodes every batch with numpy
+    SMALL_BATCH = 512
     _PLAN_ROWS = 256  #: batches planned at a time (:meth:`expect`)
     RATE_CHECK_BATCHES = 5  #: batches whose median sample rate is compared with the parameter
     RATE_TOLERANCE = 0.2  #: relative difference of that rate from sample_rate_hz that is a mismatch
@@ -272,8 +276,14 @@ class TachometerDecoder:
         """Decode one batch of contiguous samples (V); ``t_last`` is the time (s) of the last one.
         With ``result=False`` nothing is returned (the decoder's state is all a caller needs)."""
         planned = self._planned_row(samples) if self._expected is not None else None
+        small = None  # a short batch as Python floats, for EdgeDetector.segment_small
         if planned is not None:
             x = planned[0].X[planned[1]]
+        elif isinstance(samples, array.array) and samples.typecode in 'fd' and len(samples) <= self.SMALL_BATCH:
+            x = small = samples  # rclpy's Float32MultiArray.data
+        elif (isinstance(samples, np.ndarray) and samples.ndim == 1 and samples.dtype.kind == 'f'
+              and len(samples) <= self.SMALL_BATCH):
+            x, small = samples, samples.tolist()
         else:
             x = np.asarray(samples, dtype=np.float64)
             if x.ndim != 1:
@@ -304,6 +314,11 @@ class TachometerDecoder:
             self._check_time(clock.last_sample_t())
             return self._result(out) if result else None
         lim = self.config.max_abs_v
+        if small is not None:
+            if edges.segment_small(small, i0, lim, out):
+                self._check_time(clock.last_sample_t())
+                return self._result(out) if result else None
+            x = np.asarray(x, dtype=np.float64)  # not finite or beyond lim somewhere: below
         segment, chunk = edges.segment, self._CHUNK
         if np.abs(x).max() <= lim:  # every sample finite and in range (a NaN max fails this)
             if n <= chunk:

@@ -316,7 +316,7 @@ class EdgeDetector:
     accepted edges go to the :class:`SpeedGate`.
     """
 
-    __slots__ = ("counts", "_gate", "_decay", "_ramp", "_min_trig", "_low_f", "_high_f",
+    __slots__ = ("counts", "_gate", "_decay", "_ramp", "_ramp_list", "_min_trig", "_low_f", "_high_f",
                  "_min_contrast", "_initial_low", "hi", "lo", "level_now", "known",
                  "tail", "state", "r_last", "cross", "pending", "pending_levels")
 
@@ -326,6 +326,7 @@ class EdgeDetector:
         dt = 1.0 / cfg.sample_rate_hz
         self._decay = cfg.level_decay_v_per_s * dt  # volts per sample
         self._ramp = np.arange(1024, dtype=float) * self._decay
+        self._ramp_list: list[float] = self._ramp.tolist()  #: the same, for segment_small
         self._min_trig = cfg.min_edge_interval_s * cfg.sample_rate_hz  # in samples
         self._low_f = cfg.low_fraction
         self._high_f = cfg.high_fraction
@@ -423,6 +424,89 @@ class EdgeDetector:
             trig = ev[val != prev]
             self.state = bool(val[-1])
         self._finish_slice(r, trig.tolist() if trig is not None else (), hi, lo, r_prev0, i0, out)
+
+    def segment_small(self, xs: Sequence[float], i0: int, lim: float, out: TachOutput) -> bool:
+        """:meth:`segment` of a short batch of Python floats, one sample at a time, with no numpy
+        call: the same arithmetic, operation for operation, so the same results to the last bit
+        (tested). Why a second form: a live node wakes for each ~200-sample batch with cold
+        caches, where segment's ~25 numpy calls cost about twice this loop (numpy is faster only
+        when warm; replay plans its batches instead). False, with nothing changed, if a sample
+        is not finite or beyond ``lim``; the caller then takes segment's NaN path."""
+        n = len(xs)
+        ks = self._ramp_list
+        if n > len(ks):
+            return False
+        c, mc = self._decay, self._min_contrast
+        low_f, high_f = self._low_f, self._high_f
+        x0 = xs[0]
+        if not -lim <= x0 <= lim:
+            return False
+        tail = x0 if self.tail is None else self.tail
+        hi, lo = self.hi, self.lo
+        if hi is None:
+            hi = x0 + c
+            lo = min(self._initial_low, x0) - c
+        # sample 0 (k = 0): the trackers' spike guard against the previous batch's last sample
+        U = min(tail, x0) + 0.0
+        if U < hi - c:
+            U = hi - c
+        V = max(tail, x0) - 0.0
+        if V > lo + c:
+            V = lo + c
+        lc = U - mc
+        if V < lc:
+            lc = V
+        r = (x0 - lc) / (U - lc)
+        rs = [r] * n
+        state = self.state
+        if state is None:
+            state = r >= 0.5
+        trig: list[int] = []
+        his: dict[int, float] = {}
+        los: dict[int, float] = {}
+        if (r < low_f) if state else (r > high_f):
+            trig.append(0)
+            his[0], los[0] = U, lc
+            state = not state
+        st = state
+        prev = x0
+        k = 0.0
+        for i in range(1, n):
+            s = xs[i]
+            if not -lim <= s <= lim:
+                return False
+            k = ks[i]
+            if s < prev:  # the 2-sample min feeds the clear level, the max the blocked level
+                u, v = s + k, prev - k
+            else:
+                u, v = prev + k, s - k
+            prev = s
+            if u > U:
+                U = u
+            if v < V:
+                V = v
+            h = U - k
+            lc = h - mc
+            l_ = V + k
+            if l_ < lc:
+                lc = l_
+            r = rs[i] = (s - lc) / (h - lc)
+            if st:
+                if r < low_f:
+                    st = False
+                    trig.append(i)
+                    his[i], los[i] = h, lc
+            elif r > high_f:
+                st = True
+                trig.append(i)
+                his[i], los[i] = h, lc
+        self.tail = self.level_now = prev
+        self.hi, self.lo = U - k, V + k
+        r_prev0 = self.r_last if self.r_last is not None else rs[0]
+        self.r_last = rs[-1]
+        self.state = st
+        self._finish_slice(rs, trig, his, los, r_prev0, i0, out)
+        return True
 
     # --- many batches' levels at once (the same arithmetic as segment, row by row) ----------
     def plan_rows(self, X: np.ndarray) -> RowPlan:
@@ -523,16 +607,17 @@ class EdgeDetector:
         self._finish_slice(r, trig, plan.HI[j], plan.LO[j], r_prev0, i0, out)
         return True
 
-    def _finish_slice(self, r: np.ndarray, trig: Sequence[int], hi: np.ndarray, lo: np.ndarray,
+    def _finish_slice(self, r: np.ndarray | list[float], trig: Sequence[int], hi, lo,
                       r_prev0: float, i0: int, out: TachOutput) -> None:
         """The end of :meth:`segment` and :meth:`segment_planned` (one place, so the planned
-        path cannot drift from the plain one): the slice's switches at indices ``trig``, the
+        path cannot drift from the plain one; ``hi[kk]``, ``lo[kk]`` are the levels at each
+        switch, arrays or dicts): the slice's switches at indices ``trig``, the
         crossing of a slice that ends inside a transition, and the pending edge's confirmation."""
         for kk in trig:
             p = self._crossing(r, kk, r_prev0, i0)
             if p is None:  # the crossing was in an earlier slice
                 p = self.cross if self.cross is not None else float(i0 + kk)
-            self._switch(p, i0 + kk, out, hi.item(kk), lo.item(kk))
+            self._switch(p, i0 + kk, out, hi[kk], lo[kk])
         if self._low_f <= self.r_last <= self._high_f:
             # the slice ends inside a transition: its switch may come in a later slice and
             # need the midpoint crossing found here
@@ -544,7 +629,7 @@ class EdgeDetector:
             self._confirm(out)
             self.pending = None
 
-    def _crossing(self, r: np.ndarray, kk: int, r_prev0: float, i0: int) -> float | None:
+    def _crossing(self, r: np.ndarray | list[float], kk: int, r_prev0: float, i0: int) -> float | None:
         """Position (clock samples) of the last midpoint crossing at or before index kk of the slice.
 
         Scans back while the signal stays in the hysteresis band (between a crossing and its
@@ -552,7 +637,7 @@ class EdgeDetector:
         kk == len(r) asks for the last crossing of the slice.
         """
         lo_f, hi_f = self._low_f, self._high_f
-        item = r.item
+        item = r.item if isinstance(r, np.ndarray) else r.__getitem__
         i = min(kk, len(r) - 1)
         side = item(i) >= 0.5
         while True:
