@@ -64,3 +64,26 @@ def test_with_info_takes_both_call_forms():
     cb("m", {"k": 1})
     cb(("m2", {"k": 2}))
     assert calls == [("m", {"k": 1}), ("m2", {"k": 2})]
+
+
+def test_node_clock_follows_use_sim_time_set_at_run_time():
+    """NodeClock asks rcl whether sim time is on only when it changes (a jump callback): wall
+    time, then the /clock time (0 before any /clock message) once use_sim_time is set at run
+    time, then wall time again."""
+    from rclpy.parameter import Parameter
+
+    from bldc_propulsion.nodes.common import NodeClock
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("node_clock_under_test", context=ctx)
+    try:
+        now_s = NodeClock(node)
+        assert abs(now_s() - time.time()) < 0.5
+        node.set_parameters([Parameter("use_sim_time", value=True)])
+        assert now_s() == 0.0
+        node.set_parameters([Parameter("use_sim_time", value=False)])
+        assert abs(now_s() - time.time()) < 0.5
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)

@@ -27,7 +27,7 @@ from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConf
 from bldc_propulsion.core.status import counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.nodes.common import (
-    WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node, to_stamp)
+    NodeClock, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node, to_stamp)
 from bldc_propulsion.nodes.params import (
     BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -37,6 +37,7 @@ class BatteryFilterNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(BATTERY_FILTER, **kwargs)
+        self.now_s = NodeClock(self)
         params = declare_parameters(self, BATTERY_FILTER_PARAMS)
         config = BatteryFilterConfig(**core_kwargs(BATTERY_FILTER_PARAMS, params))
         self.core = BatteryFilter(config)  # BadInputError if the core refuses a value
@@ -53,7 +54,7 @@ class BatteryFilterNode(Node):
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def on_adc(self, msg: Float64, info: dict | None) -> None:
-        self.filter(self.stream.push(arrival(now_s(self), info), 1, msg.data))
+        self.filter(self.stream.push(arrival(self.now_s(), info), 1, msg.data))
 
     def filter(self, settled: list[tuple[Placement, float]]) -> None:
         for place, value in settled:

@@ -25,7 +25,7 @@ from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
-    ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node)
+    NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -35,6 +35,7 @@ class TachometerNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(TACHOMETER, **kwargs)
+        self.now_s = NodeClock(self)
         params = declare_parameters(self, TACHOMETER_PARAMS)
         config = TachometerConfig(**core_kwargs(TACHOMETER_PARAMS, params))
         self.core = TachometerDecoder(config)  # BadInputError if the core refuses a value
@@ -55,7 +56,7 @@ class TachometerNode(Node):
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def on_batch(self, msg: Float32MultiArray, info: dict | None) -> None:
-        received = now_s(self)
+        received = self.now_s()
         self.last_receipt_s = received
         data = msg.data
         self.decode(self.stream.push(arrival(received, info), len(data), data))
@@ -74,13 +75,13 @@ class TachometerNode(Node):
     def input_lost(self) -> bool:
         """No batch for timeout_s on the node clock (publisher dead, link down)."""
         return (self.last_receipt_s is not None
-                and now_s(self) - self.last_receipt_s > self.timeout_s)
+                and self.now_s() - self.last_receipt_s > self.timeout_s)
 
     def check_signal(self) -> None:
         self.speed_out.refresh()
         self.rpm_out.refresh()
         held = self.stream.holding
-        if held is not None and now_s(self) - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
+        if held is not None and self.now_s() - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
             self.decode(self.stream.release_held())  # no successor came to vouch for it
         if self.input_lost():  # publish nothing; the next batch must first measure a revolution
             self.output.valid = False
@@ -91,7 +92,7 @@ class TachometerNode(Node):
         if self.input_lost():
             statuses.append(CoreStatus(
                 'input', ERROR,
-                f'no tachometer/adc batch for {now_s(self) - self.last_receipt_s:.2f} s: '
+                f'no tachometer/adc batch for {self.now_s() - self.last_receipt_s:.2f} s: '
                 'nothing published', counters(**timing)))
         else:
             statuses.append(CoreStatus('input', OK, 'ok', counters(**timing)))

@@ -37,7 +37,7 @@ from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, now_s, run_node,
+    NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node,
     stamp_s)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
@@ -51,6 +51,7 @@ class ThrustEstimatorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(THRUST_ESTIMATOR, **kwargs)
+        self.now_s = NodeClock(self)
         params = declare_parameters(self, THRUST_ESTIMATOR_PARAMS)
         self.thrust_coefficient = params['thrust_coefficient'] or None
         self.model_path = params['model_path']
@@ -80,7 +81,7 @@ class ThrustEstimatorNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     def on_pwm(self, msg: Float64, info: dict | None) -> None:
-        t, _lost = self.pwm_stream.place(arrival(now_s(self), info))
+        t, _lost = self.pwm_stream.place(arrival(self.now_s(), info))
         self.publish_until(t)
         if self.core.update_pwm(t, msg.data):
             self.last_pwm_s = t
@@ -94,7 +95,7 @@ class ThrustEstimatorNode(Node):
     def on_timer(self) -> None:
         self.speed_out.refresh()
         self.thrust_out.refresh()
-        self.publish_until(now_s(self) - self.output_delay_s)
+        self.publish_until(self.now_s() - self.output_delay_s)
 
     def command_stale(self, t: float) -> bool:
         return (self.pwm_timeout_s > 0.0 and self.last_pwm_s is not None
@@ -117,7 +118,7 @@ class ThrustEstimatorNode(Node):
                           pwm_publisher_restarts=self.pwm_stream.publisher_restarts,
                           stale_command_ticks=self.stale_ticks,
                           output_ticks_skipped=self.ticks.skipped)
-        now = now_s(self)
+        now = self.now_s()
         if self.command_stale(now):
             statuses.append(CoreStatus(
                 'input', ERROR, f'no pwm for {now - self.last_pwm_s:.2f} s '
