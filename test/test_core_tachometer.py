@@ -342,17 +342,17 @@ def _state(d: TachometerDecoder) -> tuple:
 
 
 def _planned_vs_plain(batches: list[tuple[float, np.ndarray]], cfg=None) -> int:
-    """Feed the batches to a decoder told them in advance (expect), to one that is not (short
-    batches go through segment_small, as rclpy's array.array or as float arrays, in turn) and
-    to one that decodes everything with numpy (SMALL_BATCH = 0): every batch's result, the
-    state and the diagnostics must be identical. Returns how many batches went through a plan."""
+    """Feed the batches to a decoder told them in advance (expect), to one that is not and gets
+    them as rclpy's array.array (short batches go through segment_small) and to one that
+    decodes everything with numpy (SMALL_BATCH = 0): every batch's result, the state and the
+    diagnostics must be identical. Returns how many batches went through a plan."""
     plain = TachometerDecoder(cfg)
     planned = TachometerDecoder(cfg)
     numpy_only = TachometerDecoder(cfg)
     numpy_only.SMALL_BATCH = 0
     planned.expect([x for _, x in batches])
     for k, (t, x) in enumerate(batches):
-        a = plain.process_batch(t, array.array('f', x.tolist()) if k % 2 else x)
+        a = plain.process_batch(t, array.array('f', x.tolist()))
         b = planned.process_batch(t, x)
         c = numpy_only.process_batch(t, x)
         for f in ("edge_t", "speed", "all_edge_t"):

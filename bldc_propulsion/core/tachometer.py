@@ -185,8 +185,10 @@ class TachometerDecoder:
     """
 
     _CHUNK = 16384  #: long inputs are processed in slices of this size (cache, precision)
-    #: batches up to this size (float arrays) are decoded by EdgeDetector.segment_small, without
-    #: numpy calls (cheaper with a live node's cold caches); 0 decodes every batch with numpy
+    #: array.array batches (what rclpy gives a live node) up to this size are decoded by
+    #: EdgeDetector.segment_small, without numpy calls: a node waking for each batch has cold
+    #: caches, where that loop costs about half of segment's numpy calls (warm, numpy is twice
+    #: as fast, so numpy arrays keep it); 0 decodes every batch with numpy
     SMALL_BATCH = 512
     _PLAN_ROWS = 256  #: batches planned at a time (:meth:`expect`)
     RATE_CHECK_BATCHES = 5  #: batches whose median sample rate is compared with the parameter
@@ -280,11 +282,8 @@ class TachometerDecoder:
         if planned is not None:
             x = planned[0].X[planned[1]]
         elif isinstance(samples, array.array) and samples.typecode in 'fd' and len(samples) <= self.SMALL_BATCH:
-            x = small = samples  # rclpy's Float32MultiArray.data
-        elif (isinstance(samples, np.ndarray) and samples.ndim == 1 and samples.dtype.kind == 'f'
-              and len(samples) <= self.SMALL_BATCH):
-            x, small = samples, samples.tolist()
-        else:
+            x = small = samples  # rclpy's Float32MultiArray.data: a live node's batch
+        else:  # numpy arrays (replay, tests, benchmarks: warm caches, where numpy is faster)
             x = np.asarray(samples, dtype=np.float64)
             if x.ndim != 1:
                 x = x.reshape(-1)
