@@ -363,40 +363,6 @@ def test_reference_keeps_its_own_timing_when_the_dead_time_is_added():
                                                      c.INPUT_PWM_FILTERED: ef.PWM_DELAYED_FILTERED}
 
 
-@pytest.mark.parametrize("effect, params", [("input_delay", {"delay_s": 0.0}),
-                                             ("esc_deadband", {"threshold": c.PWM_STOP})])
-def test_retraining_starts_from_the_base_network_on_the_mapped_command(effect, params):
-    """An effect that replaces the command inputs (PWM levels) by mapped ones carries the base
-    network's weights (made for the scaled command, 0 at stop .. 1 at full) over in the right
-    units: at the parameter that maps nothing (no dead time; the start level at stop), the
-    retraining's starting network (max_epochs=0) predicts what the base network predicts.
-    Before the unit conversion it started hundreds of rad/s off."""
-    from bldc_propulsion.discrepancy import effects as fx
-    from bldc_propulsion.discrepancy import network as net
-    from bldc_propulsion.discrepancy.base import Options
-    from bldc_propulsion.model import NetworkModel
-    from bldc_propulsion.recordings import Signals
-    from bldc_propulsion.training.evaluate import predict_speed
-
-    grid = np.arange(0.0, 20.0, 0.01)
-    pwm_t = np.arange(0.0, 20.0, 0.5)
-    pwm = 0.05 + 0.045 * np.random.default_rng(1).random(len(pwm_t))
-    volt_t = np.arange(0.0, 20.0, 0.05)
-    volt = 12.6 - 0.03 * volt_t
-    sig = Signals(path="r", sha256="r", t=grid, pwm=ef.compute(ef.PWM_DELAYED, grid, pwm_t, pwm, volt_t, volt,
-                                                                 {"delay_s": 0.0}),
-                  voltage=np.interp(grid, volt_t, volt), speed=6000.0 * (np.interp(grid, pwm_t, pwm) - 0.05),
-                  thrust=None, pwm_events=(pwm_t, pwm), voltage_events=(volt_t, volt))
-    rng = np.random.default_rng(2)
-    base = NetworkModel(input_names=tuple(c.DEFAULT_INPUTS), input_min=np.array([11.5, 0.0, 0.0]),
-                        input_max=np.array([12.7, 0.95, 0.95]), output_min=0.0, output_max=300.0,
-                        W1=rng.normal(0, 1.0, (5, 3)), b1=rng.normal(0, 0.5, 5), W2=rng.normal(0, 0.5, 5), b2=0.1)
-    cand = fx.CANDIDATES[effect]
-    start = net.retrain(base, cand, params, [sig], [sig], Options(max_epochs=0), lambda m: None)
-    assert set(cand.replaces.values()) <= set(start.input_names)
-    np.testing.assert_allclose(predict_speed(start, sig), predict_speed(base, sig), atol=1e-6)
-
-
 def test_effect_features_are_registered_as_model_inputs():
     from bldc_propulsion.core.features import known_features
 

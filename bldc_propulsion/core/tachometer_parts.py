@@ -425,6 +425,24 @@ class EdgeDetector:
             self.state = bool(val[-1])
         self._finish_slice(r, trig.tolist() if trig is not None else (), hi, lo, r_prev0, i0, out)
 
+    def _entry(self, tail: float | None, hi: float | None, lo: float | None, x0: float) -> tuple[float, float]:
+        """The clear and blocked trackers' values at a batch's first sample x0 (k = 0), from the
+        previous batch's last sample ``tail`` (the spike guard) and the levels carried in: the
+        scalar chain :meth:`segment` runs, for :meth:`plan_rows` and :meth:`segment_small`."""
+        c = self._decay
+        if tail is None:
+            tail = x0
+        if hi is None or lo is None:
+            hi = x0 + c
+            lo = min(self._initial_low, x0) - c
+        u0 = min(tail, x0) + 0.0
+        if u0 < hi - c:
+            u0 = hi - c
+        v0 = max(tail, x0) - 0.0
+        if v0 > lo + c:
+            v0 = lo + c
+        return u0, v0
+
     def segment_small(self, xs: Sequence[float], i0: int, lim: float, out: TachOutput) -> bool:
         """:meth:`segment` of a short batch of Python floats, one sample at a time, with no numpy
         call: the same arithmetic, operation for operation, so the same results to the last bit
@@ -436,23 +454,12 @@ class EdgeDetector:
         ks = self._ramp_list
         if n > len(ks):
             return False
-        c, mc = self._decay, self._min_contrast
+        mc = self._min_contrast
         low_f, high_f = self._low_f, self._high_f
         x0 = xs[0]
         if not -lim <= x0 <= lim:
             return False
-        tail = x0 if self.tail is None else self.tail
-        hi, lo = self.hi, self.lo
-        if hi is None:
-            hi = x0 + c
-            lo = min(self._initial_low, x0) - c
-        # sample 0 (k = 0): the trackers' spike guard against the previous batch's last sample
-        U = min(tail, x0) + 0.0
-        if U < hi - c:
-            U = hi - c
-        V = max(tail, x0) - 0.0
-        if V > lo + c:
-            V = lo + c
+        U, V = self._entry(self.tail, self.hi, self.lo, x0)
         lc = U - mc
         if V < lc:
             lc = V
@@ -516,7 +523,6 @@ class EdgeDetector:
         only when the state it meets is the one assumed (checked), so results are those of
         :meth:`segment` either way."""
         m, n = X.shape
-        c = self._decay
         k = self._ramp[:n] if n <= len(self._ramp) else self._ramp_for(n)
         U = np.empty((m, n))
         np.minimum(X[:, :-1], X[:, 1:], out=U[:, 1:])
@@ -533,18 +539,7 @@ class EdgeDetector:
         tail, hi, lo = self.tail, self.hi, self.lo
         for j in range(m):  # the scalar chain segment runs at the start of each row
             enter.append((tail, hi, lo))
-            x0 = first[j]
-            if tail is None:
-                tail = x0
-            if hi is None:
-                hi = x0 + c
-                lo = min(self._initial_low, x0) - c
-            u0 = min(tail, x0) + 0.0
-            if u0 < hi - c:
-                u0 = hi - c
-            v0 = max(tail, x0) - 0.0
-            if v0 > lo + c:
-                v0 = lo + c
+            u0, v0 = self._entry(tail, hi, lo, first[j])
             u0s.append(u0)
             v0s.append(v0)
             tail = last[j]
@@ -607,7 +602,8 @@ class EdgeDetector:
         self._finish_slice(r, trig, plan.HI[j], plan.LO[j], r_prev0, i0, out)
         return True
 
-    def _finish_slice(self, r: np.ndarray | list[float], trig: Sequence[int], hi, lo,
+    def _finish_slice(self, r: np.ndarray | list[float], trig: Sequence[int],
+                      hi: np.ndarray | dict[int, float], lo: np.ndarray | dict[int, float],
                       r_prev0: float, i0: int, out: TachOutput) -> None:
         """The end of :meth:`segment` and :meth:`segment_planned` (one place, so the planned
         path cannot drift from the plain one; ``hi[kk]``, ``lo[kk]`` are the levels at each
