@@ -475,7 +475,6 @@ class EdgeDetector:
             trig.append(0)
             his[0], los[0] = U, lc
             state = not state
-        st = state
         prev = x0
         k = 0.0
         for i in range(1, n):
@@ -498,20 +497,20 @@ class EdgeDetector:
             if l_ < lc:
                 lc = l_
             r = rs[i] = (s - lc) / (h - lc)
-            if st:
+            if state:
                 if r < low_f:
-                    st = False
+                    state = False
                     trig.append(i)
                     his[i], los[i] = h, lc
             elif r > high_f:
-                st = True
+                state = True
                 trig.append(i)
                 his[i], los[i] = h, lc
         self.tail = self.level_now = prev
         self.hi, self.lo = U - k, V + k
         r_prev0 = self.r_last if self.r_last is not None else rs[0]
         self.r_last = rs[-1]
-        self.state = st
+        self.state = state
         self._finish_slice(rs, trig, his, los, r_prev0, i0, out)
         return True
 
