@@ -2,7 +2,7 @@
 
 Each log is imported (`import-csv`) into a temporary directory (the logs carry no license: they
 are never copied into the repository) and checked on its own against the package's nominal
-bench physics with every effect off: Kv and CP are calibrated on the log, then the effects are
+bench physics with every effect off: Kv, CP and the throttle exponent are calibrated on the log, then the effects are
 switched on one at a time and named while significant on held-out time blocks. The logs are
 of other motors and propellers, and short (14 s and 18 s), so there is no separate holdout
 recording: the before/after RMSE is in-sample (the tool warns).
@@ -21,6 +21,10 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from bldc_propulsion.discrepancy.physics import CALIBRATED  # noqa: E402
+from bldc_propulsion.sim import BenchParams  # noqa: E402
+
 LOGS = ("rcbenchmark_steps_90percent", "rcbenchmark_step_coastdown_16v_10in")
 
 
@@ -53,8 +57,8 @@ def main() -> int:
                 print(f"{name}: discrepancy failed (exit {proc.returncode}): {proc.stderr.strip()[-2000:]}")
                 return 1
             data = json.loads(proc.stdout)
-            const = {k: v for k, v in data["calibrated_base"]["params"].items()
-                     if k in ("motor_kv_rpm_per_v", "propeller_cp")}
+            const = ", ".join(f"{k} {data['calibrated_base']['params'].get(k, getattr(BenchParams(), k)):.4g}"
+                              for k in CALIBRATED)
             print(f"calibrated constants (all effects off): {const}, stiff supply {data['physics']['supply_v']:.2f} V")
             for k, it in enumerate(data["iterations"]):
                 print(f" round {k + 1}: each effect switched on alone (strength and constants fitted)")
@@ -65,10 +69,14 @@ def main() -> int:
                 if it.get("named"):
                     fp = it["parameters"]
                     print(f" named: {data['evidence'][it['named']]['feature']}; constants then "
-                          f"Kv {fp['motor_kv_rpm_per_v']:.0f} rpm/V, CP {fp['propeller_cp']:.3g}; "
+                          f"Kv {fp['motor_kv_rpm_per_v']:.0f} rpm/V, CP {fp['propeller_cp']:.3g}, "
+                          f"throttle exponent {fp['esc_throttle_exponent']:.3g}; "
                           f"RMSE {it['holdout_rmse_rad_s']:.1f} rad/s")
             if not data["named"]:
                 print("named: nothing")
+            for c in data["considered_not_added"]:
+                if c["verdict"] == "new":
+                    print(f"considered, not added: {c['effect']}: {c['why']}")
             print(f"RMSE (in-sample: no holdout) uncalibrated {data['holdout_rmse_uncalibrated']:.1f}, "
                   f"calibrated {data['holdout_rmse_before']:.1f} -> with the named effects "
                   f"{data['holdout_rmse_after']:.1f} rad/s")

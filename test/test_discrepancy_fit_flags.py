@@ -38,18 +38,20 @@ ALL_BUT_LAG = {**{name: 1.0 for name in c.EFFECTS}, "rotor_lag": 0.0}
 def _fit(model: ph.PhysicsModel, free: tuple[str, ...] = ()) -> ph.Fit:
     consts = np.array(list(ph.load_config(None).constants().values()))
     return ph.Fit(model, np.zeros(1), np.zeros((1, len(ph.CALIBRATED) + len(free))), 0.0, consts,
-                  np.full(len(ph.CALIBRATED), ph.LOG_RANGE_BASE), free)
+                  ph.LOG_RANGE_BASE.copy(), free)
 
 
 def test_fit_flags_name_the_constant_its_value_the_config_and_the_range():
     nominal = ph.load_config(None)
     cfg = dataclasses.replace(nominal, source="bench.json")  # a CONFIG the user gave
-    kv, cp = cfg.constants().values()
+    kv, cp, bend = cfg.constants().values()
     top = ph.STRENGTH_MAX["rotor_lag"]
-    far = cfg.with_constants([3.0 * kv, 1.9 * cp]).with_effect("rotor_lag", top)
+    far = cfg.with_constants([3.0 * kv, 1.9 * cp, 2.0 * bend]).with_effect("rotor_lag", top)
     flags = {f.quantity: f for f in ph.fit_flags(_fit(far, ("rotor_lag",)), cfg, "test fit")}
-    # Kv 3x the CONFIG's: implausible; CP 1.9x: inside the factor 2; rotor_lag at its upper bound
-    assert set(flags) == {"motor_kv_rpm_per_v", "rotor_lag strength"}
+    # Kv 3x the CONFIG's: implausible; CP 1.9x: inside the factor 2; rotor_lag and the throttle
+    # map's exponent (range a factor 2 either way) at their upper bounds
+    assert set(flags) == {"motor_kv_rpm_per_v", "rotor_lag strength", "esc_throttle_exponent"}
+    assert flags["esc_throttle_exponent"].at_bound and "0.5-2" in flags["esc_throttle_exponent"].text()
     kv_flag = flags["motor_kv_rpm_per_v"]
     assert not kv_flag.at_bound and kv_flag.value == pytest.approx(3 * kv) and kv_flag.config == kv
     assert f"motor_kv_rpm_per_v fitted {3 * kv:.4g} vs CONFIG {kv:.4g}" in kv_flag.text()

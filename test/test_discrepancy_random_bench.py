@@ -17,6 +17,7 @@ import pytest
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
+from bldc_propulsion.discrepancy.physics_kind import PhysicsKind
 from bldc_propulsion.discrepancy.workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.sim import random_bench as rb
@@ -73,8 +74,9 @@ def test_hidden_effect_on_a_drawn_bench(bags):
         assert any(hit in w for w in data["warnings"]), (hit, data["warnings"])
 
 
-@pytest.mark.xfail(strict=True, reason="seed 101: rotor_lag strength fitted 0.47 vs 0.68 true in the nominal "
-                                       "model's units (-31 %); the issue's goal is within 30 %")
+@pytest.mark.xfail(strict=True, reason="seed 101, these short recordings: rotor_lag strength fitted 0.44 vs 0.68 "
+                                       "true in the nominal model's units (-35 %; the confusion table's longer "
+                                       "ones give 0.48, -29 %); the issue's goal is within 30 %")
 def test_hidden_effect_strength_within_30_percent_of_truth(bags):
     data, truth = run(bags, "rotor_lag", True)
     fitted = data["evidence"]["rotor_lag"]["fitted_parameters"]["strength"]
@@ -88,10 +90,12 @@ def test_control_on_a_drawn_bench_names_nothing(bags):
 
 def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
     """Seed 101's heating control of experiments/physics_confusion.py (the same recordings): no
-    heating anywhere, the model without it, long loads measured. A thermal state fits the bench's
-    slow drift and improves the holdout (3.3 -> 3.0 rad/s, accepted on its own), but the speed's
-    response to it is the reference's (3.5 rad/s, under the margin): the identification
-    contradicts heating and nothing is named."""
+    heating anywhere, the model without it, long loads measured. Before the throttle map was
+    calibrated (its bench bends it, x^1.15), a thermal state fitted the misfit as a slow drift and
+    improved the holdout (3.3 -> 3.0 rad/s, accepted on its own), and only the identification kept
+    heating out. Now the held-out score rejects it outright; the identification, the safeguard
+    for a drift the model lacks (a second pack RC branch, a drifting sensor), must still say the
+    speed's response to the thermal state is the reference's."""
     from test_discrepancy import REF, SCENARIOS
 
     bench = rb.draw_bench(SEED)
@@ -106,6 +110,8 @@ def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
     meas, hold = recordings(meas_spec, "hm", 5000), recordings(hold_spec, "hh", 6000)
     data = workflow("motor_heating", meas, ref, hold)
     assert data["named"] == [], data["iterations"]
-    acceptance = data["evidence"]["motor_heating"]["acceptance"]
-    assert acceptance["mse_reduction"] >= acceptance["min_mse_reduction"], acceptance  # the drift fits
-    assert acceptance["contradicted"], acceptance  # only the identification keeps heating out
+    heating = data["evidence"]["motor_heating"]
+    assert heating["verdict"] == "not significant" and heating["measured"]["mse_reduction"] < 0, heating
+    kind = PhysicsKind(ph.load_config(None))
+    kind.meas_data, kind.ref_data = ph.Data.of(meas, "measured"), ph.Data.of(ref, "reference")
+    assert "the reference's" in (kind.contradicted("motor_heating") or "")

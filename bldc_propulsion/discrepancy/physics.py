@@ -3,9 +3,10 @@
 The model is the simulator's own ESC/motor/rotor/thermal physics (``plant.motor_response``)
 driven by a recording's command events and its measured (filtered) battery voltage: a
 ``BenchParams`` (constants) plus a strength per effect (0 = off, 1 = nominal; see
-``sim.bench.EFFECT_DOCS``). Before anything is compared, the constants a different motor or
-propeller changes most (motor constant Kv, power coefficient CP) are calibrated on the measured
-speed, so that a mere parameter mismatch is not taken for a missing effect.
+``sim.bench.EFFECT_DOCS``). Before anything is compared, the constants a different motor,
+propeller or ESC changes most (motor constant Kv, power coefficient CP, the throttle map's
+exponent) are calibrated on the measured speed, so that a mere parameter mismatch is not taken
+for a missing effect.
 
 An effect that is off is a candidate: switched on at each strength of a small grid, the
 constants recalibrated with it (warm start), it is scored like ``scoring.py`` scores network
@@ -47,8 +48,19 @@ from . import scoring as sc
 #: effects, may have left to stand in for them: on the bundled bags CP 0.0026 vs 0.042), not
 #: replace the propeller law (with CP -> 0 the speed becomes linear in duty and stands in for
 #: missing effects).
-CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp")
-LOG_RANGE_BASE = math.log(1000.0)
+#: The ESC's throttle-map exponent (duty = x**exponent) is the third: ESCs and their "throttle
+#: curve" settings bend the map, and a model with a straight one fits the bend with the strengths
+#: of the effects it has (tuning bench 104, map x**1.16: start level 1.12 and heating 2.85 for
+#: 0.65 and 1.12 true; calibrated, 0.60 and 0.86); it is an ESC constant, not an effect, so it is
+#: calibrated like Kv, within a factor 2 (never wider: a bend of x**2 is another ESC).
+CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp", "esc_throttle_exponent")
+LOG_RANGE_BASE = np.array([math.log(1000.0), math.log(1000.0), math.log(2.0)])
+#: Constants that, once the reference fit has set them, the measured data may not move: the throttle
+#: map is the ESC's setting, the same in every recording of a bench, and a model without an effect
+#: the measured data have bends it to stand in for that effect (randomized bench 0, rotor lag hidden:
+#: map x**1.84 with Kv 390000 rpm/V instead of any inertia). Without reference recordings it is
+#: calibrated on the measured data like Kv and CP.
+HELD_AFTER_REFERENCE = ("esc_throttle_exponent",)
 LOG_RANGE_EFFECT = math.log(3.0)
 #: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
 #: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
@@ -240,42 +252,64 @@ class Fit:
 
 def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: np.ndarray | float,
               free: Sequence[str] = (), max_nfev: int = 40) -> Fit:
-    """Kv and CP (log scale, within a factor exp(log_range) of ``anchor``) and the strengths of
-    the effects ``free`` fitted by least squares from ``model``'s values: an effect added earlier
-    gets its strength refitted with each later one, so it cannot keep standing in for a missing one."""
+    """The CALIBRATED constants (log scale, within a factor exp(log_range) of ``anchor``; a
+    constant with a zero range is held at ``model``'s value) and the strengths of the effects
+    ``free`` fitted by least squares from ``model``'s values: an effect added earlier gets its
+    strength refitted with each later one, so it cannot keep standing in for a missing one."""
     nc = len(CALIBRATED)
+    span = np.broadcast_to(np.asarray(log_range, dtype=float), (nc,)).copy()
+    live = np.flatnonzero(span > 0.0)
+    start = np.log(np.array([getattr(model.params, n) for n in CALIBRATED]) / anchor)
     # The solver's variables are the log constants shifted by 1: scipy's 'trf' starts with a trust
     # radius of ||x0|| (1 only when x0 is exactly 0), so a start a rounding error away from the
     # anchor (log 1e-16) would never move; shifted, the radius is ~1 wherever the start is.
-    shift = np.concatenate([np.ones(nc), np.zeros(len(free))])
+    shift = np.concatenate([np.ones(len(live)), np.zeros(len(free))])
 
     def unpack(z: np.ndarray) -> PhysicsModel:
         x = z - shift
-        m = model.with_constants(anchor * np.exp(x[:nc]))
-        for name, v in zip(free, x[nc:]):
+        logs = start.copy()
+        logs[live] = x[:len(live)]
+        m = model.with_constants(anchor * np.exp(logs))
+        for name, v in zip(free, x[len(live):]):
             m = m.with_effect(name, v)
         return m
 
-    span = np.broadcast_to(np.asarray(log_range, dtype=float), (nc,))
-    lo = np.concatenate([-span, np.zeros(len(free))]) + shift
-    hi = np.concatenate([span, [STRENGTH_MAX[n] for n in free]]) + shift
-    x0 = np.concatenate([np.log([getattr(model.params, n) for n in CALIBRATED] / anchor),
-                         [model.effects[n] for n in free]]) + shift
+    lo = np.concatenate([-span[live], np.zeros(len(free))]) + shift
+    hi = np.concatenate([span[live], [STRENGTH_MAX[n] for n in free]]) + shift
+    x0 = np.concatenate([start[live], [model.effects[n] for n in free]]) + shift
     res = least_squares(lambda z: data.residual(unpack(z)), np.clip(x0, lo, hi), bounds=(lo, hi),
-                        diff_step=1e-3, max_nfev=max_nfev)
-    # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds)
-    J = np.where(np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
-    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span.copy(), tuple(free))
+                        diff_step=difference_steps(model, len(live), free), max_nfev=max_nfev)
+    # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds),
+    # nor is a held constant (a zero column: the per-fold ridge solve ignores it)
+    J = np.zeros((len(res.fun), nc + len(free)))
+    J[:, np.concatenate([live, nc + np.arange(len(free))]).astype(int)] = np.where(
+        np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
+    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span, tuple(free))
 
 
-def calibrate_base(model: PhysicsModel, data: Data) -> Fit:
+def difference_steps(model: PhysicsModel, n_constants: int, free: Sequence[str]) -> np.ndarray:
+    """Relative finite-difference steps of ``calibrate``'s variables (scipy: step = rel * max(1, |x|)).
+    A dead time acts on the simulation's grid (``sim_step_s``): the residual is a staircase in the
+    input_delay strength, flat between grid steps, so its step spans one grid step; with 1e-3 the
+    slope is 0 and the dead time stays where it started (randomized bench 0: the CONFIG's 40 ms for
+    the bench's 58 ms, and the rotor-lag fit then took 0.19 of the true inertia to make up for it)."""
+    rel = np.full(n_constants + len(free), 1e-3)
+    for j, name in enumerate(free):
+        if name == "input_delay" and model.params.esc_input_delay_s > 0.0:
+            rel[n_constants + j] = max(1e-3, model.params.sim_step_s / model.params.esc_input_delay_s)
+    return rel
+
+
+def calibrate_base(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
     """The CONFIG's constants calibrated (wide range); later fits stay between the result and
-    the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean)."""
+    the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean). The
+    constants ``hold`` keep ``model``'s values (see HELD_AFTER_REFERENCE)."""
+    held = np.array([n in hold for n in CALIBRATED])
     config = np.log(np.array(list(model.constants().values())))
-    fit = calibrate(model, data, np.exp(config), LOG_RANGE_BASE)
+    fit = calibrate(model, data, np.exp(config), np.where(held, 0.0, LOG_RANGE_BASE))
     cal = np.log(np.array(list(fit.model.constants().values())))
-    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)),
-                               log_range=0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT)
+    span = np.minimum(0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT, LOG_RANGE_BASE)
+    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)), log_range=np.where(held, 0.0, span))
 
 
 def fit_reference(model: PhysicsModel, data: Data) -> Fit:
@@ -351,6 +385,8 @@ def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
     out = []
     stated = config.source is not None
     for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range):
+        if span == 0.0:
+            continue  # held, not fitted
         cfg = float(getattr(config.params, name))
         low, high = a * math.exp(-span), a * math.exp(span)
         if abs(abs(math.log(value / a)) - span) < 1e-3:

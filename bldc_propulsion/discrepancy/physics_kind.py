@@ -3,9 +3,10 @@
 Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``) talks to; the
 model, its CONFIG, calibration and scores are ``physics.py``:
 
-- step 1, reference first (with --reference): Kv, CP and the strengths of the CONFIG's effects
-  fitted on the reference recordings (``physics.fit_reference``); then Kv and CP calibrated on
-  the measured recordings (and, separately, on the reference);
+- step 1, reference first (with --reference): Kv, CP, the throttle exponent and the strengths of
+  the CONFIG's effects fitted on the reference recordings (``physics.fit_reference``); then Kv and
+  CP calibrated on the measured recordings (and, separately, on the reference), the exponent held
+  (``physics.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
 - step 3: every effect that is off in the model switched on (strength grid, constants
   recalibrated) and scored on held-out time blocks of the measured data and, separately
   calibrated, of the reference data. The score is on the measured data alone (the fit is), so
@@ -84,14 +85,15 @@ class PhysicsKind:
                      + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
             self.flags += flags
         progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
-        self.cur = ph.calibrate_base(model, self.meas_data)
-        self.cur_ref = ph.calibrate_base(model, self.ref_data) if self.ref_data else None
+        held = ph.HELD_AFTER_REFERENCE if self.ref_data else ()
+        self.cur = ph.calibrate_base(model, self.meas_data, held)
+        self.cur_ref = ph.calibrate_base(model, self.ref_data, held) if self.ref_data else None
         self._ref_pending: list[str] = []
         self.base = self.cur.model
         # (judged in the range it was calibrated in: calibrate_base hands on the narrower one of
         # the fits with effects)
         wide = dataclasses.replace(self.cur, anchor=np.array(list(model.constants().values())),
-                                   log_range=np.full(len(ph.CALIBRATED), ph.LOG_RANGE_BASE))
+                                   log_range=ph.LOG_RANGE_BASE.copy())
         self.flags += ph.fit_flags(wide, self.config, "calibration on the measured data")
         progress(f"  calibrated: {constants_text(self.base)} (holdout RMSE {self.uncal_rmse:.2f} rad/s uncalibrated)")
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,
