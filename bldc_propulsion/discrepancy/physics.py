@@ -312,12 +312,14 @@ def calibrate_base(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) ->
     return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)), log_range=np.where(held, 0.0, span))
 
 
-def fit_reference(model: PhysicsModel, data: Data) -> Fit:
-    """Reference first: Kv, CP (wide range) and the strength of every effect the CONFIG switches
-    on, fitted to the reference recordings: what the model needs to agree with its own data
-    (structural), before the measured data are asked what they need beyond it."""
+def fit_reference(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
+    """Reference first: the CALIBRATED constants (wide range; those in ``hold`` kept at
+    ``model``'s values) and the strength of every effect the CONFIG switches on, fitted to the
+    reference recordings: what the model needs to agree with its own data (structural), before
+    the measured data are asked what they need beyond it."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0)
-    return calibrate(model, data, np.array(list(model.constants().values())), LOG_RANGE_BASE, on, max_nfev=60)
+    span = np.where([n in hold for n in CALIBRATED], 0.0, LOG_RANGE_BASE)
+    return calibrate(model, data, np.array(list(model.constants().values())), span, on, max_nfev=60)
 
 
 #: A fitted constant (Kv, CP) or a strength the CONFIG sets is implausible when it ends more than this
