@@ -14,11 +14,15 @@ the holdout RMSE reduction and the fitted strength vs the truth in the nominal m
 (``random_bench.model_strength``), median [min, max] over seeds.
 
     PYTHONPATH=. python experiments/physics_confusion.py --seeds 5 --jobs 2
+
+``--oracle`` gives the model the drawn bench's constants instead of the nominal ones: what the
+workflow reaches with a perfect CONFIG (a ceiling for the reductions).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import tempfile
@@ -34,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
 
 
-def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str) -> dict:
+def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str, oracle: bool = False) -> dict:
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
     from bldc_propulsion.discrepancy.workflow import run_physics_workflow
@@ -61,7 +65,10 @@ def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str)
     ref = bags(ref_spec, "r", 4000, off)
     meas = bags(meas_spec, "m", 5000, on)
     hold = bags(hold_spec, "h", 6000, on)
-    model = ph.PhysicsModel(ph.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
+    params = ph.load_config(None).params
+    if oracle and bench is not None:  # the drawn bench's every constant as the CONFIG: a ceiling
+        params = dataclasses.replace(bench, sim_step_s=params.sim_step_s)
+    model = ph.PhysicsModel(params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
     t0 = time.perf_counter()
     data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
     fitted = data["evidence"].get(effect, {}).get("fitted_parameters", {}) if not control else {}
@@ -112,6 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--effects", default=",".join(c.EFFECTS))
+    ap.add_argument("--oracle", action="store_true",
+                    help="the drawn bench's constants as the CONFIG instead of the nominal ones (what a perfect CONFIG would give)")
     args = ap.parse_args(argv)
     effects = [e for e in args.effects.split(",") if e]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -120,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             for e, ctl in [*((e, False) for e in effects), (c.EFFECTS[s % len(c.EFFECTS)], True)]]
     rows = []
     with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = [pool.submit(one_run, e, s, ctl, not args.nominal_bench, tmp) for e, s, ctl in jobs]
+        futs = [pool.submit(one_run, e, s, ctl, not args.nominal_bench, tmp, args.oracle) for e, s, ctl in jobs]
         for f in futs:
             r = f.result()
             rows.append(r)

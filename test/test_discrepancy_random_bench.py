@@ -91,7 +91,7 @@ def test_control_on_a_drawn_bench_names_nothing(bags):
 def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
     """Seed 101's heating control of experiments/physics_confusion.py (the same recordings): no
     heating anywhere, the model without it, long loads measured. Before the throttle map was
-    calibrated (its bench bends it, x^1.15), a thermal state fitted the misfit as a slow drift and
+    calibrated (its bench bends it, x^1.15) and the dead time fitted, a thermal state fitted the misfit as a slow drift and
     improved the holdout (3.3 -> 3.0 rad/s, accepted on its own), and only the identification kept
     heating out. Now the held-out score rejects it outright; the identification, the safeguard
     for a drift the model lacks (a second pack RC branch, a drifting sensor), must still say the
