@@ -300,16 +300,21 @@ def difference_steps(model: PhysicsModel, n_constants: int, free: Sequence[str])
     return rel
 
 
+def base_range(hold: Sequence[str] = ()) -> np.ndarray:
+    """LOG_RANGE_BASE per CALIBRATED constant, 0 (held) for those in ``hold``."""
+    return np.where([n in hold for n in CALIBRATED], 0.0, LOG_RANGE_BASE)
+
+
 def calibrate_base(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
     """The CONFIG's constants calibrated (wide range); later fits stay between the result and
     the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean). The
     constants ``hold`` keep ``model``'s values (see HELD_AFTER_REFERENCE)."""
-    held = np.array([n in hold for n in CALIBRATED])
+    wide = base_range(hold)
     config = np.log(np.array(list(model.constants().values())))
-    fit = calibrate(model, data, np.exp(config), np.where(held, 0.0, LOG_RANGE_BASE))
+    fit = calibrate(model, data, np.exp(config), wide)
     cal = np.log(np.array(list(fit.model.constants().values())))
-    span = np.minimum(0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT, LOG_RANGE_BASE)
-    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)), log_range=np.where(held, 0.0, span))
+    span = np.minimum(0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT, wide)
+    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)), log_range=span)
 
 
 def fit_reference(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
@@ -318,8 +323,7 @@ def fit_reference(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> 
     reference recordings: what the model needs to agree with its own data (structural), before
     the measured data are asked what they need beyond it."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0)
-    span = np.where([n in hold for n in CALIBRATED], 0.0, LOG_RANGE_BASE)
-    return calibrate(model, data, np.array(list(model.constants().values())), span, on, max_nfev=60)
+    return calibrate(model, data, np.array(list(model.constants().values())), base_range(hold), on, max_nfev=60)
 
 
 #: A fitted constant (Kv, CP) or a strength the CONFIG sets is implausible when it ends more than this
