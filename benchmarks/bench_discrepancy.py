@@ -44,7 +44,7 @@ def report(what: str, proc: subprocess.CompletedProcess, elapsed: float) -> None
 def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         model = Path(tmp) / "model_no_voltage.npz"
-        cli("train", str(BAGS / "staircase"), str(BAGS / "triangle"), "--validation", str(BAGS / "validation"),
+        cli("train", str(BAGS / "staircase"), str(BAGS / "triangle"), "--validation", str(BAGS / "validation_full"),
             "-o", str(model), "--inputs", "pwm,pwm_filtered")
         proc, t = cli("discrepancy", "--model", str(model), "--measured", str(BAGS / "discharge_a"),
                       "--holdout", str(BAGS / "discharge_b"), "--json")

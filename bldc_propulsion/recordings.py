@@ -23,7 +23,7 @@ from . import contract as c
 from .bagio import Recording, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.features import zero_order_hold
-from .core.tachometer import TachometerConfig, TachometerDecoder
+from .core.tachometer import STARTING, TachometerConfig, TachometerDecoder
 from .errors import BadInputError, BagError
 
 #: Grid on which features and targets are aligned: 100 Hz resolves the rotor's ~0.1 s time
@@ -70,31 +70,54 @@ def recording_sha256(path: str | os.PathLike[str]) -> str:
     return h.hexdigest()
 
 
+#: How far before a spin-up's first measured revolution a decoded 0 is still kept, in durations
+#: of that revolution. The rotor left rest before the revolution's first edge: the blade had to
+#: reach the beam, 0 to half a revolution away with two blades. From rest at a constant
+#: acceleration that angle takes 0 to 1.37 times the first revolution's time (0.81 for a quarter
+#: revolution, the middle); the speed is interpolated from the last kept 0 to the first revolution.
+SPIN_UP_MARGIN_REVOLUTIONS = 1.0
+
+
 def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Speed samples (t, rad/s) from ``tachometer/adc`` through the tachometer core.
 
     Each 4-edge estimate is the mean speed over the last revolution, so it is placed at the
     middle of that revolution (removes the half-revolution lag: 60 ms at 50 rad/s). While the
-    core reports no signal (rotor stopped), zeros are placed at the batch times.
+    core reports no signal and no edge arrives (rotor at rest), zeros are placed at the batch
+    times. A 0 is not placed once edges arrive before the first revolution is complete (the
+    rotor is turning, its speed is not yet known), nor, seen from the whole recording, shortly
+    before a spin-up's first revolution (``SPIN_UP_MARGIN_REVOLUTIONS``): there the rotor was
+    already turning, and a 0 would be a wrong measurement of up to the speed it reached.
     """
     dec = TachometerDecoder(config or TachometerConfig())
     times: list[np.ndarray] = []
     values: list[np.ndarray] = []
+    zeros: list[float] = []
     for t_batch, samples in rec.tachometer():
         out = dec.process_batch(t_batch, samples)
         if len(out.speed):
             # speed k spans one revolution ending at its edge: centre = end - pi/speed
-            mid = out.edge_t[-len(out.speed):] - np.pi / np.maximum(out.speed, 1e-9)
-            times.append(mid)
+            revolution = 2.0 * np.pi / np.maximum(out.speed, 1e-9)
+            end = out.edge_t[-len(out.speed):]
+            if zeros:  # the first revolution after rest: no 0 from shortly before it
+                keep_until = end[0] - (1.0 + SPIN_UP_MARGIN_REVOLUTIONS) * revolution[0]
+                while zeros and zeros[-1] > keep_until:
+                    zeros.pop()
+                times.append(np.asarray(zeros))
+                values.append(np.zeros(len(zeros)))
+                zeros = []
+            times.append(end - 0.5 * revolution)
             values.append(np.asarray(out.speed, dtype=float))
-        elif out.speed_now == 0.0 and not out.signal_ok:
-            times.append(np.array([t_batch]))
-            values.append(np.array([0.0]))
+        elif out.speed_now == 0.0 and not out.signal_ok and not len(out.all_edge_t) \
+                and out.state != STARTING:
+            zeros.append(float(t_batch))
+    times.append(np.asarray(zeros))
+    values.append(np.zeros(len(zeros)))
     _check_clock(rec.path, c.TOPIC_TACH_ADC, dec.time_resyncs + dec.rejected_batches, dec.batches)
-    if not times:
-        return np.zeros(0), np.zeros(0)
     t = np.concatenate(times)
     v = np.concatenate(values)
+    if not len(t):
+        return np.zeros(0), np.zeros(0)
     order = np.argsort(t, kind="stable")
     return t[order], v[order]
 

@@ -38,8 +38,8 @@ step "3b. the three kinds side by side on the same unseen recordings (table; one
 $BP evaluate --model $OUT/model.npz --model $OUT/model_physics.npz --model $OUT/model_hybrid.npz \
     bags/chirp bags/discharge_a --report $OUT/report_compare --force | sed -n '/^side by side/,$p'
 
-step "4. the paper's question: a model WITHOUT battery voltage, trained on full packs, measured on a half-empty one"
-$BP train bags/staircase bags/triangle --validation bags/validation -o $OUT/model_no_voltage.npz \
+step "4. the paper's question: a model WITHOUT battery voltage, trained (and validated) on full packs, measured on a half-empty one"
+$BP train bags/staircase bags/triangle --validation bags/validation_full -o $OUT/model_no_voltage.npz \
     --inputs pwm,pwm_filtered --force 2>$OUT/train_no_voltage.log
 $BP discrepancy --model $OUT/model_no_voltage.npz --measured bags/discharge_a \
     --holdout bags/discharge_b --max-effects 1 -o $OUT/model_found.npz --report $OUT/report_discrepancy --force

@@ -14,6 +14,8 @@ $BP --profile triangle     --duration 30 --seed 2 --soc 0.9  -o bags/triangle
 $BP --profile staircase    --duration 30 --seed 3 --soc 0.6  -o bags/staircase_half
 $BP --profile triangle     --duration 30 --seed 4 --soc 0.45 -o bags/triangle_half
 $BP --profile random_steps --duration 25 --seed 5 --soc 0.75 -o bags/validation
+# validation for a model trained on the full packs alone (demo step 4): like its training data
+$BP --profile staircase    --duration 30 --seed 9 --soc 0.95 -o bags/validation_full
 $BP --profile chirp        --duration 50 --seed 6 --soc 0.85 -o bags/chirp
 # the paper's Figs. 3-4: a constant command on a half-empty pack; a holdout at another charge
 $BP --profile constant     --duration 35 --seed 7 --soc 0.55 -o bags/discharge_a

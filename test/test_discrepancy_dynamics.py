@@ -67,6 +67,15 @@ def test_the_effect_that_changed_is_named(bags, effect, ref_s, meas_s, kind, ben
     meas = _signals(bags, "m", kind, (7200, 7201), effect, meas_s, bench_seed)
     name, why, steps = _which(meas, ref)
     assert name == effect, (why, steps.as_dict())
+    if effect in ("spin_down_asymmetry", "esc_deadband"):
+        # an ESC that does not brake coasts also where it drives (falls ending above 0.061, above
+        # every measured start level of these cases: 0.058 at most); a raised start level does not
+        # (the start level cases' low steps have few such falls: no evidence either way)
+        driven = idf.step_dynamics(meas, ref, driven_above=0.061).spin_down_driven
+        if effect == "spin_down_asymmetry":
+            assert driven is not None and driven.changed, driven
+        else:
+            assert driven is None or not driven.changed, driven
 
 
 @pytest.mark.parametrize("kind,bench_seed", [("steps", 120), ("updown", 121), ("lowsteps", 122)])
@@ -90,6 +99,34 @@ def test_dead_time_is_read_from_the_onset_not_traded_for_a_lag(bags):
     ch = idf.compare_steps(heavy, light)
     assert ch.spin_up is not None and ch.spin_up.change > 1.6
     assert ch.dead_time is not None and ch.dead_time.change < 0.025
+
+
+def test_a_fitted_start_level_rise_yields_to_a_lag_the_steps_show():
+    """The whole-recording fit reads the start level from how late the rotor leaves rest, which a
+    heavier rotor or a dead time also delays (seed 0's hidden rotor lag and dead time both gave a
+    start level 0.002 up). The steps' evidence decides first; the fitted start level still names
+    esc_deadband when the steps show no lag or onset change, and before a slower spin-down unless
+    the falling steps that end where the ESC drives are slower too; direct evidence (a held level
+    with no drive) comes before everything."""
+    meas, ref = idf.Dynamics(0.04, 0.1, 0.2, 0.0, 0.056), idf.Dynamics(0.04, 0.1, 0.2, 0.0, 0.054)
+
+    def change(ratio: float, margin: float) -> idf.StepChange:
+        return idf.StepChange(ratio, 1.0, ratio, 1e-5 if ratio > margin else 0.5, 12, 12, margin)
+
+    lag = idf.StepDynamics(change(0.0, 0.01), change(3.0, idf.TAU_MIN_RATIO), change(1.0, idf.TAU_MIN_RATIO))
+    assert idf.which_dynamic(meas, ref, steps=lag)[0] == "rotor_lag"
+    quiet = idf.StepDynamics(change(0.0, 0.01), change(1.0, idf.TAU_MIN_RATIO), change(1.0, idf.TAU_MIN_RATIO))
+    assert idf.which_dynamic(meas, ref, steps=quiet)[0] == "esc_deadband"
+    coast = idf.StepDynamics(change(0.0, 0.01), change(1.0, idf.TAU_MIN_RATIO), change(3.0, idf.TAU_MIN_RATIO))
+    assert idf.which_dynamic(meas, ref, steps=coast)[0] == "esc_deadband"  # a coast to zero: no drive
+    # ... unless the falling steps that end above the fitted start level coast as well: no braking
+    coast.spin_down_driven = change(3.0, idf.TAU_MIN_RATIO)
+    assert idf.which_dynamic(meas, ref, steps=coast)[0] == "spin_down_asymmetry"
+    coast.spin_down_driven = change(1.0, idf.TAU_MIN_RATIO)
+    assert idf.which_dynamic(meas, ref, steps=coast)[0] == "esc_deadband"
+    direct = idf.StepDynamics(change(0.0, 0.01), change(3.0, idf.TAU_MIN_RATIO), None, (True, "no drive at 0.057"))
+    assert idf.which_dynamic(ref, ref, steps=direct) == ("esc_deadband", "no drive at 0.057")
+    assert idf.which_dynamic(ref, ref, steps=quiet)[0] is None
 
 
 def test_clustered_standard_error_of_a_mean_by_hand():

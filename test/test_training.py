@@ -69,6 +69,30 @@ def test_decoded_speed_and_filtered_voltage_match_truth(bags):
     assert np.allclose(np.diff(sig.t), 0.01)
 
 
+def test_decoded_speed_has_no_zero_while_a_spin_up_turns(tmp_path):
+    """From rest the first speed needs a full revolution; until then the rotor is turning at up
+    to ~180 rad/s. A 0 placed at the batches in between (as before) is a wrong measurement:
+    the decoded speed must follow the simulator's truth through every spin-up from rest."""
+    t = np.arange(0.0, 14.0, 1.0 / c.PWM_FRAME_HZ)
+    level = np.full(len(t), c.PWM_STOP)
+    starts = (1.0, 5.0, 9.0)
+    for t0, lev in zip(starts, (0.09, 0.075, 0.10)):
+        level[(t >= t0) & (t < t0 + 2.0)] = lev
+    res = simulate("steps", 14.0, 3, effects=BRAKING, pwm=(t, level))
+    write_sim_bag(res, tmp_path / "starts")
+    sig = load_signals(tmp_path / "starts")
+    truth = np.interp(sig.t, res.truth_t, res.truth_speed)
+    for t0 in starts:
+        near = (sig.t >= t0) & (sig.t < t0 + 0.4)
+        assert truth[near].max() > 150.0
+        err = sig.speed[near] - truth[near]
+        # before: 0 for ~0.1 s while the truth rose to 150-180 rad/s (RMSE ~60 rad/s)
+        assert np.sqrt(np.mean(err**2)) < 15.0, (t0, np.round(err, 1))
+        assert np.all(sig.speed[near & (truth > 60.0)] > 0.4 * truth[near & (truth > 60.0)])
+    rest = truth < 1e-6
+    assert rest.sum() > 100 and np.all(sig.speed[rest & (sig.t < 0.95)] == 0.0)
+
+
 def test_training_fits_and_stops_on_validation(trained):
     h = trained.lm.history
     best = trained.lm.best_epoch

@@ -77,10 +77,20 @@ class Candidate:
     #: effect that acts on the command before the ESC (a start level) acts on everything the model
     #: derives from the command, so the network keeps its map with the mapped command fed in
     replaces: dict[str, str] = field(default_factory=dict)
+    #: how a replaced input's values follow from its replacement's where the two agree (params ->
+    #: (a, b): base = a * new + b): the base model's ``pwm`` is the scaled command (0 at stop, 1
+    #: at full), the mapped inputs are PWM levels, so the carried weights need the conversion
+    carried_as: Callable[[Params], tuple[float, float]] | None = None
     #: the reference recordings as the added input must see them when the effect's parameter was
     #: identified separately on the reference (signal, measured params, reference params): the
     #: network then learns one map from the input to the speed, not a compromise of two
     on_reference: Callable[[Signals, Params, Params], Signals] | None = None
+
+
+def _scaled_from_level(offset: float) -> tuple[float, float]:
+    """(a, b) with scale_pwm(level + offset) = a * level + b (the model's scaled command)."""
+    span = c.PWM_FULL - c.PWM_STOP
+    return 1.0 / span, (offset - c.PWM_STOP) / span
 
 
 def _lag_columns(ctx: Context, params: Params) -> np.ndarray:
@@ -169,6 +179,7 @@ CANDIDATES: dict[str, Candidate] = {
         _delay_columns,
         lambda p: f"the command delayed by a dead time of {_pct(p['delay_s'])}",
         replaces={c.INPUT_PWM: ef.PWM_DELAYED, c.INPUT_PWM_FILTERED: ef.PWM_DELAYED_FILTERED},
+        carried_as=lambda p: _scaled_from_level(0.0),
         on_reference=_reference_at_own_dead_time,
     ),
     "esc_deadband": Candidate(
@@ -177,6 +188,7 @@ CANDIDATES: dict[str, Candidate] = {
         _deadband_columns,
         lambda p: f"no drive below an ESC start level of PWM {p['threshold']:.3f}",
         replaces={c.INPUT_PWM: ef.PWM_ABOVE_START, c.INPUT_PWM_FILTERED: ef.PWM_ABOVE_START_FILTERED},
+        carried_as=lambda p: _scaled_from_level(float(p["threshold"])),  # above the start level
         on_reference=_reference_at_own_start_level,
     ),
     "spin_down_asymmetry": Candidate(

@@ -288,17 +288,21 @@ class StepDynamics:
     spin_up: StepChange | None  #: rising steps' time constant / the reference's at similar speeds
     spin_down: StepChange | None  #: falling steps' time constant / the reference's at similar speeds
     start_level: tuple[bool, str] = (False, "")  #: ``start_level_rose`` on the holds
+    #: ``spin_down`` from the measured falling steps that end where the ESC still drives (above
+    #: the fitted start level): None when not asked for or too few such steps
+    spin_down_driven: StepChange | None = None
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {k: (v.as_dict() if v is not None else None) for k, v in
                                (("dead_time_s", self.dead_time), ("spin_up_time_constant_ratio", self.spin_up),
-                                ("spin_down_time_constant_ratio", self.spin_down))}
+                                ("spin_down_time_constant_ratio", self.spin_down),
+                                ("spin_down_driven_time_constant_ratio", self.spin_down_driven))}
         out["start_level_rose"] = {"changed": self.start_level[0], "because": self.start_level[1]}
         return out
 
 
 def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResponse],
-                  resolution_s: float = 0.01) -> StepDynamics:
+                  resolution_s: float = 0.01, driven_above: float | None = None) -> StepDynamics:
     """The step responses of the two sets compared quantity by quantity:
 
     - dead time: the rising steps' onsets (a falling step's onset depends on braking), a change
@@ -307,7 +311,10 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
       at similar speeds (1 = unchanged; the reference's own: leave-one-out), up by
       TAU_MIN_RATIO;
     - spin-down: the same for the falling steps. A heavier rotor slows both; an ESC that does
-      not brake only the falling ones (``which_dynamic`` takes a lag first)."""
+      not brake only the falling ones (``which_dynamic`` takes a lag first);
+    - with ``driven_above`` (a PWM level), the spin-down again from the measured falling steps
+      that end above it: an ESC that does not brake coasts there too, a raised start level only
+      below it."""
     mu = [x for x in measured if x.rising]
     md = [x for x in measured if not x.rising]
     ru = [x for x in reference if x.rising]
@@ -315,8 +322,13 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
     dead = _compare(np.array([x.dead_time_s for x in mu]), np.array([x.dead_time_s for x in ru]), False,
                     resolution_s)
     up = _compare(_relative_tau(mu, ru), _relative_tau(ru, ru, True), True, TAU_MIN_RATIO)
-    down = _compare(_relative_tau(md, rd), _relative_tau(rd, rd, True), True, TAU_MIN_RATIO)
-    return StepDynamics(dead, up, down)
+    ref_down = _relative_tau(rd, rd, True)
+    down = _compare(_relative_tau(md, rd), ref_down, True, TAU_MIN_RATIO)
+    driven = None
+    if driven_above is not None:
+        driven = _compare(_relative_tau([x for x in md if x.pwm_to >= driven_above], rd), ref_down, True,
+                          TAU_MIN_RATIO)
+    return StepDynamics(dead, up, down, spin_down_driven=driven)
 
 # --- the ESC start level from where the rotor gets no drive --------------------------------------
 #: A measured hold "gets no drive" when the rotor ends it (not rising) below NO_DRIVE_FRACTION of
@@ -391,12 +403,14 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                   f"its rotor spins from PWM {lv_r[0]:.4f})")
 
 
-def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals]) -> StepDynamics:
+def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
+                  driven_above: float | None = None) -> StepDynamics:
     """What changed from the reference to the measured recordings, read from their command steps
     and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``)."""
     dts = [np.diff(s.t) for s in measured if len(s.t) > 1]
     grid = float(np.median(np.concatenate(dts))) if dts else 0.01
-    out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid)
+    out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid,
+                        driven_above=driven_above)
     out.start_level = start_level_rose(holds(measured), holds(reference))
     return out
 
@@ -524,7 +538,9 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
     up by 0.1 s more than the spin-up one.
     ESC start level: the measured rotor gets no drive at a held level where the reference's
     spins (``start_level_rose``), or the fitted start level (when identified, else PWM_STOP on both)
-    up by START_LEVEL_MARGIN."""
+    up by START_LEVEL_MARGIN; with ``steps``, the fitted one only after a lag and a dead time
+    (it stands in for either: all three delay the rotor leaving rest), and after the spin-down
+    when the falling steps that end where the ESC still drives are slower too."""
     if ref is None:
         return None, "no reference data to compare the identified dynamics with"
     changes = {
@@ -559,18 +575,30 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
             # down with no drive below a raised start level, or other speeds, for a change)
             changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
                              else (-1.0, 0.0, ""))
-    changes["esc_deadband"] = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
-                               f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
-                               f"{ref.start_level:.3f} on the reference (with the identified dead time and "
-                               f"spin-up/spin-down time constants)")
-    if steps is not None and steps.start_level[0]:
-        # the direct evidence: no drive where the reference's rotor has it
-        changes["esc_deadband"] = (1.0, 0.0, steps.start_level[1])
-    # in order of precedence: a start level that rose explains a coast to zero (no drive) and a
-    # compressed throttle map, which the lags would otherwise take for a slower spin-down; a
-    # heavier rotor also delays the step response's apparent onset, so a lag comes before a
-    # dead time; the asymmetry is measured against the set's own rising steps
-    for name in ("esc_deadband", "rotor_lag", "input_delay", "spin_down_asymmetry"):
+    fitted_start = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
+                    f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
+                    f"{ref.start_level:.3f} on the reference (with the identified dead time and "
+                    f"spin-up/spin-down time constants)")
+    changes["esc_deadband"] = fitted_start
+    order = ["esc_deadband", "rotor_lag", "input_delay", "spin_down_asymmetry"]
+    if steps is not None:
+        if steps.start_level[0]:
+            # the direct evidence: no drive where the reference's rotor has it
+            changes["esc_deadband"] = (1.0, 0.0, steps.start_level[1])
+        else:
+            # the fitted start level is read from how late the rotor leaves rest, which a dead time
+            # or a lag between the fit's grid points also delays: where the step responses show a
+            # longer time constant at the same speed or a later onset, those decide first. A
+            # rotor that coasts also where the ESC drives (falling steps ending above the fitted
+            # start level) does not brake: that is no start level either
+            order = ["rotor_lag", "input_delay", "esc_deadband", "spin_down_asymmetry"]
+            if steps.spin_down_driven is not None and steps.spin_down_driven.changed:
+                order = ["rotor_lag", "input_delay", "spin_down_asymmetry", "esc_deadband"]
+    # the default order of precedence: a start level that rose explains a coast to zero (no
+    # drive) and a compressed throttle map, which the lags would otherwise take for a slower
+    # spin-down; a heavier rotor also delays the step response's apparent onset, so a lag comes
+    # before a dead time; the asymmetry is measured against the set's own rising steps
+    for name in order:
         if name in exclude:
             continue
         change, margin, why = changes[name]
@@ -654,7 +682,8 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
             for dy, sigs in zip(dyn, (measured, reference)):
                 dy.start_level = identify_start_level(sigs, dy)
         cache["dynamics"] = dyn
-        cache["steps"] = step_dynamics(measured, reference)
+        driven = dyn[0].start_level + START_LEVEL_MARGIN if "esc_deadband" in ev else None
+        cache["steps"] = step_dynamics(measured, reference, driven_above=driven)
     m, r = cache["dynamics"]
     steps: StepDynamics = cache["steps"]
     choice, why = which_dynamic(m, r, exclude=[*named, *(set(c.EFFECTS) - set(offered))], steps=steps)

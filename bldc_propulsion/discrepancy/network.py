@@ -13,7 +13,8 @@ Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``)
   measured recordings, early-stopped on the measured recordings' last part, starting from the
   base model's own weights (the new input's at 0). An effect that maps the command before the
   ESC (the start level, the dead time) replaces the model's command inputs by the mapped ones,
-  weights carried over, and the reference recordings are mapped at their own identified value;
+  weights carried over in the new input's units, and the reference recordings are mapped at their
+  own identified value;
 - step 5 without --holdout: judged on the measured recordings' early-stopping tail (never
   trained on), else on step 3's held-out blocks.
 """
@@ -179,16 +180,22 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
     }
     if not warm:
         return train_model(train, val, **kw).model
+    units = {old: cand.carried_as(params or {}) for old in rename} if cand.carried_as else None
     phi0 = warm_start_weights(model, inputs, train, {c.INPUT_PWM_FILTERED: {"tau_s": float(model.pwm_tau_s)},
-                                                     **feature_params}, rename)
+                                                     **feature_params}, rename, units)
     return train_model(train, val, phi0=phi0, **kw).model
 
 
 def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signals],
-                       params: dict[str, dict[str, float]], rename: dict[str, str] | None = None) -> np.ndarray:
+                       params: dict[str, dict[str, float]], rename: dict[str, str] | None = None,
+                       units: dict[str, tuple[float, float]] | None = None) -> np.ndarray:
     """The base network's weights re-expressed in the scaling train_model will use for ``train``,
     with zero weights for the added input(s): the retraining starts from the model as it was.
-    ``rename`` maps a base input to the input that replaces it (its weights carry over).
+    ``rename`` maps a base input to the input that replaces it (its weights carry over);
+    ``units[base] = (a, b)`` when the base input is ``a * replacement + b`` (other units), so
+    the network starts as the same function of the same physical command (without it, a
+    dead time's PWM levels fed to weights made for the scaled command started the retraining
+    from a network hundreds of rad/s off, which it did not always recover from).
 
     Starting there (not from random weights) keeps what the model knew where the new data say
     nothing: a network retrained from scratch on a discharge recorded at one command level
@@ -206,11 +213,14 @@ def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signal
     H = W1o.shape[0]
     W1 = np.zeros((H, len(inputs)))
     b1 = b1o.copy()
-    rename = rename or {}
+    rename, units = rename or {}, units or {}
     for jo, name in enumerate(model.input_names):
         j = list(inputs).index(rename.get(name, name))
-        a = span_new[j] / span_o[jo]
-        cst = (2.0 * (lo_new[j] - lo_o[jo]) + span_new[j]) / span_o[jo] - 1.0
+        # base raw = ua * new raw + ub, new raw = lo_new + (x_new + 1) span_new / 2, and the base
+        # network sees 2 (base raw - lo_o) / span_o - 1 = a * x_new + cst
+        ua, ub = units.get(name, (1.0, 0.0))
+        a = ua * span_new[j] / span_o[jo]
+        cst = (2.0 * (ua * lo_new[j] + ub - lo_o[jo]) + ua * span_new[j]) / span_o[jo] - 1.0
         W1[:, j] = W1o[:, jo] * a
         b1 += W1o[:, jo] * cst
     sy_o = float(model.output_max) - float(model.output_min)
