@@ -53,7 +53,7 @@ def one(effect: str, seed: int) -> dict:
         m.start_level = idf.identify_start_level(meas, m)
         r.start_level = idf.identify_start_level(ref, r)
         heat = idf.identify_heating(meas, ref)
-        steps = idf.step_dynamics(meas, ref, driven_above=m.start_level + idf.START_LEVEL_MARGIN)
+        steps = idf.step_dynamics(meas, ref, start_level=m.start_level)
     # as refine applies them: heating first (its response to the thermal state), then the dynamics
     choice, why = ("motor_heating", heat.describe()) if heat.changed else idf.which_dynamic(m, r, steps=steps)
     return {"effect": effect, "seed": seed, "strength": strength, "choice": choice or "(nothing)", "why": why,

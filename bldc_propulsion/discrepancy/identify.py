@@ -404,13 +404,16 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
 
 
 def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
-                  driven_above: float | None = None) -> StepDynamics:
+                  start_level: float | None = None) -> StepDynamics:
     """What changed from the reference to the measured recordings, read from their command steps
-    and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``)."""
+    and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``). With the
+    measured data's fitted ``start_level``, the spin-down is compared again on the falling steps
+    that end where the ESC still drives: START_LEVEL_MARGIN above it."""
     dts = [np.diff(s.t) for s in measured if len(s.t) > 1]
     grid = float(np.median(np.concatenate(dts))) if dts else 0.01
+    driven = start_level + START_LEVEL_MARGIN if start_level is not None else None
     out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid,
-                        driven_above=driven_above)
+                        driven_above=driven)
     out.start_level = start_level_rose(holds(measured), holds(reference))
     return out
 
@@ -575,11 +578,10 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
             # down with no drive below a raised start level, or other speeds, for a change)
             changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
                              else (-1.0, 0.0, ""))
-    fitted_start = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
-                    f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
-                    f"{ref.start_level:.3f} on the reference (with the identified dead time and "
-                    f"spin-up/spin-down time constants)")
-    changes["esc_deadband"] = fitted_start
+    changes["esc_deadband"] = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
+                               f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
+                               f"{ref.start_level:.3f} on the reference (with the identified dead time and "
+                               f"spin-up/spin-down time constants)")
     order = ["esc_deadband", "rotor_lag", "input_delay", "spin_down_asymmetry"]
     if steps is not None:
         if steps.start_level[0]:
@@ -682,8 +684,8 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
             for dy, sigs in zip(dyn, (measured, reference)):
                 dy.start_level = identify_start_level(sigs, dy)
         cache["dynamics"] = dyn
-        driven = dyn[0].start_level + START_LEVEL_MARGIN if "esc_deadband" in ev else None
-        cache["steps"] = step_dynamics(measured, reference, driven_above=driven)
+        cache["steps"] = step_dynamics(measured, reference,
+                                       start_level=dyn[0].start_level if "esc_deadband" in ev else None)
     m, r = cache["dynamics"]
     steps: StepDynamics = cache["steps"]
     choice, why = which_dynamic(m, r, exclude=[*named, *(set(c.EFFECTS) - set(offered))], steps=steps)
