@@ -91,6 +91,10 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"    {k:5s} {x.measured:.3f} vs {x.reference:.3f} -> {x.change:.2f} p={x.p_value:.2g} "
                               f"n={x.n_measured}/{x.n_reference}{' CHANGED' if x.changed else ''}")
                 print(f"    start {st.start_level}")
+                sh = st.start_level_shift
+                if sh is not None:
+                    print(f"    shift {sh.reference:.4f}->{sh.measured:.4f} F={sh.f_stat:.1f} p={sh.p_value:.2g} "
+                          f"n={sh.n_measured}/{sh.n_reference}{' CHANGED' if sh.changed else ''}")
     print(f"right: {right}/{len(rows)}")
     return 0
 

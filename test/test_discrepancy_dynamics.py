@@ -37,8 +37,9 @@ CASES = [
     ("rotor_lag", 1.0, 2.0, "steps", 113),
     ("spin_down_asymmetry", 0.0, 0.5, "updown", 114),
     ("spin_down_asymmetry", 0.0, 1.0, "updown", 115),
-    # (a start level that moves less, 0.001-0.004 PWM at 0.5x, is left to the fitted start level:
-    # few held levels fall between the two)
+    # a start level that moves 0.001-0.004 PWM (0.5x): few held levels fall between the two, the
+    # settled speeds above it tell (start_level_shift)
+    ("esc_deadband", 0.0, 0.5, "lowsteps", 118),
     ("esc_deadband", 0.0, 1.0, "lowsteps", 116),
     ("esc_deadband", 1.0, 2.0, "lowsteps", 117),
 ]
@@ -107,7 +108,8 @@ def test_a_fitted_start_level_rise_yields_to_a_lag_the_steps_show():
     start level 0.002 up). The steps' evidence decides first; the fitted start level still names
     esc_deadband when the steps show no lag or onset change, and before a slower spin-down unless
     the falling steps that end where the ESC drives are slower too; direct evidence (a held level
-    with no drive) comes before everything."""
+    with no drive) comes before everything, and the settled holds' shift (``start_level_shift``)
+    replaces the fitted start level where the sets have enough of them."""
     meas, ref = idf.Dynamics(0.04, 0.1, 0.2, 0.0, 0.056), idf.Dynamics(0.04, 0.1, 0.2, 0.0, 0.054)
 
     def change(ratio: float, margin: float) -> idf.StepChange:
@@ -127,6 +129,45 @@ def test_a_fitted_start_level_rise_yields_to_a_lag_the_steps_show():
     direct = idf.StepDynamics(change(0.0, 0.01), change(3.0, idf.TAU_MIN_RATIO), None, (True, "no drive at 0.057"))
     assert idf.which_dynamic(ref, ref, steps=direct) == ("esc_deadband", "no drive at 0.057")
     assert idf.which_dynamic(ref, ref, steps=quiet)[0] is None
+    # with enough settled holds, the static map's shift decides instead of the fitted start level:
+    # no shift is no start level (the fitted rise, as a hotter winding's, is not asked), a shift
+    # is one whatever the steps show (settled speeds are not moved by a lag or a dead time)
+    quiet.start_level_shift = idf.StartLevelShift(0.054, 0.054, 0.0, 1.0, 12, 12)
+    assert idf.which_dynamic(meas, ref, steps=quiet)[0] is None
+    lag.start_level_shift = idf.StartLevelShift(0.056, 0.053, 500.0, 1e-20, 12, 12)
+    assert idf.which_dynamic(ref, ref, steps=lag)[0] == "esc_deadband"
+    lag.start_level_shift = idf.StartLevelShift(0.0535, 0.053, 50.0, 1e-6, 12, 12)  # one grid step
+    assert idf.which_dynamic(ref, ref, steps=lag)[0] == "rotor_lag"
+
+
+def _holds(start: float, seed: int, n: int = 30, heating: float = 0.0) -> idf.Holds:
+    """Settled holds of a known static map: speed = (V / 11.5) (900 d - 150 d^2) - heating theta d
+    rad/s with d = throttle(level, start) (0 below the start level: the rotor at rest), 1 rad/s
+    noise, supplies 10.5-12.5 V, thermal states 0-0.5."""
+    from bldc_propulsion.plant import throttle
+    rng = np.random.default_rng(seed)
+    lv = rng.uniform(0.0505, 0.1, n)
+    v, th = rng.uniform(10.5, 12.5, n), rng.uniform(0.0, 0.5, n)
+    d = throttle(lv, start)
+    w = np.maximum((v / 11.5) * (900 * d - 150 * d**2) - heating * th * d + rng.normal(0, 1.0, n), 0.0)
+    w[d == 0] = 0.0
+    return idf.Holds(lv, w, np.ones(n, bool), np.zeros(n, bool), v, th)
+
+
+def test_the_start_level_shift_is_read_from_the_settled_map():
+    """Hand-made holds of a known map: the two start levels are recovered to the grid step
+    (0.0005) and the rise is significant; the same start level with a hotter winding on the
+    measured set, or a lower measured start level, is no rise; too few holds is no answer."""
+    rose = idf.start_level_shift(_holds(0.057, 1), _holds(0.053, 2))
+    assert rose is not None and rose.changed, rose
+    assert rose.measured == pytest.approx(0.057, abs=0.0005) and rose.reference == pytest.approx(0.053, abs=0.0005)
+    hot = idf.start_level_shift(_holds(0.055, 3, heating=300.0), _holds(0.055, 4))
+    assert hot is not None and not hot.changed, hot  # 300 rad/s per unit: up to 150 rad/s x duty lost
+    same = idf.start_level_shift(_holds(0.055, 5), _holds(0.055, 6))
+    assert same is not None and not same.changed and same.p_value > 0.05, same
+    fell = idf.start_level_shift(_holds(0.053, 7), _holds(0.057, 8))
+    assert fell is not None and not fell.changed and fell.measured < fell.reference, fell
+    assert idf.start_level_shift(_holds(0.057, 9, n=idf.SHIFT_MIN_HOLDS - 1), _holds(0.053, 10)) is None
 
 
 def test_clustered_standard_error_of_a_mean_by_hand():

@@ -9,9 +9,11 @@ Two kinds of change cannot be told apart by a residual correction (``scoring.py`
   onset of the response to a rising command step and leaves its shape; a heavier rotor slows
   the rising steps at the same speed; an ESC that does not brake slows only the falling steps;
   a raised start level leaves the rotor without drive (running down, or at rest) at held
-  levels where the reference's spins. Fitted over whole recordings (``identify_dynamics``,
-  ``identify_start_level``: the parameters the network's added input gets), the three time
-  quantities trade off against each other and against the operating points each set visits;
+  levels where the reference's spins, and compresses the throttle map above it, which the
+  settled speeds at held levels show (``start_level_shift``). Fitted over whole recordings
+  (``identify_dynamics``, ``identify_start_level``: the parameters the network's added input
+  gets unless the holds gave the start levels), the three time quantities trade off against
+  each other and against the operating points each set visits;
 - motor heating, a changed response to a thermal state both sets share (``identify_heating``).
 
 ``refine`` is the rule that applies them to a round of candidate scores (the network path: its
@@ -291,6 +293,8 @@ class StepDynamics:
     #: ``spin_down`` from the measured falling steps that end where the ESC still drives (above
     #: the fitted start level): None when not asked for or too few such steps
     spin_down_driven: StepChange | None = None
+    #: ``start_level_shift`` on the settled holds: None when too few on a set
+    start_level_shift: StartLevelShift | None = None
 
     def as_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {k: (v.as_dict() if v is not None else None) for k, v in
@@ -298,6 +302,7 @@ class StepDynamics:
                                 ("spin_down_time_constant_ratio", self.spin_down),
                                 ("spin_down_driven_time_constant_ratio", self.spin_down_driven))}
         out["start_level_rose"] = {"changed": self.start_level[0], "because": self.start_level[1]}
+        out["start_level_shift"] = self.start_level_shift.as_dict() if self.start_level_shift is not None else None
         return out
 
 
@@ -348,6 +353,8 @@ class Holds:
     speed: np.ndarray  #: speed at the end of the hold (rad/s)
     settled: np.ndarray  #: the speed no longer drifted
     rising: np.ndarray  #: the speed was still rising (spinning up towards the level's speed)
+    voltage: np.ndarray  #: mean filtered battery voltage over the hold's end (V; NaN if none)
+    thermal: np.ndarray  #: ``thermal_load`` state at the hold's end (HEATING_TAU_S)
 
 
 def holds(signals: Sequence[Signals]) -> Holds:
@@ -357,6 +364,9 @@ def holds(signals: Sequence[Signals]) -> Holds:
         ok = np.isfinite(s.speed)
         if len(s.pwm_events[0]) < 2 or not ok.any():
             continue
+        pwm_t, pwm = s.pwm_events
+        vt, vv = s.voltage_events
+        th = ef.compute(ef.THERMAL_LOAD, s.t, pwm_t, pwm, vt, vv, {"tau_s": HEATING_TAU_S})
         tc, lv, ends = _levels(s)
         for k in range(len(tc)):
             if ends[k] - tc[k] < STEP_HOLD_S or lv[k] <= c.PWM_STOP:
@@ -368,10 +378,13 @@ def holds(signals: Sequence[Signals]) -> Holds:
             slope, icpt = np.polyfit(tl, s.speed[last], 1)
             noise = max(robust_sigma(s.speed[last] - (icpt + slope * tl)), 0.5)
             drift = slope * SETTLED_S
+            volt = s.voltage[last]
+            volt = volt[np.isfinite(volt)]
             rows.append((float(lv[k]), max(float(icpt), 0.0), abs(drift) <= 0.02 * abs(icpt) + 2.0 * noise,
-                         drift > 2.0 * noise))
-    a = np.array(rows, dtype=float).reshape(-1, 4)
-    return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool))
+                         drift > 2.0 * noise, float(np.mean(volt)) if len(volt) else math.nan,
+                         float(np.nanmean(th[last])) if np.isfinite(th[last]).any() else math.nan))
+    a = np.array(rows, dtype=float).reshape(-1, 6)
+    return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
 
 
 def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
@@ -403,18 +416,113 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                   f"its rotor spins from PWM {lv_r[0]:.4f})")
 
 
+#: ESC start levels (PWM level) the held levels' static map is fitted at (start_level_shift): from
+#: PWM_STOP to well past any start level an ESC ships with, in steps of 0.0005 (10 us of pulse).
+SHIFT_LEVELS = tuple(round(c.PWM_STOP + 0.0005 * k, 4) for k in range(41))  # 0.0500 ... 0.0700
+#: Least settled holds on each set for the start-level shift test (the static map has 7 terms).
+SHIFT_MIN_HOLDS = 8
+#: Least rise that counts: two steps of SHIFT_LEVELS, since a start level between two of them lands
+#: on either neighbour on each set (a one-step difference is the scan's own resolution).
+SHIFT_MIN_RISE = 0.001
+
+
+@dataclass
+class StartLevelShift:
+    """The two sets' start levels fitted on their settled holds with one static map for both,
+    and the F-test of "the measured set's start level differs" against "one start level"."""
+
+    measured: float  #: PWM level
+    reference: float  #: PWM level
+    f_stat: float
+    p_value: float
+    n_measured: int
+    n_reference: int
+
+    @property
+    def changed(self) -> bool:
+        return self.p_value < STEP_ALPHA and self.measured - self.reference >= SHIFT_MIN_RISE - 1e-9
+
+    @property
+    def at_bound(self) -> bool:
+        return self.measured >= SHIFT_LEVELS[-1]
+
+    def describe(self) -> str:
+        bound = (f" (at the end of the levels tried, PWM {SHIFT_LEVELS[-1]:.4f}: it may be higher)"
+                 if self.at_bound else "")
+        return (f"the settled speeds at held levels give an ESC start level of PWM {self.measured:.4f} on the "
+                f"measured data vs {self.reference:.4f} on the reference{bound}, one static map for both "
+                f"with its voltage and thermal terms (F = {self.f_stat:.1f}, p = {self.p_value:.2g}; "
+                f"{self.n_measured} vs {self.n_reference} holds; a rise counts from {SHIFT_MIN_RISE:g})")
+
+    def as_dict(self) -> dict[str, float]:
+        return {"measured_pwm": self.measured, "reference_pwm": self.reference, "f_stat": self.f_stat,
+                "p_value": self.p_value, "holds_measured": self.n_measured, "holds_reference": self.n_reference,
+                "at_bound": self.at_bound}
+
+
+def _static_map(h: Holds, start: float, measured: bool) -> np.ndarray:
+    """Columns of the settled speed at held levels: duty d = throttle(level, start) (no drive, no
+    speed, below the start level), d, d^2, d^3 and their change with the supply (V - 11.5) d, d^2,
+    and a response to the winding's thermal state per set, theta d (a hotter winding loses speed in
+    proportion to the load, a raised start level loses it most at low levels: they do not trade)."""
+    d = throttle(h.levels, start)
+    v = h.voltage - 11.5
+    td = h.thermal * d
+    return np.column_stack([d, d**2, d**3, v * d, v * d**2, td * measured, td * (not measured)])
+
+
+def start_level_shift(measured: Holds, reference: Holds) -> StartLevelShift | None:
+    """Whether the measured ESC's start level rose, from the settled speeds at held levels.
+
+    A start level compresses the throttle map: the duty at a level drops most just above it
+    and not at all at full command, which neither a lag, a dead time nor a coasting rotor
+    changes (they move the path between holds, not where the rotor settles), and which a hotter
+    winding or a lower supply does not mimic (they lose speed in proportion to the load; both are
+    in the map). The two sets share one static map; their start levels are fitted on
+    SHIFT_LEVELS, together (the null: one level) and apart, and the F-test of the one extra
+    parameter, with the holds as the units, says whether they differ. None with fewer than
+    SHIFT_MIN_HOLDS settled holds on a set."""
+    def usable(h: Holds) -> Holds:
+        k = h.settled & ~h.rising & np.isfinite(h.voltage) & np.isfinite(h.thermal)
+        return Holds(h.levels[k], h.speed[k], h.settled[k], h.rising[k], h.voltage[k], h.thermal[k])
+
+    m, r = usable(measured), usable(reference)
+    if len(m.levels) < SHIFT_MIN_HOLDS or len(r.levels) < SHIFT_MIN_HOLDS:
+        return None
+    y = np.r_[m.speed, r.speed]
+    cols_m = [_static_map(m, t, True) for t in SHIFT_LEVELS]
+    cols_r = [_static_map(r, t, False) for t in SHIFT_LEVELS]
+
+    def sse(i: int, j: int) -> float:
+        A = np.vstack([cols_m[i], cols_r[j]])
+        beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        return float(np.sum((y - A @ beta) ** 2))
+
+    n = len(SHIFT_LEVELS)
+    grid = np.array([[sse(i, j) for j in range(n)] for i in range(n)])
+    null = float(np.min(np.diag(grid)))
+    i, j = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    dof = len(y) - cols_m[0].shape[1] - 2  # the map's terms and the two start levels
+    f = (null - float(grid[i, j])) / max(float(grid[i, j]) / max(dof, 1), 1e-12)
+    return StartLevelShift(SHIFT_LEVELS[i], SHIFT_LEVELS[j], f, float(stats.f.sf(f, 1, max(dof, 1))),
+                           len(m.levels), len(r.levels))
+
+
 def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
                   start_level: float | None = None) -> StepDynamics:
     """What changed from the reference to the measured recordings, read from their command steps
-    and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``). With the
-    measured data's fitted ``start_level``, the spin-down is compared again on the falling steps
-    that end where the ESC still drives: START_LEVEL_MARGIN above it."""
+    and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``,
+    ``start_level_shift``). With the measured data's fitted ``start_level``, the spin-down is
+    compared again on the falling steps that end where the ESC still drives: START_LEVEL_MARGIN
+    above it."""
     dts = [np.diff(s.t) for s in measured if len(s.t) > 1]
     grid = float(np.median(np.concatenate(dts))) if dts else 0.01
     driven = start_level + START_LEVEL_MARGIN if start_level is not None else None
     out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid,
                         driven_above=driven)
-    out.start_level = start_level_rose(holds(measured), holds(reference))
+    hm, hr = holds(measured), holds(reference)
+    out.start_level = start_level_rose(hm, hr)
+    out.start_level_shift = start_level_shift(hm, hr)
     return out
 
 # --- motor heating: did the speed's response to the thermal state change --------------------------
@@ -540,10 +648,12 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
     time constant up by 50 % and at least 50 ms; dead time up by 15 ms; spin-down time constant
     up by 0.1 s more than the spin-up one.
     ESC start level: the measured rotor gets no drive at a held level where the reference's
-    spins (``start_level_rose``), or the fitted start level (when identified, else PWM_STOP on both)
-    up by START_LEVEL_MARGIN; with ``steps``, the fitted one only after a lag and a dead time
-    (it stands in for either: all three delay the rotor leaving rest), and after the spin-down
-    when the falling steps that end where the ESC still drives are slower too."""
+    spins (``start_level_rose``), else the settled speeds at held levels show a higher start
+    level (``start_level_shift``); only when a set has too few settled holds for that, the fitted
+    start level (when identified, else PWM_STOP on both) up by START_LEVEL_MARGIN, and with
+    ``steps`` only after a lag and a dead time (it stands in for either: all three delay the
+    rotor leaving rest), and after the spin-down when the falling steps that end where the ESC
+    still drives are slower too."""
     if ref is None:
         return None, "no reference data to compare the identified dynamics with"
     changes = {
@@ -584,9 +694,16 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
                                f"spin-up/spin-down time constants)")
     order = ["esc_deadband", "rotor_lag", "input_delay", "spin_down_asymmetry"]
     if steps is not None:
+        shift = steps.start_level_shift
         if steps.start_level[0]:
             # the direct evidence: no drive where the reference's rotor has it
             changes["esc_deadband"] = (1.0, 0.0, steps.start_level[1])
+        elif shift is not None:
+            # the settled speeds at held levels, which none of the three time quantities moves,
+            # decide whether the start level rose; it is not read from how late the rotor leaves
+            # rest (which a lag or a dead time also delays) nor from the fitted start level
+            # (which takes a hotter winding's lost speed for a compressed throttle map)
+            changes["esc_deadband"] = (1.0 if shift.changed else -1.0, 0.0, shift.describe())
         else:
             # the fitted start level is read from how late the rotor leaves rest, which a dead time
             # or a lag between the fit's grid points also delays: where the step responses show a
@@ -716,6 +833,11 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
                       }.get(choice)
         if choice == "esc_deadband":
             out.reference_params = {"threshold": r.start_level}
+            shift = steps.start_level_shift
+            if shift is not None and shift.changed:
+                # the settled holds' levels: read on a finer grid reaching further than the
+                # whole-recording fit's, and not moved by the dynamics
+                out.params, out.reference_params = {"threshold": shift.measured}, {"threshold": shift.reference}
         elif choice == "input_delay":  # the delay added is the change: the reference has none of it
             out.reference_params = {"delay_s": 0.0}
     if out.best is not None:
