@@ -4,7 +4,8 @@ For each hidden effect of the dynamic family (and heating and the control) and e
 recordings of experiments/confusion_table.py's scenario (reference without the effect, measured
 with it at the drawn strength, on the bench drawn from the seed), no network trained: the
 dynamics are identified on the measured and on the reference recordings and ``which_dynamic``
-says which one changed. Seconds a run, so the rules can be checked on many tuning seeds
+says which one changed, and ``then`` which one the next round would add once that one is in the
+model (none, where only one effect is hidden). Seconds a run, so the rules can be checked on many tuning seeds
 (``--first-seed 100``) before the network table (about an hour) is run.
 
     PYTHONPATH=. python experiments/dynamic_identification.py --first-seed 100 --seeds 10
@@ -56,7 +57,11 @@ def one(effect: str, seed: int) -> dict:
         steps = idf.step_dynamics(meas, ref, start_level=m.start_level)
     # as refine applies them: heating first (its response to the thermal state), then the dynamics
     choice, why = ("motor_heating", heat.describe()) if heat.changed else idf.which_dynamic(m, r, steps=steps)
+    # the next round, as the loop asks it once the first is in the model: what else changed
+    then = (idf.which_dynamic(m, r, exclude=[choice], steps=steps)[0]
+            if choice in (*idf.DYNAMIC_EFFECTS, "esc_deadband") else None)
     return {"effect": effect, "seed": seed, "strength": strength, "choice": choice or "(nothing)", "why": why,
+            "then": then or "(nothing)",
             "measured": m, "reference": r, "steps": steps, "heating": heat,
             "seconds": time.perf_counter() - t0}
 
@@ -69,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--verbose", action="store_true", help="the step-response comparisons too")
     args = ap.parse_args(argv)
     effects = [e for e in args.effects.split(",") if e]
-    right = 0
+    right = second = 0
     rows = []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
         for e in effects:
@@ -78,12 +83,13 @@ def main(argv: list[str] | None = None) -> int:
             want = e if e in (*idf_family(), "motor_heating") else "(nothing)"
             ok = r["choice"] == want
             right += ok
+            second += r["then"] != "(nothing)"
             m, f = r["measured"], r["reference"]
             print(f"{e:20s} seed {seed} s={r['strength']:.2f} -> {r['choice']:20s} {'ok ' if ok else 'BAD'} "
                   f"d {1000 * f.delay_s:.0f}->{1000 * m.delay_s:.0f} ms  up {f.tau_up_s:.2f}->{m.tau_up_s:.2f}  "
                   f"down {f.tau_down_s:.2f}->{m.tau_down_s:.2f}  start {f.start_level:.3f}->{m.start_level:.3f}  "
                   f"heat {r['heating'].changed} drop {r['heating'].drop_rad_s:.1f} rad/s z {r['heating'].z:.1f} "
-                  f"hottest {r['heating'].hottest:.2f}  ({r['seconds']:.0f} s)", flush=True)
+                  f"hottest {r['heating'].hottest:.2f}  then {r['then']}  ({r['seconds']:.0f} s)", flush=True)
             if args.verbose:
                 st = r["steps"]
                 for k, x in (("dead", st.dead_time), ("up", st.spin_up), ("down", st.spin_down)):
@@ -95,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
                 if sh is not None:
                     print(f"    shift {sh.reference:.4f}->{sh.measured:.4f} F={sh.f_stat:.1f} p={sh.p_value:.2g} "
                           f"n={sh.n_measured}/{sh.n_reference}{' CHANGED' if sh.changed else ''}")
-    print(f"right: {right}/{len(rows)}")
+    print(f"right: {right}/{len(rows)}; a second dynamic effect named after the first: {second}")
     return 0
 
 

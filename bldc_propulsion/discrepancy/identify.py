@@ -148,10 +148,16 @@ TAU_MIN_RATIO = 1.1
 STEP_ALPHA = 0.01
 
 
+#: The part of a rising step's response its onset is read from (fractions of the way): the
+#: line fitted to it, extended back to the speed before the step, meets it at the onset.
+ONSET_FROM, ONSET_TO = 0.1, 0.5
+
+
 @dataclass
 class StepResponse:
-    """One command step and the rotor's response, as a first-order-plus-dead-time fit (Smith's
-    two-point method: tau = 1.5 (t63 - t28), dead time = t63 - tau, times from the command step)."""
+    """One command step and the rotor's response: its time constant by Smith's two-point method
+    (tau = 1.5 (t63 - t28), times from the command step) and its dead time from the onset of the
+    rise (``_onset``)."""
 
     rising: bool
     pwm_from: float
@@ -175,6 +181,30 @@ def _crossing(t: np.ndarray, y: np.ndarray, level: float) -> float:
         return float("nan")
     k = int(j[0])
     return float(t[k - 1] + (level - y[k - 1]) / (y[k] - y[k - 1]) * (t[k] - t[k - 1]))
+
+
+def _onset(t: np.ndarray, y: np.ndarray) -> float:
+    """When the rise of ``y`` (0 before the step, 1 after) starts: where the line fitted to its
+    rise from ONSET_FROM to ONSET_TO of the way meets 0 (NaN if it never gets there).
+
+    Not Smith's t63 - tau: a rotor whose drag grows with speed rises more slowly at first than
+    a first-order lag would, so that estimate puts the onset later in proportion to the time
+    constant, and a heavier rotor's response read as a longer dead time (10-20 ms for a time
+    constant of 0.1-0.25 s on the tuning benches). The early rise's tangent meets the start
+    level within a few ms whatever the time constant (a first-order lag's: 0.03 tau early)."""
+    up = np.flatnonzero(y >= ONSET_TO)
+    if len(up) == 0:
+        return float("nan")
+    k = int(up[0])
+    below = np.flatnonzero(y[:k] < ONSET_FROM)
+    j = int(below[-1]) if len(below) else 0  # the last sample before the rise
+    # the rise's samples, from its last sample below ONSET_FROM only when it has fewer than two
+    # (a fast rotor on a 100 Hz grid crosses the band between two samples)
+    sel = slice(j + 1, k + 1) if k - j >= 2 else slice(j, k + 1)
+    if k + 1 - sel.start < 2:
+        return float("nan")
+    slope, icpt = np.polyfit(t[sel], y[sel], 1)
+    return float(-icpt / slope) if slope > 0 else float("nan")
 
 
 def _levels(s: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -213,12 +243,11 @@ def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
                 continue
             seg = (s.t >= t0) & (s.t < t0 + hold) & np.isfinite(s.speed)
             tt, frac = s.t[seg] - t0, (s.speed[seg] - w0) / (w1 - w0)
-            t28, t63 = _crossing(tt, frac, 0.283), _crossing(tt, frac, 0.632)
-            if not (np.isfinite(t28) and np.isfinite(t63)):
+            t28, t63, onset = _crossing(tt, frac, 0.283), _crossing(tt, frac, 0.632), _onset(tt, frac)
+            if not (np.isfinite(t28) and np.isfinite(t63) and np.isfinite(onset)):
                 continue
-            tau = 1.5 * (t63 - t28)
             out.append(StepResponse(bool(lv[k] > lv[k - 1]), float(lv[k - 1]), float(lv[k]), w0, w1,
-                                    float(t63 - tau), float(tau)))
+                                    onset, float(1.5 * (t63 - t28))))
     return out
 
 
@@ -688,6 +717,12 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
             # down with no drive below a raised start level, or other speeds, for a change)
             changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
                              else (-1.0, 0.0, ""))
+        if steps.spin_up is not None and steps.spin_up.changed:
+            # a heavier rotor slows the falling steps too, and not by the same factor (braking and
+            # driving currents differ): with the rising steps slower, slower falling ones are no
+            # evidence of an ESC that does not brake (tuning benches: a lag's falls 1.2-2.5x its
+            # rises, a coasting ESC's 1.5-3x), so the spin-down is not named after a lag
+            changes["spin_down_asymmetry"] = (-1.0, 0.0, "")
     changes["esc_deadband"] = (meas.start_level - ref.start_level, START_LEVEL_MARGIN - 1e-9,
                                f"the rotor gets no drive below PWM {meas.start_level:.3f} on the measured data vs "
                                f"{ref.start_level:.3f} on the reference (with the identified dead time and "
