@@ -191,7 +191,7 @@ def _onset(t: np.ndarray, y: np.ndarray) -> float:
     a first-order lag would, so that estimate puts the onset later in proportion to the time
     constant, and a heavier rotor's response read as a longer dead time (10-20 ms for a time
     constant of 0.1-0.25 s on the tuning benches). The early rise's tangent meets the start
-    level within a few ms whatever the time constant (a first-order lag's: 0.03 tau early)."""
+    level within a few ms whatever the time constant (a first-order lag's: 0.04 tau early)."""
     up = np.flatnonzero(y >= ONSET_TO)
     if len(up) == 0:
         return float("nan")
@@ -682,7 +682,8 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
     start level (when identified, else PWM_STOP on both) up by START_LEVEL_MARGIN, and with
     ``steps`` only after a lag and a dead time (it stands in for either: all three delay the
     rotor leaving rest), and after the spin-down when the falling steps that end where the ESC
-    still drives are slower too."""
+    still drives are slower too. With ``steps``, no spin-down where the rising steps are slower
+    too (a heavier rotor slows its falls as well)."""
     if ref is None:
         return None, "no reference data to compare the identified dynamics with"
     changes = {
