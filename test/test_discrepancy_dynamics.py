@@ -189,3 +189,24 @@ def test_clustered_standard_error_of_a_mean_by_hand():
     assert idf._clustered_se(A, u, cluster, np.array([1.0])) == pytest.approx(expected, rel=1e-12)
     textbook = np.sqrt(np.sum(u ** 2) / (n - 1) / n)
     assert expected > 1.5 * textbook
+
+
+@pytest.mark.parametrize("tau", [0.02, 0.05, 0.1, 0.3])
+def test_onset_errs_early_for_any_rotor_shape_and_moves_with_a_dead_time(tau):
+    """Hand-computed rises on the 100 Hz grid: a first-order lag, and a rotor whose drag grows
+    with speed (omega = w1 tanh(k t + atanh(w0/w1)), time constant 1/(2k) at the end), from a
+    dead time d. The onset is never later than d (a slower rotor cannot look like a later one:
+    Smith's t63 - tau is 0.066 tau late on the drag-dominated rise), at most 0.1 tau and a grid
+    step early (a fast rise crosses the 10-50 % band between two samples), and a dead time
+    longer by 20 ms moves it by 20 ms."""
+    t = np.arange(0.0, 2.0, 0.01)
+
+    def rises(d: float) -> list[np.ndarray]:
+        x = np.clip(t - d, 0.0, None)
+        w = np.tanh(x / (2.0 * tau) + np.arctanh(0.3))
+        return [1.0 - np.exp(-x / tau), (w - 0.3) / 0.7]
+
+    for y, y_later in zip(rises(0.03), rises(0.05)):
+        onset = idf._onset(t, y)
+        assert 0.03 - 0.1 * tau - 0.01 <= onset <= 0.03 + 0.001, onset
+        assert idf._onset(t, y_later) - onset == pytest.approx(0.02, abs=0.001)

@@ -190,8 +190,9 @@ def _onset(t: np.ndarray, y: np.ndarray) -> float:
     Not Smith's t63 - tau: a rotor whose drag grows with speed rises more slowly at first than
     a first-order lag would, so that estimate puts the onset later in proportion to the time
     constant, and a heavier rotor's response read as a longer dead time (10-20 ms for a time
-    constant of 0.1-0.25 s on the tuning benches). The early rise's tangent meets the start
-    level within a few ms whatever the time constant (a first-order lag's: 0.04 tau early)."""
+    constant of 0.1-0.25 s on the tuning benches; 0.066 tau on a rise with quadratic drag). The
+    line through the early rise errs early for both shapes (0.06-0.08 tau on a first-order lag
+    or a quadratic-drag rise): a slower rotor never looks like a later onset."""
     up = np.flatnonzero(y >= ONSET_TO)
     if len(up) == 0:
         return float("nan")
