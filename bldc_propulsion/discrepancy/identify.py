@@ -194,7 +194,7 @@ def _onset(t: np.ndarray, y: np.ndarray) -> float:
     line through the early rise errs early for both shapes (0.06-0.08 tau on a first-order lag
     or a quadratic-drag rise): a slower rotor never looks like a later onset."""
     up = np.flatnonzero(y >= ONSET_TO)
-    if len(up) == 0:
+    if len(up) == 0 or up[0] == 0:  # never there, or there at once: no rise to fit
         return float("nan")
     k = int(up[0])
     below = np.flatnonzero(y[:k] < ONSET_FROM)
@@ -202,8 +202,6 @@ def _onset(t: np.ndarray, y: np.ndarray) -> float:
     # the rise's samples, from its last sample below ONSET_FROM only when it has fewer than two
     # (a fast rotor on a 100 Hz grid crosses the band between two samples)
     sel = slice(j + 1, k + 1) if k - j >= 2 else slice(j, k + 1)
-    if k + 1 - sel.start < 2:
-        return float("nan")
     slope, icpt = np.polyfit(t[sel], y[sel], 1)
     return float(-icpt / slope) if slope > 0 else float("nan")
 
