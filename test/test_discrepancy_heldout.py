@@ -49,6 +49,9 @@ def test_effect_that_helps_the_holdout_is_added_with_its_figure(bags):
     kept = data["evidence"]["rotor_lag"]["acceptance"]
     assert kept["accepted"] and kept["source"] == "holdout"
     assert kept["mse_reduction"] >= acc.ACCEPT_MIN_REDUCTION and kept["p_value"] < 0.01
+    # a replication on the holdout: its level, not the step-3 alpha, stated in the figure and the decision
+    assert kept["alpha"] == acc.HOLDOUT_ALPHA == data["decision"]["holdout_alpha"] == 0.05
+    assert data["decision"]["alpha"] == 0.01
     # the figure is the gap the summary reports
     assert kept["rmse_before_rad_s"] == pytest.approx(data["holdout_rmse_before"])
     assert kept["rmse_after_rad_s"] == pytest.approx(data["holdout_rmse_after"])

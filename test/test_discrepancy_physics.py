@@ -24,6 +24,7 @@ from bldc_propulsion.discrepancy.workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import BenchParams, params_with_overrides, simulate
+from bldc_propulsion.sim import random_bench as rb
 from bldc_propulsion.sim.bench import motor_response
 from bldc_propulsion.sim.record import write_sim_bag
 from bldc_propulsion.recordings import load_signals
@@ -108,6 +109,35 @@ def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
     fit = ph.fit_reference(model, ph.Data.of([s], "reference"))
     # within a grid step (5 ms of the 40 ms per unit strength) of the truth
     assert fit.model.effects["input_delay"] == pytest.approx(1.5, abs=ph.PHYSICS_STEP_S / nominal.esc_input_delay_s)
+
+
+def test_heating_is_fitted_with_the_motors_thermal_time_constant(tmp_path, monkeypatch):
+    """A motor that heats twice as fast as the CONFIG's (thermal capacity 0.5x): with heating's
+    strength, its COMPANION (the thermal resistance) is fitted, and the strength is the truth in
+    the model's units (2: ``random_bench.model_strength``), the thermal time constant the bench's;
+    with the thermal resistance held at the CONFIG's, the strength stands in for the time constant
+    (1.14 for 2 here) and the fit is worse (3x the SSE)."""
+    nominal = BenchParams()
+    true = params_with_overrides(nominal, {"motor_thermal_capacity_j_per_k":
+                                           0.5 * nominal.motor_thermal_capacity_j_per_k})
+    res = simulate("high_load", 180.0, 2, params=true)
+    write_sim_bag(res, tmp_path / "bag")
+    s = load_signals(tmp_path / "bag")
+    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, "motor_heating": 0.5}).with_supply([s])
+    data = ph.Data.of([s], "measured")
+    anchor = np.array(list(model.constants().values()))
+    fit = ph.calibrate(model, data, anchor, ph.LOG_RANGE_BASE, ("motor_heating",))
+    truth = rb.model_strength("motor_heating", 1.0, true, nominal)
+    assert truth == pytest.approx(2.0)
+    assert fit.model.effects["motor_heating"] == pytest.approx(truth, rel=0.1)
+    tau = ph.fitted_value("motor_heating", 1.0, fit.model.params)["thermal_time_constant_s"]
+    assert tau == pytest.approx(true.motor_thermal_capacity_j_per_k * true.motor_thermal_resistance_k_per_w, rel=0.3)
+    assert fit.companion_anchor == {"motor_thermal_resistance_k_per_w": nominal.motor_thermal_resistance_k_per_w}
+    assert fit.J.shape[1] == len(ph.CALIBRATED) + 2 and fit.J[:, -1].any()  # refitted per fold too
+    assert f"thermal time constant {tau:.0f} s" in ph.describe("motor_heating", 1.0, fit.model.params)
+    monkeypatch.setattr(ph, "COMPANIONS", {})
+    held = ph.calibrate(model, data, anchor, ph.LOG_RANGE_BASE, ("motor_heating",))
+    assert held.model.effects["motor_heating"] < 1.5 and held.sse > 2.0 * fit.sse
 
 
 # --- hidden effects --------------------------------------------------------------------------------

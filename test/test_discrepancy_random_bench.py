@@ -1,9 +1,10 @@
 """The discrepancy workflow on a bench it was not tuned on (sim.random_bench), physics path.
 
 A small case of experiments/physics_confusion.py: a bench drawn from a tuning seed (other Kv,
-resistance, inertia, CT/CP, dead time, start level, pack, noise; the experiment's tables report
-seeds 0-4), the nominal bench physics with every effect on but the hidden one as the model,
-reference recordings without the effect, measured and holdout with it at a drawn strength.
+resistance, inertia, CT/CP, dead time, start level, pack, noise, thermal constants, friction;
+the experiment's tables report seeds 0-9), the nominal bench physics with every effect on but
+the hidden one as the model, reference recordings without the effect, measured and holdout with
+it at a drawn strength.
 The hidden effect must be named first, with its strength within 30 % of the truth in the model's
 units; on recordings without it (the control), nothing may be named.
 """
@@ -74,10 +75,11 @@ def test_hidden_effect_on_a_drawn_bench(bags):
         assert any(hit in w for w in data["warnings"]), (hit, data["warnings"])
 
 
-@pytest.mark.xfail(strict=True, reason="seed 101, these short recordings: rotor_lag strength fitted 0.44 vs 0.68 "
-                                       "true in the nominal model's units (-35 %; the confusion table's longer "
-                                       "ones give 0.48, -29 %); the issue's goal is within 30 %")
 def test_hidden_effect_strength_within_30_percent_of_truth(bags):
+    """The issue's goal on one drawn bench. Seed 101's bench missed it (rotor_lag 0.44 vs 0.68
+    true, -35 %; a strict xfail) before the benches drew the motor's thermal and friction
+    constants too; the bench it draws now (every other constant the same) meets it. One bench
+    either way: the spread is the confusion table's (experiments/physics_confusion.py)."""
     data, truth = run(bags, "rotor_lag", True)
     fitted = data["evidence"]["rotor_lag"]["fitted_parameters"]["strength"]
     assert fitted == pytest.approx(truth, rel=0.3)

@@ -199,6 +199,34 @@ def test_the_recorded_voltage_is_what_the_motor_sees_at_any_battery_strength(ben
     assert model_strength("battery_voltage", 0.0, BenchParams()) == 0.0
 
 
+def test_heating_strength_in_the_model_units_carries_the_thermal_capacity() -> None:
+    """Why ``random_bench.model_strength`` scales a heating strength by the bench's thermal
+    capacity: a motor with 1/1.5 of it heats 1.5x as fast, which the nominal model reproduces
+    exactly with 1.5x the copper coefficient and the thermal resistance that gives the bench's
+    time constant (what ``discrepancy --physics`` fits along: ``physics.COMPANIONS``), and not
+    with the bench's own strength."""
+    import dataclasses
+
+    nominal = BenchParams()
+    bench = dataclasses.replace(nominal, motor_thermal_capacity_j_per_k=nominal.motor_thermal_capacity_j_per_k / 1.5)
+    model = dataclasses.replace(nominal,
+                                motor_thermal_resistance_k_per_w=nominal.motor_thermal_resistance_k_per_w / 1.5)
+    cmd = (np.array([0.0, 1.0]), np.array([PWM_STOP, PWM_FULL]))
+    t = np.arange(0.0, 120.0, 0.1)
+    supply = (np.array([0.0]), np.array([12.0]))
+    effects = {e: 0.0 for e in EFFECTS}
+
+    def speed(p: BenchParams, heating: float) -> np.ndarray:
+        return motor_response(p, effects | {"motor_heating": heating}, cmd, supply, t, 12.0)
+
+    truth = speed(bench, 0.8)
+    assert model_strength("motor_heating", 0.8, bench, nominal) == pytest.approx(1.2)
+    np.testing.assert_allclose(speed(model, 1.2), truth, atol=1e-6)  # rad/s: the same physics
+    assert np.max(np.abs(speed(model, 0.8) - truth)) > 3.0  # the bench's own strength is not it
+    assert np.max(np.abs(speed(nominal, 1.2) - truth)) > 1.0  # nor the CONFIG's time constant
+    assert np.max(np.abs(speed(bench, 0.0) - truth)) > 10.0  # and the heating shows at all
+
+
 def test_motor_heats_under_load_and_loses_speed() -> None:
     hot = simulate("high_load", 90.0, 2)
     cold = simulate("high_load", 90.0, 2, effects={"motor_heating": 0.0})
@@ -403,6 +431,12 @@ def test_drawn_benches_span_the_stated_ranges_and_repeat_per_seed() -> None:
     assert 0.7 <= inertia.min() < 0.85 and 1.15 < inertia.max() <= 1.3
     assert 0.052 <= start.min() < 0.054 and 0.056 < start.max() <= 0.058
     assert 0.020 <= delay.min() < 0.030 and 0.050 < delay.max() <= 0.060
+    # the motor's thermal time constant (capacity and resistance +-50 % each) and friction
+    tau = np.array([p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w for p in draws])
+    tau /= nominal.motor_thermal_capacity_j_per_k * nominal.motor_thermal_resistance_k_per_w
+    friction = np.array([p.motor_no_load_current_a for p in draws]) / nominal.motor_no_load_current_a
+    assert 0.25 <= tau.min() < 0.6 and 1.5 < tau.max() <= 2.25
+    assert 0.5 <= friction.min() < 0.7 and 1.3 < friction.max() <= 1.5
     # structure: some benches bend the throttle map, some have a two-RC pack, some neither
     assert 5 < sum(p.esc_throttle_exponent != 1.0 for p in draws) < 35
     assert 5 < sum(p.battery_polarisation2_resistance_ohm > 0 for p in draws) < 35

@@ -36,6 +36,8 @@ class Options:
     patience: int = 6
     seed: int = 0
     alpha: float = ALPHA
+    #: level of the --holdout replication test (acceptance.HOLDOUT_ALPHA; never below alpha)
+    holdout_alpha: float = acc.HOLDOUT_ALPHA
     min_effect: float = MIN_EFFECT
     report_dir: str | None = None
     report_force: bool = False  #: --force: an earlier report at report_dir may be replaced

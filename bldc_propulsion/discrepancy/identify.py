@@ -50,6 +50,11 @@ ID_TAU_DOWN = (0.0, 0.02, 0.04, 0.07, 0.1, 0.15, 0.2, 0.3, 0.5, 0.8, 1.2, 2.0)
 ID_START_LEVELS = tuple(round(0.05 + 0.001 * k, 3) for k in range(11))  # 0.050 ... 0.060
 START_LEVEL_MARGIN = 0.002  #: PWM level: twice the grid step (0.001), so one step of noise is no change
 DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
+#: The effects ``which_dynamic`` tells apart: the dynamic family and the ESC start level, whose
+#: residual features overlap (a start level moved up looks like a slower spin-up near it; a
+#: slower rotor leaves a residual below the start level). A proposal of any of them from the
+#: residual scores is checked against the identified response before it is made.
+RESPONSE_EFFECTS = (*DYNAMIC_EFFECTS, "esc_deadband")
 
 
 @dataclass
@@ -784,19 +789,24 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
     candidates, changed in place; ``best``: the proposal from the scores; ``cache`` keeps the
     identified dynamics across rounds). Needs reference recordings (else nothing changes):
 
-    - motor_heating, when nothing but a dynamic candidate is new: named when ``identify_heating``
+    - motor_heating, when nothing or one of RESPONSE_EFFECTS is proposed: named when ``identify_heating``
       says its response to the thermal state changed (first: a hotter winding also brakes and
       drives a little less, which the step responses would take for a slower rotor, while no
       dynamic effect makes the steady speed depend on the thermal state);
-    - the dynamic family, when a dynamic candidate is significant on the measured data alone or
-      the measured residual RMSE is GAP_RATIO x the reference's with nothing new: the one
+    - the dynamic family and the start level, when the scores propose one of them
+      (RESPONSE_EFFECTS), a dynamic candidate is significant on the measured data alone or the
+      measured residual RMSE is GAP_RATIO x the reference's with nothing new: the one
       ``which_dynamic`` finds changed is named (at the identified parameters); when none
-      changed, no dynamic candidate is new."""
+      changed, none of them is new (the start level included: with esc_deadband offered, the
+      identification always judges it, from held levels or the fitted start level). Randomized
+      benches, network path: with the scores' start-level proposal taken as it came, a slower
+      rotor (seed 3) and a heating winding (seed 1) were named esc_deadband first; the
+      identification alone names both right."""
     out = Refined(best)
     if not reference:
         return out
     offered = list(ev)
-    if "motor_heating" in ev and (out.best is None or out.best in DYNAMIC_EFFECTS):
+    if "motor_heating" in ev and (out.best is None or out.best in RESPONSE_EFFECTS):
         # a changed response to the same thermal state: the feature (driven by the command) is
         # the same on both sets, so the pooled residual score cannot see it; identified on the
         # speed directly, the measured and the reference sets fitted together
@@ -807,10 +817,11 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
         if heat.changed:
             e.override("new", f"motor_heating: {heat.describe()}")
             out.best, out.params = "motor_heating", {"tau_s": HEATING_TAU_S}
-    if out.best is not None and out.best not in DYNAMIC_EFFECTS:
+    if out.best is not None and out.best not in RESPONSE_EFFECTS:
         return out
-    if not (any(ev[k].measured_alone.p_value < alpha and ev[k].measured_alone.fraction >= min_effect
-                for k in offered if k in DYNAMIC_EFFECTS)
+    if not (out.best in RESPONSE_EFFECTS
+            or any(ev[k].measured_alone.p_value < alpha and ev[k].measured_alone.fraction >= min_effect
+                   for k in offered if k in DYNAMIC_EFFECTS)
             or (out.best is None and rmse_measured >= GAP_RATIO * rmse_reference)):
         return out
     # (judged on the measured data alone: which dynamic effect changed is decided by identifying
@@ -829,8 +840,9 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
     # explained by one is partly explained by the others: which one CHANGED is decided by
     # identifying the response itself on the measured and the reference data
     if "dynamics" not in cache:
-        progress("  a dynamic effect is new: identifying dead time and spin-up/spin-down "
-                 "time constants on the measured and the reference recordings")
+        progress("  a dynamic effect or the ESC start level is in question: identifying dead time, "
+                 "start level and spin-up/spin-down time constants on the measured and the reference "
+                 "recordings")
         dyn = (identify_dynamics(measured), identify_dynamics(reference))
         if "esc_deadband" in ev:
             for dy, sigs in zip(dyn, (measured, reference)):
@@ -847,11 +859,11 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
     if choice is None:
         # the response to the command did not change: the residual's dynamic structure is the
         # model's own (it is there on the reference too), not a new effect
-        for k in DYNAMIC_EFFECTS:
+        for k in RESPONSE_EFFECTS:
             if k in ev and ev[k].verdict in ("new", "structural"):
                 ev[k].verdict = "not new (identified dynamics unchanged)"
                 ev[k].dynamics = info
-        others = [k for k in offered if k not in DYNAMIC_EFFECTS and ev[k].verdict == "new"]
+        others = [k for k in offered if k not in RESPONSE_EFFECTS and ev[k].verdict == "new"]
         out.best = max(others, key=lambda k: ev[k].measured.fraction, default=None)
     elif choice not in named and choice in ev:
         ev[choice].override("new", f"{choice}: {why}; the model's residual on the measured data "

@@ -76,8 +76,21 @@ STRENGTH_GRID: dict[str, tuple[float, ...]] = {
     "input_delay": (0.25, 0.5, 1.0, 1.5, 2.0),
     "esc_deadband": (0.5, 1.0, 2.0),
     "spin_down_asymmetry": (0.5, 1.0),
-    "motor_heating": (0.5, 1.0, 2.0),
+    "motor_heating": (0.25, 0.5, 1.0, 2.0),
 }
+#: Constants fitted along with an effect's strength whenever that strength is fitted (log scale, within
+#: a factor e^COMPANION_LOG_RANGE of the value the effect was first fitted from: the CONFIG's).
+#: Heating: how soon the winding gets hot is the motor's thermal time constant, another motor's and
+#: another mount's (0.25-2.25x the nominal bench's on the randomized benches); with it held at the
+#: CONFIG's, the strength stood in for it (randomized bench 2, 70 s against the CONFIG's 126 s:
+#: strength 1.37x its truth). The thermal resistance is the one fitted, with the CONFIG's thermal
+#: capacity kept: then the strength sets the resistance rise per joule of heat (the initial slope
+#: of a hot run, which recordings of a few minutes show) and the thermal resistance where it levels
+#: off (which they show only when the time constant is shorter than they are). Fitting the
+#: capacity instead puts the level-off into the strength: bench 9 (253 s, 180 s recordings)
+#: then gave 1.75x the truth with a 485 s time constant.
+COMPANIONS: dict[str, str] = {"motor_heating": "motor_thermal_resistance_k_per_w"}
+COMPANION_LOG_RANGE = math.log(4.0)
 #: Upper bounds of a fitted strength: 6x nominal covers a bench with twice the nominal dead time,
 #: inertia or start threshold and an effect twice as strong; spin-down's 1 is physical (all braking
 #: removed), not a limit of the fit, so a fit there is no bound hit (PHYSICAL_MAX).
@@ -160,13 +173,17 @@ def fitted_value(name: str, strength: float, p: BenchParams) -> dict[str, Any]:
         "spin_down_asymmetry": ("share of the ESC's active braking removed", 100.0 * strength, "%"),
         "motor_heating": ("winding resistance rise", 100.0 * strength * p.copper_temperature_coefficient_per_k, "%/K"),
     }[name]
-    return {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
+    out = {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
+    if name == "motor_heating":  # fitted along with it (COMPANIONS)
+        out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
+    return out
 
 
 def describe(name: str, strength: float, p: BenchParams) -> str:
     """The physical meaning of an effect's strength, for people (the numbers of ``fitted_value``)."""
     v = fitted_value(name, strength, p)
-    return f"strength {strength:.3g} ({v['quantity']} {v['value']:.4g} {v['unit']})"
+    tau = f", thermal time constant {v['thermal_time_constant_s']:.0f} s" if "thermal_time_constant_s" in v else ""
+    return f"strength {strength:.3g} ({v['quantity']} {v['value']:.4g} {v['unit']}{tau})"
 
 
 # --- CONFIG files -----------------------------------------------------------------------------------
@@ -251,52 +268,66 @@ class Fit:
     anchor: np.ndarray  #: constants the calibration stays within a factor exp(log_range) of
     log_range: np.ndarray  #: per constant (log scale)
     free: tuple[str, ...] = ()  #: effects whose strengths were fitted along (those added so far)
+    #: the COMPANIONS of ``free`` effects: the value each one's range is centred on (the CONFIG's)
+    companion_anchor: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def companions(self) -> dict[str, float]:
+        """The fitted COMPANIONS (name: value) of the free effects."""
+        return {n: float(getattr(self.model.params, n)) for n in self.companion_anchor}
 
 
 def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: np.ndarray | float,
-              free: Sequence[str] = (), max_nfev: int = 40) -> Fit:
+              free: Sequence[str] = (), max_nfev: int = 40,
+              companion_anchor: dict[str, float] | None = None) -> Fit:
     """The CALIBRATED constants (log scale, within a factor exp(log_range) of ``anchor``; a
-    constant with a zero range is held at ``model``'s value) and the strengths of the effects
-    ``free`` fitted by least squares from ``model``'s values: an effect added earlier gets its
-    strength refitted with each later one, so it cannot keep standing in for a missing one."""
+    constant with a zero range is held at ``model``'s value), the strengths of the effects
+    ``free`` and their COMPANIONS (within COMPANION_LOG_RANGE of ``companion_anchor``, by default
+    ``model``'s values) fitted by least squares from ``model``'s values: an effect added earlier
+    gets its strength refitted with each later one, so it cannot keep standing in for a missing one."""
     nc = len(CALIBRATED)
     span = np.broadcast_to(np.asarray(log_range, dtype=float), (nc,)).copy()
     live = np.flatnonzero(span > 0.0)
     start = np.log(np.array([getattr(model.params, n) for n in CALIBRATED]) / anchor)
+    comp = [COMPANIONS[n] for n in free if n in COMPANIONS]
+    comp_anchor = {n: (companion_anchor or {}).get(n, float(getattr(model.params, n))) for n in comp}
+    comp_start = np.array([math.log(getattr(model.params, n) / comp_anchor[n]) for n in comp])
     # The solver's variables are the log constants shifted by 1: scipy's 'trf' starts with a trust
     # radius of ||x0|| (1 only when x0 is exactly 0), so a start a rounding error away from the
     # anchor (log 1e-16) would never move; shifted, the radius is ~1 wherever the start is.
-    shift = np.concatenate([np.ones(len(live)), np.zeros(len(free))])
+    shift = np.concatenate([np.ones(len(live)), np.zeros(len(free)), np.ones(len(comp))])
 
     def unpack(z: np.ndarray) -> PhysicsModel:
         x = z - shift
         logs = start.copy()
         logs[live] = x[:len(live)]
         m = model.with_constants(anchor * np.exp(logs))
-        for name, v in zip(free, x[len(live):]):
+        for name, v in zip(free, x[len(live):len(live) + len(free)]):
             m = m.with_effect(name, v)
+        if comp:
+            m = dataclasses.replace(m, params=dataclasses.replace(m.params, **{
+                n: comp_anchor[n] * math.exp(v) for n, v in zip(comp, x[len(live) + len(free):])}))
         return m
 
-    lo = np.concatenate([-span[live], np.zeros(len(free))]) + shift
-    hi = np.concatenate([span[live], [STRENGTH_MAX[n] for n in free]]) + shift
-    x0 = np.concatenate([start[live], [model.effects[n] for n in free]]) + shift
+    lo = np.concatenate([-span[live], np.zeros(len(free)), np.full(len(comp), -COMPANION_LOG_RANGE)]) + shift
+    hi = np.concatenate([span[live], [STRENGTH_MAX[n] for n in free], np.full(len(comp), COMPANION_LOG_RANGE)]) + shift
+    x0 = np.concatenate([start[live], [model.effects[n] for n in free], comp_start]) + shift
     res = least_squares(lambda z: data.residual(unpack(z)), np.clip(x0, lo, hi), bounds=(lo, hi),
-                        diff_step=difference_steps(model, len(live), free), max_nfev=max_nfev)
+                        diff_step=difference_steps(model, len(live), free, len(comp)), max_nfev=max_nfev)
     # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds),
     # nor is a held constant (a zero column: the per-fold ridge solve ignores it)
-    J = np.zeros((len(res.fun), nc + len(free)))
-    J[:, np.concatenate([live, nc + np.arange(len(free))]).astype(int)] = np.where(
+    J = np.zeros((len(res.fun), nc + len(free) + len(comp)))
+    J[:, np.concatenate([live, nc + np.arange(len(free) + len(comp))]).astype(int)] = np.where(
         np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
-    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span, tuple(free))
+    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span, tuple(free), comp_anchor)
 
 
-def difference_steps(model: PhysicsModel, n_constants: int, free: Sequence[str]) -> np.ndarray:
+def difference_steps(model: PhysicsModel, n_constants: int, free: Sequence[str], n_companions: int = 0) -> np.ndarray:
     """Relative finite-difference steps of ``calibrate``'s variables (scipy: step = rel * max(1, |x|)).
     A dead time acts on the simulation's grid (``sim_step_s``): the residual is a staircase in the
     input_delay strength, flat between grid steps, so its step spans one grid step; with 1e-3 the
     slope is 0 and the dead time stays where it started (randomized bench 0: the CONFIG's 40 ms for
     the bench's 58 ms, and the rotor-lag fit then took 0.19 of the true inertia to make up for it)."""
-    rel = np.full(n_constants + len(free), 1e-3)
+    rel = np.full(n_constants + len(free) + n_companions, 1e-3)
     for j, name in enumerate(free):
         if name == "input_delay" and model.params.esc_input_delay_s > 0.0:
             rel[n_constants + j] = max(1e-3, model.params.sim_step_s / model.params.esc_input_delay_s)
@@ -390,7 +421,8 @@ def implausible(value: float, config: float) -> bool:
 
 def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
     """The quantities of ``fit`` (named ``what``) that ended at a bound of their range or
-    implausibly far from ``config`` (the CONFIG as given): Kv and CP, and the fitted strengths."""
+    implausibly far from ``config`` (the CONFIG as given): Kv and CP, and the fitted strengths;
+    a fitted COMPANION at a bound of its range."""
     out = []
     stated = config.source is not None
     for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range):
@@ -402,6 +434,11 @@ def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
             out.append(FitFlag(what, name, value, cfg, low, high, True, stated))
         elif implausible(value, cfg):
             out.append(FitFlag(what, name, value, cfg, low, high, False, stated))
+    for name, value in fit.companions().items():
+        a = fit.companion_anchor[name]
+        low, high = a * math.exp(-COMPANION_LOG_RANGE), a * math.exp(COMPANION_LOG_RANGE)
+        if abs(abs(math.log(value / a)) - COMPANION_LOG_RANGE) < 1e-3:
+            out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated))
     for name in fit.free:
         value, cfg = fit.model.effects[name], config.effects[name]
         if strength_at_bound(name, value):
@@ -422,7 +459,8 @@ def strength_at_bound(name: str, strength: float) -> str | None:
 
 def recalibrate(fit: Fit, model: PhysicsModel, data: Data, free: Sequence[str] | None = None) -> Fit:
     """``calibrate`` with ``fit``'s anchor and range (and free strengths unless given)."""
-    return calibrate(model, data, fit.anchor, fit.log_range, fit.free if free is None else free)
+    return calibrate(model, data, fit.anchor, fit.log_range, fit.free if free is None else free,
+                     companion_anchor=fit.companion_anchor)
 
 
 # --- scores ----------------------------------------------------------------------------------------
@@ -463,7 +501,8 @@ def score(null: Fit, cands: Sequence[Fit], grid: Sequence[float], data: Data) ->
 
 
 def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
-    """The effect switched on at each grid strength, constants recalibrated from ``base``'s."""
+    """The effect switched on at each grid strength, constants recalibrated from ``base``'s (its
+    COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``)."""
     return [recalibrate(base, base.model.with_effect(name, g), data) for g in STRENGTH_GRID[name]]
 
 

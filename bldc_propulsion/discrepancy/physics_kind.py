@@ -82,6 +82,7 @@ class PhysicsKind:
                                   "implausible": [f.text() for f in flags if not f.at_bound]}
             progress(f"  reference fit: {constants_text(model)}; strengths "
                      + (", ".join(f"{n} {model.effects[n]:.2f}" for n in on) or "none")
+                     + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
                      + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
             self.flags += flags
         progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
@@ -137,7 +138,8 @@ class PhysicsKind:
                  + "".join(f"; {n} refitted to strength {fit.model.effects[n]:.3g}" for n in self.cur.free))
         flags = ph.fit_flags(fit, self.config, f"{name} fit")
         self.flags += flags
-        return Trial(fit, predictions(fit.model, hold), {"strength": strength, **fit.model.constants()},
+        params = {"strength": strength, **fit.model.constants(), **fit.companions()}
+        return Trial(fit, predictions(fit.model, hold), params,
                      ph.describe(name, strength, fit.model.params), ph.fitted_value(name, strength, fit.model.params),
                      [f.text() for f in flags if f.blocks])
 
@@ -163,7 +165,8 @@ class PhysicsKind:
     def fitted(self, name: str) -> tuple[dict[str, Any], str, dict[str, Any]]:
         m = self.cur.model
         s = m.effects[name]
-        return {"strength": s, **m.constants()}, ph.describe(name, s, m.params), ph.fitted_value(name, s, m.params)
+        return ({"strength": s, **m.constants(), **self.cur.companions()}, ph.describe(name, s, m.params),
+                ph.fitted_value(name, s, m.params))
 
     def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
         fields = {"holdout_rmse_uncalibrated": self.uncal_rmse, "reference_fit": self.reference_fit,

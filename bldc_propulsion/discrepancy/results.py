@@ -202,7 +202,9 @@ def kept_text(kept: dict[str, Any]) -> str:
 
 def value_text(value: dict[str, Any]) -> str:
     """A fitted value in physical units (physics.fitted_value), e.g. 'dead time 52 ms'."""
-    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()
+    tau = value.get("thermal_time_constant_s")
+    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip() + (
+        f", thermal time constant {tau:.0f} s" if tau is not None else "")
 
 
 def summary_lines(data: dict[str, Any]) -> list[str]:

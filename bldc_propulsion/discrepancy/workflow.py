@@ -18,10 +18,10 @@ bench physics, ``physics_kind.py``):
    family and heating from the response itself.
 4. Add: the kind fits the effect into a trial model.
 5. Keep or reject (``acceptance.py``): the trial is kept only if it beats the current model on
-   data it was not fitted on (the holdout; else the kind's own held-out data) by
-   ACCEPT_MIN_REDUCTION at p < alpha, and no fitted quantity ended at a bound or implausibly far
-   from the CONFIG; the first rejection ends the loop, and every candidate not added is reported
-   as "considered, not added". Show: holdout RMSE before and after, overall and inside the
+   data it was not fitted on (the holdout, at p < HOLDOUT_ALPHA: a replication of step 3's
+   finding; else the kind's own held-out data, at p < alpha) by ACCEPT_MIN_REDUCTION, and no
+   fitted quantity ended at a bound or implausibly far from the CONFIG; the first rejection
+   ends the loop, and every candidate not added is reported as "considered, not added". Show: holdout RMSE before and after, overall and inside the
    holdout's disagreement windows. Repeat from 3 until nothing new is significant, a candidate
    is rejected, or ``max_effects``.
 """
@@ -208,7 +208,8 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         progress(f"  proposed: {ev.sentence}")
         trial = kind.add(name, refined.params, refined.reference_params, scores[name], hold, progress)
         if holdout:
-            judged = acc.judge(name, hold, hold_cur.predictions, trial.hold.predictions, "holdout", opts.alpha)
+            judged = acc.judge(name, hold, hold_cur.predictions, trial.hold.predictions, "holdout",
+                               max(opts.alpha, opts.holdout_alpha))
         else:
             judged = kind.heldout(name, trial, scores[name], opts.alpha)
         if trial.flags:
@@ -244,7 +245,8 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         {"reference": [s.path for s in reference], "measured": [s.path for s in measured],
          "holdout": [s.path for s in hold]},
         in_sample,
-        {"alpha": opts.alpha, "min_mse_reduction": opts.min_effect, "structural_ratio": STRUCTURAL_RATIO,
+        {"alpha": opts.alpha, "holdout_alpha": max(opts.alpha, opts.holdout_alpha) if holdout else None,
+         "min_mse_reduction": opts.min_effect, "structural_ratio": STRUCTURAL_RATIO,
          "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
         [*warnings, *kind.warnings()], kind_fields)
     data = result.as_json()
