@@ -146,7 +146,8 @@ def test_a_named_effect_has_one_fitted_value_everywhere(two_bags, tmp_path):
         assert f"{name} {strength:.3g}" in text  # the final model's line
         # the held-out figure that kept it, with the margin and significance it had to meet
         kept = kept_text(ev["acceptance"])
-        assert "needed >= 5 % and p < 0.01" in kept and kept in text and kept in page
+        # on the holdout, at its replication level (acceptance.HOLDOUT_ALPHA)
+        assert "needed >= 5 % and p < 0.05" in kept and kept in text and kept in page
     # the refit moved rotor_lag's strength, and only the refitted one is stated
     lag = data["evidence"]["rotor_lag"]["fitted_value"]["strength"]
     assert abs(first_fit - lag) > 0.05, (first_fit, lag)
