@@ -44,9 +44,9 @@ def _fit(model: ph.PhysicsModel, free: tuple[str, ...] = ()) -> ph.Fit:
 def test_fit_flags_name_the_constant_its_value_the_config_and_the_range():
     nominal = ph.load_config(None)
     cfg = dataclasses.replace(nominal, source="bench.json")  # a CONFIG the user gave
-    kv, cp, bend = cfg.constants().values()
+    kv, cp, bend, rs = cfg.constants().values()
     top = ph.STRENGTH_MAX["rotor_lag"]
-    far = cfg.with_constants([3.0 * kv, 1.9 * cp, 2.0 * bend]).with_effect("rotor_lag", top)
+    far = cfg.with_constants([3.0 * kv, 1.9 * cp, 2.0 * bend, rs]).with_effect("rotor_lag", top)
     flags = {f.quantity: f for f in ph.fit_flags(_fit(far, ("rotor_lag",)), cfg, "test fit")}
     # Kv 3x the CONFIG's: implausible; CP 1.9x: inside the factor 2; rotor_lag and the throttle
     # map's exponent (range a factor 2 either way) at their upper bounds

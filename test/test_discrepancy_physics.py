@@ -69,11 +69,13 @@ def test_motor_response_reproduces_the_simulator(step_s, max_err):
     assert np.sqrt(np.mean(err**2)) < max_err / 4
 
 
-def test_calibration_recovers_changed_kv_cp_and_throttle_map(tmp_path):
+def test_calibration_recovers_changed_kv_cp_throttle_map_and_pack_resistance(tmp_path):
     nominal = BenchParams()
     true = params_with_overrides(nominal, {"motor_kv_rpm_per_v": 1.1 * nominal.motor_kv_rpm_per_v,
                                            "propeller_cp": 0.9 * nominal.propeller_cp,
-                                           "esc_throttle_exponent": 1.15})
+                                           "esc_throttle_exponent": 1.15,
+                                           "battery_series_resistance_ohm":
+                                               0.55 * nominal.battery_series_resistance_ohm})
     res = simulate("steps", 30.0, 4, params=true, pwm=command("steps", 30.0, 4))
     write_sim_bag(res, tmp_path / "bag")
     s = load_signals(tmp_path / "bag")
@@ -83,6 +85,9 @@ def test_calibration_recovers_changed_kv_cp_and_throttle_map(tmp_path):
     assert got["motor_kv_rpm_per_v"] == pytest.approx(true.motor_kv_rpm_per_v, rel=0.03)
     assert got["propeller_cp"] == pytest.approx(true.propeller_cp, rel=0.05)
     assert got["esc_throttle_exponent"] == pytest.approx(1.15, rel=0.03)
+    # the pack's series resistance, from the seconds after each step while the battery filter's
+    # 2 s low-pass still lags the terminal voltage
+    assert got["battery_series_resistance_ohm"] == pytest.approx(true.battery_series_resistance_ohm, rel=0.15)
     # a start a rounding error away from the anchor calibrates the same (scipy's trust radius
     # starts at ||x0||: unshifted, it was 1e-16 here and the constants never moved)
     anchor = np.array(list(model.constants().values())) * (1.0 + 1e-15)
@@ -91,10 +96,20 @@ def test_calibration_recovers_changed_kv_cp_and_throttle_map(tmp_path):
         assert again[name] == pytest.approx(value, rel=1e-3)
     # held (as after a reference fit): the map stays the model's, straight, and Kv and CP make up
     # for it as best they can (a worse fit), with no column to refit per fold and no fit flag
-    held = ph.calibrate_base(model, ph.Data.of([s], "measured"), hold=("esc_throttle_exponent",))
+    held = ph.calibrate_base(model, ph.Data.of([s], "measured"), hold=ph.HELD_AFTER_REFERENCE)
     assert held.model.params.esc_throttle_exponent == 1.0 and held.log_range[2] == 0.0
-    assert not held.J[:, 2].any() and held.J[:, :2].any() and held.sse > 1.5 * fit.sse
+    assert held.model.params.battery_series_resistance_ohm == nominal.battery_series_resistance_ohm
+    assert not held.J[:, 2:4].any() and held.J[:, :2].any() and held.sse > 1.5 * fit.sse
     assert [f.quantity for f in ph.fit_flags(held, model, "held")] == []
+    # with battery_voltage off the model does not use R_s: it stays the CONFIG's, not fitted, and
+    # no flag (a zero column let the solver walk it to its bound, where a later fit found it)
+    stiff = model.with_effect("battery_voltage", 0.0)
+    off = ph.calibrate_base(stiff, ph.Data.of([s], "measured"))
+    assert off.model.params.battery_series_resistance_ohm == nominal.battery_series_resistance_ohm
+    assert not off.J[:, 3].any() and off.J[:, :3].any()
+    assert "battery_series_resistance_ohm" not in [f.quantity for f in ph.fit_flags(off, stiff, "off")]
+    assert "battery_series_resistance_ohm" in ph.inert_constants(stiff, ph.Data.of([s], "measured"))
+    assert ph.inert_constants(stiff, ph.Data.of([s], "measured"), ("battery_voltage",)) == set()
 
 
 def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
