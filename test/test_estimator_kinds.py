@@ -154,7 +154,12 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
         by_esc.setdefault(esc, {})[shape] = d["train_rmse_rad_s"]
     assert len(by_esc) == 2 and all(set(v) == {"straight", "bent"} for v in by_esc.values()), by_esc
     assert all(v["bent"] <= v["straight"] + 1e-6 for v in by_esc.values()), by_esc
-    assert data["candidates"][0]["validation_rmse_rad_s"] < data["candidates"][1]["validation_rmse_rad_s"]
+    # kept by validation: the list in its order, and the braking ESC (the bench's) ahead of the
+    # coasting one (a straight map's two fits can tie: the bent one starts at exponent 1, optimal)
+    val = [d["validation_rmse_rad_s"] for d in data["candidates"]]
+    assert val == sorted(val)
+    assert min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC braking")) < \
+        min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC letting"))
     assert data["validation_rmse_rad_s"] < 12.0  # the tachometer's own error is ~8 rad/s RMS on steps
     assert abs(data["constants"]["motor_kv_rpm_per_v"] / 710.0 - 1.0) < 0.1
     m = load_model_kind(out)
