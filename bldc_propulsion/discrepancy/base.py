@@ -43,6 +43,11 @@ class Options:
     report_force: bool = False  #: --force: an earlier report at report_dir may be replaced
     warm_start: bool = True  #: retrain from the base model's weights (network.warm_start_weights)
 
+    @property
+    def replication_alpha(self) -> float:
+        """The level a --holdout is judged at: holdout_alpha, never stricter than alpha."""
+        return max(self.alpha, self.holdout_alpha)
+
 
 @dataclass
 class DataSet:

@@ -187,11 +187,17 @@ def fitted_value(name: str, strength: float, p: BenchParams) -> dict[str, Any]:
     return out
 
 
+def value_text(value: dict[str, Any]) -> str:
+    """A ``fitted_value`` for people, e.g. 'dead time 52 ms': the one text of it in the console,
+    the report and ``describe``."""
+    tau = value.get("thermal_time_constant_s")
+    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip() + (
+        f", thermal time constant {tau:.0f} s" if tau is not None else "")
+
+
 def describe(name: str, strength: float, p: BenchParams) -> str:
     """The physical meaning of an effect's strength, for people (the numbers of ``fitted_value``)."""
-    v = fitted_value(name, strength, p)
-    tau = f", thermal time constant {v['thermal_time_constant_s']:.0f} s" if "thermal_time_constant_s" in v else ""
-    return f"strength {strength:.3g} ({v['quantity']} {v['value']:.4g} {v['unit']}{tau})"
+    return f"strength {strength:.3g} ({value_text(fitted_value(name, strength, p))})"
 
 
 # --- CONFIG files -----------------------------------------------------------------------------------
@@ -445,19 +451,23 @@ def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
     a fitted COMPANION at a bound of its range."""
     out = []
     stated = config.source is not None
+
+    def log_range(value: float, a: float, span: float) -> tuple[float, float, bool]:
+        """The range a * e^(+-span) and whether ``value`` ended on a bound of it."""
+        return a * math.exp(-span), a * math.exp(span), abs(abs(math.log(value / a)) - span) < 1e-3
+
     for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range):
         if span == 0.0:
             continue  # held, not fitted
         cfg = float(getattr(config.params, name))
-        low, high = a * math.exp(-span), a * math.exp(span)
-        if abs(abs(math.log(value / a)) - span) < 1e-3:
+        low, high, at_bound = log_range(value, a, span)
+        if at_bound:
             out.append(FitFlag(what, name, value, cfg, low, high, True, stated))
         elif implausible(value, cfg):
             out.append(FitFlag(what, name, value, cfg, low, high, False, stated))
     for name, value in fit.companions().items():
-        a = fit.companion_anchor[name]
-        low, high = a * math.exp(-COMPANION_LOG_RANGE), a * math.exp(COMPANION_LOG_RANGE)
-        if abs(abs(math.log(value / a)) - COMPANION_LOG_RANGE) < 1e-3:
+        low, high, at_bound = log_range(value, fit.companion_anchor[name], COMPANION_LOG_RANGE)
+        if at_bound:
             out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated))
     for name in fit.free:
         value, cfg = fit.model.effects[name], config.effects[name]

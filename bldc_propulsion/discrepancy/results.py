@@ -17,6 +17,7 @@ from . import acceptance as acc
 from . import residuals as rs
 from . import scoring as sc
 from .base import DataSet
+from .physics import value_text
 
 #: The reference must lose less than this fraction of the measured data's mean squared residual
 #: for an effect to be new (else structural).
@@ -198,13 +199,6 @@ def kept_text(kept: dict[str, Any]) -> str:
             f"{100 * kept['mse_reduction']:.1f} % of the mean squared error ({kept['blocks_improved']} of "
             f"{kept['blocks']} blocks better, p = {kept['p_value']:.2g}; needed >= "
             f"{100 * kept['min_mse_reduction']:.0f} % and p < {kept['alpha']:g})")
-
-
-def value_text(value: dict[str, Any]) -> str:
-    """A fitted value in physical units (physics.fitted_value), e.g. 'dead time 52 ms'."""
-    tau = value.get("thermal_time_constant_s")
-    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip() + (
-        f", thermal time constant {tau:.0f} s" if tau is not None else "")
 
 
 def summary_lines(data: dict[str, Any]) -> list[str]:

@@ -209,7 +209,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         trial = kind.add(name, refined.params, refined.reference_params, scores[name], hold, progress)
         if holdout:
             judged = acc.judge(name, hold, hold_cur.predictions, trial.hold.predictions, "holdout",
-                               max(opts.alpha, opts.holdout_alpha))
+                               opts.replication_alpha)
         else:
             judged = kind.heldout(name, trial, scores[name], opts.alpha)
         if trial.flags:
@@ -245,7 +245,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         {"reference": [s.path for s in reference], "measured": [s.path for s in measured],
          "holdout": [s.path for s in hold]},
         in_sample,
-        {"alpha": opts.alpha, "holdout_alpha": max(opts.alpha, opts.holdout_alpha) if holdout else None,
+        {"alpha": opts.alpha, "holdout_alpha": opts.replication_alpha if holdout else None,
          "min_mse_reduction": opts.min_effect, "structural_ratio": STRUCTURAL_RATIO,
          "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
         [*warnings, *kind.warnings()], kind_fields)
