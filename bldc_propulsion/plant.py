@@ -324,6 +324,34 @@ def make_step(p: PlantParams, eff: Mapping[str, float], source_resistance_ohm: f
     return lagged if jr > 0.0 else steady
 
 
+# --- what recordings identify: the rotor's time constant and the warm winding's speed loss -----------
+# Without a current measurement the static map fixes only the product of the winding resistance and
+# the propeller's torque coefficient (duty V = Ke w + R k w^2 / Kt + R I0), so two benches with the
+# same map may split it differently: a rotor inertia or a copper coefficient fitted with the CONFIG's
+# split is in the CONFIG's terms. The rotor's time constant at a speed and the speed lost once the
+# winding is warm are what the recordings show, on any split.
+def spin_up_time_constant_s(p: PlantParams, eff: Mapping[str, float], w: float) -> float:
+    """The rotor's small-signal time constant at speed ``w`` (rad/s): J over the slope of the net
+    torque (the back-EMF's Kt Ke / R and the propeller's 2 k w), cold winding, stiff supply: the
+    linearisation of ``make_step``'s rotor."""
+    ke = p.back_emf_constant_v_s_per_rad
+    damping = ke * ke / (p.winding_resistance_ohm + p.esc_resistance_ohm) + 2.0 * p.torque_coefficient * w
+    return float(eff["rotor_lag"] * p.rotor_inertia_kg_m2 / damping)
+
+
+def full_drive_speeds(p: PlantParams, eff: Mapping[str, float], v: float) -> tuple[float, float]:
+    """(cold, warm) steady speed at full duty on a stiff ``v``: the winding at ambient, and at the
+    temperature where its losses and the thermal resistance balance (``make_step``'s arithmetic,
+    stepped at a fifth of the thermal time constant until it levels off)."""
+    tau_th = p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w
+    step = make_step(dataclasses.replace(p, sim_step_s=0.2 * tau_th), {**eff, "rotor_lag": 0.0}, 0.0)
+    temp = p.ambient_temperature_c
+    cold = w = step(0.0, temp, 1.0, v)[0]
+    for _ in range(200):  # 0.8^200: converged
+        w, _, _, temp = step(w, temp, 1.0, v)
+    return cold, w
+
+
 # --- driven by a measured supply --------------------------------------------------------------
 @dataclass(frozen=True)
 class Supply:

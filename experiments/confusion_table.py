@@ -32,7 +32,7 @@ from bldc_propulsion import contract as c
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_run(effect: str, seed: int, random_bench: bool, hidden: int, epochs: int) -> dict:
+def one_run(effect: str, seed: int, bench_kind: str, hidden: int, epochs: int) -> dict:
     """One scenario of test/test_discrepancy.py (same commands, states of charge and sizes) at
     another seed: every recording and the baseline's initial weights change with the seed."""
     sys.path.insert(0, str(ROOT / "test"))
@@ -41,8 +41,8 @@ def one_run(effect: str, seed: int, random_bench: bool, hidden: int, epochs: int
     from bldc_propulsion.sim import random_bench as rb
 
     T.HIDDEN, T.EPOCHS = hidden, epochs  # recording lengths are the test's (SCENARIOS)
-    bench = rb.draw_bench(seed) if random_bench else None
-    strength = rb.draw_strength(effect, seed) if random_bench and effect != "control" else 1.0
+    bench = rb.DRAWS[bench_kind](seed) if bench_kind != "nominal" else None
+    strength = rb.draw_strength(effect, seed) if bench_kind != "nominal" and effect != "control" else 1.0
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         s = T.scenario(effect, Path(d), seed, bench=bench, strength=strength)
@@ -84,6 +84,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed+seeds-1")
     ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
+    ap.add_argument("--far-bench", action="store_true",
+                    help="benches of another motor class (random_bench.draw_far_bench: 3S/4S, other speed and power)")
     ap.add_argument("--hidden", type=int, default=8)
     ap.add_argument("--epochs", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
@@ -91,8 +93,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     effects = [e for e in args.effects.split(",") if e]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    jobs = [(e, s, not args.nominal_bench, args.hidden, args.epochs) for s in seeds for e in effects]
-    print(f"{'nominal' if args.nominal_bench else 'randomized'} benches, seeds {seeds.start}-{seeds.stop - 1}")
+    kind = "nominal" if args.nominal_bench else "far" if args.far_bench else "random"
+    jobs = [(e, s, kind, args.hidden, args.epochs) for s in seeds for e in effects]
+    print(f"{kind} benches, seeds {seeds.start}-{seeds.stop - 1}")
     results = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         for r in pool.map(one_run, *zip(*jobs)):

@@ -11,7 +11,12 @@ battery_voltage all control recordings are on one pack charge (with the effect o
 simulator's supply is stiff at each pack's own starting voltage, so packs at different charges
 would still differ in voltage: that IS the effect). Prints the table (true effect x first named),
 the holdout RMSE reduction and the fitted strength vs the truth in the nominal model's units
-(``random_bench.model_strength``), median [min, max] over seeds.
+(``random_bench.model_strength``), median [min, max] over seeds; for rotor_lag and motor_heating
+also what the recordings identify on any split of winding resistance and propeller drag (the
+spin-up time constant, the full-drive speed lost once warm: ``physics.fitted_value``) vs the
+drawn bench's own value. ``--far-bench``: benches of another motor class
+(``random_bench.draw_far_bench``), where the CONFIG-unit strengths of those two are off by the
+split and the identified values are the check.
 
     PYTHONPATH=. python experiments/physics_confusion.py --seeds 5 --jobs 2
 
@@ -23,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import sys
 import tempfile
@@ -38,16 +44,17 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
 
 
-def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str, oracle: bool = False) -> dict:
+def one_run(effect: str, seed: int, control: bool, bench_kind: str, tmp: str, oracle: bool = False) -> dict:
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
     from bldc_propulsion.discrepancy.workflow import run_physics_workflow
     from bldc_propulsion.discrepancy.workflow import Options
     from bldc_propulsion.sim import random_bench as rb
     from bldc_propulsion.recordings import load_signals
+    from bldc_propulsion.sim.params import BenchParams
 
-    bench = rb.draw_bench(seed) if random_bench else None
-    strength = rb.draw_strength(effect, seed) if random_bench else 1.0
+    bench = rb.DRAWS[bench_kind](seed) if bench_kind != "nominal" else None
+    strength = rb.draw_strength(effect, seed) if bench_kind != "nominal" else 1.0
     _, ref_extra, meas_spec, hold_spec = T.SCENARIOS[effect]
     ref_spec = [*T.REF, *ref_extra]
     if control and effect == "battery_voltage":
@@ -73,11 +80,24 @@ def one_run(effect: str, seed: int, control: bool, random_bench: bool, tmp: str,
     data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
     fitted = data["evidence"].get(effect, {}).get("fitted_parameters", {}) if not control else {}
     truth = rb.model_strength(effect, strength, bench or ph.load_config(None).params)
+    value = data["evidence"].get(effect, {}).get("fitted_value") or {} if effect in data["named"] else {}
+    shown = true_shown = float("nan")  # what the recordings identify (plant.spin_up_time_constant_s)
+    if "time_constant_ms" in value or "warm_speed_loss_percent" in value:
+        from bldc_propulsion import plant
+
+        eff = {**{n: 0.0 for n in c.EFFECTS}, effect: strength}
+        b = bench or BenchParams()
+        if effect == "rotor_lag":
+            shown, true_shown = value["time_constant_ms"], 1000.0 * plant.spin_up_time_constant_s(
+                b, eff, value["at_speed_rad_s"])
+        else:
+            cold, warm = plant.full_drive_speeds(b, eff, value["supply_v"])
+            shown, true_shown = value["warm_speed_loss_percent"], 100.0 * (1.0 - warm / cold)
     return {"effect": "control" if control else effect, "hidden": effect, "seed": seed, "named": data["named"],
             "first": data["named"][0] if data["named"] else "(nothing)",
             "before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
             "strength": fitted.get("strength", float("nan")) if effect in data["named"] else float("nan"),
-            "truth": truth, "seconds": time.perf_counter() - t0}
+            "truth": truth, "shown": shown, "true_shown": true_shown, "seconds": time.perf_counter() - t0}
 
 
 def print_table(rows: list[dict], effects: list[str]) -> None:
@@ -104,6 +124,11 @@ def print_table(rows: list[dict], effects: list[str]) -> None:
             within = sum(abs(x - 1.0) <= 0.3 for x in ratio)
             line += (f"   strength/truth {np.median(ratio):.2f} [{min(ratio):.2f}, {max(ratio):.2f}], "
                      f"{within}/{len(ratio)} within 30 %")
+        shown = [r["shown"] / r["true_shown"] for r in mine if np.isfinite(r.get("shown", math.nan))]
+        if shown:
+            what = "time constant" if true == "rotor_lag" else "warm speed loss"
+            line += (f"; {what} / truth {np.median(shown):.2f} [{min(shown):.2f}, {max(shown):.2f}], "
+                     f"{sum(abs(x - 1.0) <= 0.3 for x in shown)}/{len(shown)} within 30 %")
         if true == "control":
             line += f"   false names: {sum(len(r['named']) for r in mine)}"
         print(line)
@@ -117,6 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed+seeds-1")
     ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
+    ap.add_argument("--far-bench", action="store_true",
+                    help="benches of another motor class (random_bench.draw_far_bench: 3S/4S, other speed and power)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--effects", default=",".join(c.EFFECTS))
     ap.add_argument("--oracle", action="store_true",
@@ -124,12 +151,13 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     effects = [e for e in args.effects.split(",") if e]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
-    print(f"{'nominal' if args.nominal_bench else 'randomized'} benches, seeds {seeds.start}-{seeds.stop - 1}")
+    kind = "nominal" if args.nominal_bench else "far" if args.far_bench else "random"
+    print(f"{kind} benches, seeds {seeds.start}-{seeds.stop - 1}")
     jobs = [(e, s, ctl) for s in seeds
             for e, ctl in [*((e, False) for e in effects), (c.EFFECTS[s % len(c.EFFECTS)], True)]]
     rows = []
     with tempfile.TemporaryDirectory() as tmp, ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = [pool.submit(one_run, e, s, ctl, not args.nominal_bench, tmp, args.oracle) for e, s, ctl in jobs]
+        futs = [pool.submit(one_run, e, s, ctl, kind, tmp, args.oracle) for e, s, ctl in jobs]
         for f in futs:
             r = f.result()
             rows.append(r)

@@ -246,3 +246,25 @@ def test_a_start_level_proposed_by_the_scores_yields_to_the_response_that_change
     out = idf.refine(ev, "esc_deadband", [], meas, ref, 20.0, 10.0, {}, 0.01, 0.10, lambda m: None)
     assert out.best is None, ev["esc_deadband"].dynamics
     assert ev["esc_deadband"].verdict == "not new (identified dynamics unchanged)"
+
+
+def test_heating_threshold_is_a_share_of_the_fitted_full_drive_speed(tmp_path):
+    """``identify_heating``'s full-drive speed is the simulator's (the speed the winding's loss is
+    a share of: ``plant.full_drive_speeds`` on the bench, cold, at the measured median voltage,
+    within 5 %),
+    heating at strength 1 is named, and the same extra loss is named on a motor at 600 rad/s but
+    not at 1000 rad/s (hand-computed: 0.83 % of each)."""
+    from bldc_propulsion import contract as c
+    from bldc_propulsion import plant
+    from bldc_propulsion.sim import BenchParams
+
+    ref = [load_signals(_bag(tmp_path, "r", "load", 40, {"motor_heating": 0.0}, 1.0, 120.0))]
+    meas = [load_signals(_bag(tmp_path, "m", "load", 50, {"motor_heating": 1.0}, 1.0, 180.0))]
+    heat = idf.identify_heating(meas, ref)
+    v = float(np.median(meas[0].voltage[np.isfinite(meas[0].voltage)]))
+    cold, _ = plant.full_drive_speeds(BenchParams(), {n: 0.0 for n in c.EFFECTS}, v)
+    assert heat.full_speed_rad_s == pytest.approx(cold, rel=0.05)  # a cubic through the held levels (595 vs 575)
+    assert heat.changed and heat.as_dict()["full_drive_speed_rad_s"] == heat.full_speed_rad_s
+    same_loss = dict(measured=-10.0, reference=0.0, hottest=0.6, se=1.0)  # 6 rad/s, 10 standard errors
+    assert idf.Heating(**same_loss, full_speed_rad_s=600.0).changed
+    assert not idf.Heating(**same_loss, full_speed_rad_s=1000.0).changed

@@ -143,6 +143,8 @@ def test_a_named_effect_has_one_fitted_value_everywhere(two_bags, tmp_path):
         shown = f"{quantity} {value['value']:.4g} {unit}"
         for where in (text, ev["sentence"], ev["feature"], page):
             assert shown in where and f"strength {strength:.3g}" in where, where
+            assert ph.value_text(value) in where  # with the spin-up time constant for rotor_lag
+        assert ("time_constant_ms" in value) == (name == "rotor_lag")
         assert f"{name} {strength:.3g}" in text  # the final model's line
         # the held-out figure that kept it, with the margin and significance it had to meet
         kept = kept_text(ev["acceptance"])

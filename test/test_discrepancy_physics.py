@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
+from bldc_propulsion import plant
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.workflow import run_physics_workflow
 from bldc_propulsion.discrepancy.workflow import Options
@@ -126,6 +127,27 @@ def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
     assert fit.model.effects["input_delay"] == pytest.approx(1.5, abs=ph.PHYSICS_STEP_S / nominal.esc_input_delay_s)
 
 
+def test_rotor_lag_is_reported_as_the_time_constant_the_recordings_show(tmp_path):
+    """A motor with 2.5x the CONFIG's winding resistance on a propeller with 1/2.5 its drag: the
+    same static map (the recordings fix only their product), another split. The inertia fitted
+    in the CONFIG's terms is not the bench's, but the spin-up time constant reported with it is
+    (``plant.spin_up_time_constant_s`` on the bench itself, at the same speed)."""
+    nominal = BenchParams()
+    true = params_with_overrides(nominal, {"winding_resistance_ohm": 2.5 * nominal.winding_resistance_ohm,
+                                           "propeller_cp": nominal.propeller_cp / 2.5})
+    res = simulate("steps", 30.0, 6, params=true, pwm=command("steps", 30.0, 6))
+    write_sim_bag(res, tmp_path / "bag")
+    s = load_signals(tmp_path / "bag")
+    model = ph.PhysicsModel(ph.load_config(None).params, dict(ALL_ON)).with_supply([s])
+    fit = ph.fit_reference(model, ph.Data.of([s], "reference"))
+    strength = fit.model.effects["rotor_lag"]
+    value = ph.fitted_value("rotor_lag", strength, fit.model.params, fit.model.supply_v)
+    truth = 1000.0 * plant.spin_up_time_constant_s(true, {"rotor_lag": 1.0}, value["at_speed_rad_s"])
+    assert value["time_constant_ms"] == pytest.approx(truth, rel=0.1)
+    assert not 0.7 < strength < 1.3  # the inertia in the CONFIG's terms is off by the split
+    assert f"spin-up time constant {value['time_constant_ms']:.0f} ms" in ph.describe("rotor_lag", strength, fit.model)
+
+
 def test_heating_is_fitted_with_the_motors_thermal_time_constant(tmp_path, monkeypatch):
     """A motor that heats twice as fast as the CONFIG's (thermal capacity 0.5x): with heating's
     strength, its COMPANION (the thermal resistance) is fitted, and the strength is the truth in
@@ -149,7 +171,11 @@ def test_heating_is_fitted_with_the_motors_thermal_time_constant(tmp_path, monke
     assert tau == pytest.approx(true.motor_thermal_capacity_j_per_k * true.motor_thermal_resistance_k_per_w, rel=0.3)
     assert fit.companion_anchor == {"motor_thermal_resistance_k_per_w": nominal.motor_thermal_resistance_k_per_w}
     assert fit.J.shape[1] == len(ph.CALIBRATED) + 2 and fit.J[:, -1].any()  # refitted per fold too
-    assert f"thermal time constant {tau:.0f} s" in ph.describe("motor_heating", 1.0, fit.model.params)
+    assert f"thermal time constant {tau:.0f} s" in ph.describe("motor_heating", 1.0, fit.model)
+    # what the recordings show on any split: the full-drive speed lost once warm, the bench's
+    value = ph.fitted_value("motor_heating", fit.model.effects["motor_heating"], fit.model.params, fit.model.supply_v)
+    cold, warm = plant.full_drive_speeds(true, {**{n: 0.0 for n in c.EFFECTS}, "motor_heating": 1.0}, model.supply_v)
+    assert value["warm_speed_loss_percent"] == pytest.approx(100.0 * (1.0 - warm / cold), rel=0.15)
     monkeypatch.setattr(ph, "COMPANIONS", {})
     held = ph.calibrate(model, data, anchor, ph.LOG_RANGE_BASE, ("motor_heating",))
     assert held.model.effects["motor_heating"] < 1.5 and held.sse > 2.0 * fit.sse

@@ -82,6 +82,43 @@ def test_rotor_with_inertia_approaches_the_steady_state_with_its_time_constant()
     assert temp > 25.0  # copper loss heats the winding
 
 
+def test_spin_up_time_constant_is_the_small_step_response() -> None:
+    """``spin_up_time_constant_s`` (the linearised rotor) against the plant stepped at 1 ms: a small
+    duty step from a settled speed reaches 63.2 % of its rise in one time constant. At 1.5x the
+    nominal inertia on another winding, so the check is not of the nominal numbers."""
+    p = dataclasses.replace(pl.PlantParams(), winding_resistance_ohm=0.35)
+    eff = {**ALL_OFF, "rotor_lag": 1.5}
+    steady = pl.make_step(p, ALL_OFF, 0.0)
+    w0, w1 = (steady(0.0, 25.0, d, 12.0)[0] for d in (0.5, 0.51))
+    step = pl.make_step(p, eff, 0.0)
+    w, n = w0, 0
+    while w < w0 + (1.0 - math.exp(-1.0)) * (w1 - w0):
+        _, w, _, _ = step(w, 25.0, 0.51, 12.0)
+        n += 1
+    tau = pl.spin_up_time_constant_s(p, eff, 0.5 * (w0 + w1))
+    assert n * p.sim_step_s == pytest.approx(tau, rel=0.02)
+    assert 0.05 < tau < 0.5
+    assert pl.spin_up_time_constant_s(p, ALL_OFF, w0) == 0.0  # no inertia: no lag
+
+
+def test_full_drive_speeds_are_where_the_simulated_winding_levels_off() -> None:
+    """``full_drive_speeds`` against the simulator's ground truth at full command on a stiff supply:
+    the speed once the winding has settled (a motor with a 13 s thermal time constant run for
+    90 s) and the same run without heating (cold)."""
+    from bldc_propulsion.sim import simulate
+
+    p = dataclasses.replace(BenchParams(), motor_thermal_capacity_j_per_k=7.0)
+    eff = {**{n: 1.0 for n in EFFECTS}, "battery_voltage": 0.0}
+    cmd = (np.array([0.0]), np.array([PWM_FULL]))
+    hot, cold = (simulate("step", 90.0, 0, effects={**eff, "motor_heating": h}, params=p, pwm=cmd) for h in (1.0, 0.0))
+    v = float(hot.truth_voltage[-1])
+    assert np.ptp(hot.truth_voltage[-1000:]) < 1e-9  # stiff
+    want_cold, want_warm = pl.full_drive_speeds(p, eff, v)
+    assert want_cold == pytest.approx(cold.truth_speed[-1], rel=1e-3)
+    assert want_warm == pytest.approx(hot.truth_speed[-1], rel=1e-3)
+    assert want_warm < want_cold - 10.0
+
+
 def test_without_braking_the_current_never_goes_negative() -> None:
     p = pl.PlantParams()
     for braking_removed, brakes in ((0.0, True), (1.0, False)):

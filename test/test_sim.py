@@ -447,6 +447,29 @@ def test_drawn_benches_span_the_stated_ranges_and_repeat_per_seed() -> None:
     assert all(0.5 <= rb.draw_strength("spin_down_asymmetry", k) <= 1.0 for k in range(40))
 
 
+def test_far_benches_are_another_motor_class_sized_by_its_power() -> None:
+    """``draw_far_bench``: draw_bench's bench moved to a 3S or 4S pack, a no-load speed of
+    0.7-1.4x and a shaft power of 0.5-2x, the propeller's diameter from P ~ w^3 D^5 and the
+    winding sized as V^2 / P (so the copper-loss share stays the class's): checked per draw
+    against the drawn speed and power recovered from Kv, cells and diameter."""
+    from bldc_propulsion.sim import random_bench as rb
+
+    nominal = BenchParams()
+    assert rb.draw_far_bench(3) == rb.draw_far_bench(3) and rb.DRAWS["far"] is rb.draw_far_bench
+    cells = set()
+    for seed in range(30):
+        near, far = rb.draw_bench(seed), rb.draw_far_bench(seed)
+        volts = far.battery_cells / nominal.battery_cells
+        speed = far.motor_kv_rpm_per_v * volts / near.motor_kv_rpm_per_v
+        power = speed**3 * (far.propeller_diameter_m / near.propeller_diameter_m) ** 5
+        assert 0.7 <= speed <= 1.4 and 0.5 - 1e-9 <= power <= 2.0 + 1e-9
+        assert far.winding_resistance_ohm == pytest.approx(near.winding_resistance_ohm * volts**2 / power)
+        assert far.motor_thermal_capacity_j_per_k == pytest.approx(near.motor_thermal_capacity_j_per_k * power)
+        assert far.esc_input_delay_s == near.esc_input_delay_s  # the ESC and sensors are draw_bench's
+        cells.add(far.battery_cells)
+    assert cells == {3, 4}
+
+
 def test_bent_throttle_map_and_second_rc_change_the_physics() -> None:
     """exponent > 1 lowers the mid-throttle speed, not the full-throttle one; a second RC branch
     sags the terminal voltage further under sustained load."""

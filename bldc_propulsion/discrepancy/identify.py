@@ -560,7 +560,11 @@ def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
 
 # --- motor heating: did the speed's response to the thermal state change --------------------------
 HEATING_TAU_S = 120.0  #: thermal time constant of the identification (s)
-HEATING_MIN_DROP = 5.0  #: rad/s: least extra speed loss at the measured data's hottest state
+#: least extra speed loss at the measured data's hottest state, as a fraction of the fitted
+#: full-drive speed: a loss of speed with the winding's resistance is in proportion to the speed
+#: (5 rad/s on the nominal bench's 600 rad/s; an absolute figure would be another threshold on a
+#: motor that spins twice as fast)
+HEATING_MIN_DROP = 0.0083
 #: ... and at least this many standard errors of the fit with the holds as the independent units
 #: (one-sided p = 0.0013), so that a noisy motor's 5 rad/s is not taken for heating. Neither alone
 #: suffices: on tuning seed 101 a control with no heating anywhere (a hot 180 s measured load vs a
@@ -582,6 +586,8 @@ class Heating:
     hottest: float  #: largest thermal state on the measured data
     #: standard error of reference - measured (rad/s per unit), clustered by hold
     se: float = math.inf
+    #: the fitted steady speed at full command and the measured data's median voltage (rad/s)
+    full_speed_rad_s: float = math.inf
 
     @property
     def drop_rad_s(self) -> float:
@@ -595,20 +601,21 @@ class Heating:
 
     @property
     def changed(self) -> bool:
-        return (self.hottest >= HEATING_MIN_STATE and self.drop_rad_s >= HEATING_MIN_DROP
+        return (self.hottest >= HEATING_MIN_STATE and self.drop_rad_s >= HEATING_MIN_DROP * self.full_speed_rad_s
                 and self.z >= HEATING_MIN_Z)
 
     def describe(self) -> str:
         return (f"at the measured data's hottest thermal state ({self.hottest:.2f}, time constant "
                 f"{HEATING_TAU_S:.0f} s) the steady speed is {self.drop_rad_s:.1f} rad/s lower than the "
                 f"reference's response to the same state predicts ({self.z:.1f} standard errors; named from "
-                f"{HEATING_MIN_DROP:g} rad/s and {HEATING_MIN_Z:g} standard errors at a thermal state from "
+                f"{HEATING_MIN_DROP * self.full_speed_rad_s:.1f} rad/s ({100 * HEATING_MIN_DROP:.2g} % of the "
+                f"{self.full_speed_rad_s:.0f} rad/s at full drive) and {HEATING_MIN_Z:g} standard errors at a thermal state from "
                 f"{HEATING_MIN_STATE:g})")
 
     def as_dict(self) -> dict[str, float]:
         return {"measured_rad_s_per_unit": self.measured, "reference_rad_s_per_unit": self.reference,
                 "hottest_thermal_state": self.hottest, "extra_drop_rad_s": self.drop_rad_s,
-                "extra_drop_z": self.z}
+                "extra_drop_z": self.z, "full_drive_speed_rad_s": self.full_speed_rad_s}
 
 
 def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) -> Heating:
@@ -619,7 +626,7 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
     alike, so the shared voltage terms take that, and only a response to the winding's heat that
     differs between the sets goes into k_measured - k_reference. Samples at least 0.7 s after a
     command change (the rotor's dynamics do not enter)."""
-    rows, ys, holds_ = [], [], []
+    rows, ys, holds_, volts = [], [], [], []
     hottest = 0.0
     n_holds = 0
     for which, sigs in ((0, measured), (1, reference)):
@@ -642,12 +649,17 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
             n_holds += len(change)
             if which == 0 and ok.any():
                 hottest = max(hottest, float(np.max(th[ok])))
+                volts.append(v)
     A, y = np.vstack(rows), np.concatenate(ys)
     if len(y) < 20:
         return Heating(0.0, 0.0, 0.0)
     beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+    p_full = (c.PWM_FULL - 0.075) / 0.025
+    v_med = float(np.median(np.concatenate(volts))) if volts else 0.0
+    full = float(np.array([1.0, p_full, p_full**2, p_full**3, v_med, v_med * p_full]) @ beta[:6])
     return Heating(float(beta[6]), float(beta[7]), hottest,
-                   _clustered_se(A, y - A @ beta, np.concatenate(holds_), np.array([0, 0, 0, 0, 0, 0, -1, 1])))
+                   _clustered_se(A, y - A @ beta, np.concatenate(holds_), np.array([0, 0, 0, 0, 0, 0, -1, 1])),
+                   full if full > 0.0 else math.inf)
 
 
 def _clustered_se(A: np.ndarray, resid: np.ndarray, cluster: np.ndarray, contrast: np.ndarray) -> float:

@@ -35,7 +35,7 @@ from .. import contract as c
 from ..atomic import CONFIG, atomic_output
 from ..core.battery_filter import BatteryFilterConfig
 from ..errors import BadInputError
-from ..plant import motor_response, resolve_effects
+from ..plant import full_drive_speeds, motor_response, resolve_effects, spin_up_time_constant_s
 from ..sim.params import BenchParams, params_with_overrides
 from ..recordings import Signals
 from . import scoring as sc
@@ -170,8 +170,13 @@ class PhysicsModel:
 
 #: The physical quantity each effect's strength scales (sim.bench.EFFECT_DOCS): name, unit, and its
 #: value at a strength on a bench.
-def fitted_value(name: str, strength: float, p: BenchParams) -> dict[str, Any]:
-    """An effect's strength as the physical quantity it sets: {quantity, value, unit, strength}."""
+def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | None = None) -> dict[str, Any]:
+    """An effect's strength as the physical quantity it sets: {quantity, value, unit, strength}.
+
+    With the model's ``supply_v``, also what the recordings identify whatever the CONFIG's split of
+    winding resistance and propeller drag (``plant.spin_up_time_constant_s``): for rotor_lag the
+    spin-up time constant at half the full-drive speed, for motor_heating the share of the
+    full-drive speed lost once the winding is warm. The inertia and the %/K are the CONFIG's terms."""
     quantity, value, unit = {
         "battery_voltage": ("share of the measured battery voltage's deviation from a stiff supply the motor sees",
                             strength, "x"),
@@ -184,20 +189,34 @@ def fitted_value(name: str, strength: float, p: BenchParams) -> dict[str, Any]:
     out = {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
     if name == "motor_heating":  # fitted along with it (COMPANIONS)
         out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
+    if supply_v is not None and name in ("rotor_lag", "motor_heating"):
+        eff = {**{n: 0.0 for n in c.EFFECTS}, name: float(strength)}
+        cold, warm = full_drive_speeds(p, eff, supply_v)
+        if name == "rotor_lag":
+            out["time_constant_ms"] = 1000.0 * spin_up_time_constant_s(p, eff, 0.5 * cold)
+            out["at_speed_rad_s"] = 0.5 * cold
+        else:
+            out["warm_speed_loss_percent"] = 100.0 * (1.0 - warm / cold)
+        out["supply_v"] = float(supply_v)
     return out
 
 
 def value_text(value: dict[str, Any]) -> str:
     """A ``fitted_value`` for people, e.g. 'dead time 52 ms': the one text of it in the console,
     the report and ``describe``."""
-    tau = value.get("thermal_time_constant_s")
-    return f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip() + (
-        f", thermal time constant {tau:.0f} s" if tau is not None else "")
+    text = f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()
+    if value.get("thermal_time_constant_s") is not None:
+        text += f", thermal time constant {value['thermal_time_constant_s']:.0f} s"
+    if value.get("time_constant_ms") is not None:
+        text += f"; spin-up time constant {value['time_constant_ms']:.0f} ms at {value['at_speed_rad_s']:.0f} rad/s"
+    if value.get("warm_speed_loss_percent") is not None:
+        text += f"; full-drive speed {value['warm_speed_loss_percent']:.2g} % lower once warm"
+    return text
 
 
-def describe(name: str, strength: float, p: BenchParams) -> str:
+def describe(name: str, strength: float, model: PhysicsModel) -> str:
     """The physical meaning of an effect's strength, for people (the numbers of ``fitted_value``)."""
-    return f"strength {strength:.3g} ({value_text(fitted_value(name, strength, p))})"
+    return f"strength {strength:.3g} ({value_text(fitted_value(name, strength, model.params, model.supply_v))})"
 
 
 # --- CONFIG files -----------------------------------------------------------------------------------

@@ -126,21 +126,21 @@ class PhysicsKind:
             r = (ph.score(self.cur_ref, ph.effect_fits(self.cur_ref, name, self.ref_data), grid, self.ref_data)
                  if self.cur_ref else None)
             # (the grid strength chosen most often across the folds: the fit of step 4 refines it)
-            out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model.params))
+            out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model))
         return out
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
             scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:
         fit = ph.fit_strength(self.cur, name, self.meas_data, self._fits[name])
         strength = fit.model.effects[name]
-        progress(f"step 4: fitted {name} at {ph.describe(name, strength, fit.model.params)}; constants "
+        progress(f"step 4: fitted {name} at {ph.describe(name, strength, fit.model)}; constants "
                  f"{constants_text(fit.model)}"
                  + "".join(f"; {n} refitted to strength {fit.model.effects[n]:.3g}" for n in self.cur.free))
         flags = ph.fit_flags(fit, self.config, f"{name} fit")
         self.flags += flags
         params = {"strength": strength, **fit.model.constants(), **fit.companions()}
         return Trial(fit, predictions(fit.model, hold), params,
-                     ph.describe(name, strength, fit.model.params), ph.fitted_value(name, strength, fit.model.params),
+                     ph.describe(name, strength, fit.model), ph.fitted_value(name, strength, fit.model.params, fit.model.supply_v),
                      [f.text() for f in flags if f.blocks])
 
     def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
@@ -165,8 +165,8 @@ class PhysicsKind:
     def fitted(self, name: str) -> tuple[dict[str, Any], str, dict[str, Any]]:
         m = self.cur.model
         s = m.effects[name]
-        return ({"strength": s, **m.constants(), **self.cur.companions()}, ph.describe(name, s, m.params),
-                ph.fitted_value(name, s, m.params))
+        return ({"strength": s, **m.constants(), **self.cur.companions()}, ph.describe(name, s, m),
+                ph.fitted_value(name, s, m.params, m.supply_v))
 
     def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
         fields = {"holdout_rmse_uncalibrated": self.uncal_rmse, "reference_fit": self.reference_fit,

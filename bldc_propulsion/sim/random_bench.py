@@ -86,6 +86,47 @@ def draw_bench(seed: int, base: BenchParams | None = None) -> BenchParams:
     return check_params(p)
 
 
+def draw_far_bench(seed: int, base: BenchParams | None = None) -> BenchParams:
+    """``draw_bench(seed)`` moved to another motor class: a probe of scale, not the issue's protocol.
+
+    An independent bench need not be a 12 in propeller on 3S: this one draws the pack (3S or
+    4S), the no-load speed (0.7-1.4x, Kv set from it and the pack), the shaft power at full
+    speed (0.5-2x, the propeller's diameter from it: P ~ w^3 D^5, its mass ~ D^3) and sizes the
+    rest with the power, as a motor and pack of that class are built: winding resistance ~ V^2/P,
+    rotor inertia, thermal capacity and pack capacity ~ P, thermal resistance ~ 1/P. The rotor's
+    time constant then scales as 1/speed and every figure in rad/s with the speed, which is
+    what catches a threshold that is absolute where it should be relative."""
+    p = draw_bench(seed, base)
+    nominal = base or BenchParams()
+    r = _rng(seed, "far")
+    cells = int(r.choice([3, 4]))
+    volts = cells / nominal.battery_cells
+    speed = float(math.exp(r.uniform(math.log(0.7), math.log(1.4))))
+    power = float(math.exp(r.uniform(math.log(0.5), math.log(2.0))))
+    diameter = (power / speed**3) ** 0.2
+    p = dataclasses.replace(
+        p,
+        battery_cells=cells,
+        battery_capacity_ah=p.battery_capacity_ah * power * float(r.uniform(0.7, 1.4)),
+        battery_series_resistance_ohm=p.battery_series_resistance_ohm * volts / power,
+        battery_polarisation_resistance_ohm=p.battery_polarisation_resistance_ohm * volts / power,
+        battery_polarisation2_resistance_ohm=p.battery_polarisation2_resistance_ohm * volts / power,
+        motor_kv_rpm_per_v=p.motor_kv_rpm_per_v * speed / volts,
+        winding_resistance_ohm=p.winding_resistance_ohm * volts**2 / power,
+        motor_no_load_current_a=p.motor_no_load_current_a * power / volts,
+        motor_rotor_inertia_kg_m2=p.motor_rotor_inertia_kg_m2 * power,
+        motor_thermal_capacity_j_per_k=p.motor_thermal_capacity_j_per_k * power,
+        motor_thermal_resistance_k_per_w=p.motor_thermal_resistance_k_per_w / power,
+        propeller_diameter_m=p.propeller_diameter_m * diameter,
+        propeller_mass_kg=p.propeller_mass_kg * diameter**3,
+    )
+    return check_params(p)
+
+
+#: The bench draws by name (experiments' --far-bench).
+DRAWS = {"random": draw_bench, "far": draw_far_bench}
+
+
 def draw_strength(effect: str, seed: int) -> float:
     """The hidden effect's strength for ``seed``: log-uniform 0.5-2 (spin-down: 0.5-1)."""
     r = _rng(seed, "strength:" + effect)
