@@ -9,8 +9,9 @@ Prints the table (true effect x first named effect) and the median RMSE reductio
 
 By default every run is on a bench drawn from its seed (``sim.random_bench``: other constants,
 sometimes a bent throttle map or a two-RC pack) with the hidden effect at a drawn strength
-(0.5-2x); ``--nominal-bench`` uses the nominal bench at strength 1. Seeds 0-4 are the reported
-ones; tune on ``--first-seed 100``.
+(0.5-2x); ``--nominal-bench`` uses the nominal bench at strength 1, ``--far-bench`` benches of
+another motor class (``random_bench.draw_far_bench``: 3S/4S, other speed and power). Seeds 0-4
+are the reported ones; tune on ``--first-seed 100``.
 
     PYTHONPATH=. python experiments/confusion_table.py --seeds 5 --jobs 2
 """
