@@ -84,8 +84,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed+seeds-1")
-    ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
-    ap.add_argument("--far-bench", action="store_true",
+    which = ap.add_mutually_exclusive_group()
+    which.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
+    which.add_argument("--far-bench", action="store_true",
                     help="benches of another motor class (random_bench.draw_far_bench: 3S/4S, other speed and power)")
     ap.add_argument("--hidden", type=int, default=8)
     ap.add_argument("--epochs", type=int, default=300)

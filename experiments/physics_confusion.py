@@ -85,14 +85,13 @@ def one_run(effect: str, seed: int, control: bool, bench_kind: str, tmp: str, or
     if "time_constant_ms" in value or "warm_speed_loss_percent" in value:
         from bldc_propulsion import plant
 
-        eff = {**{n: 0.0 for n in c.EFFECTS}, effect: strength}
         b = bench or BenchParams()
-        if effect == "rotor_lag":
+        if effect == "rotor_lag":  # at the model's speed (the time constant depends on it)
             shown, true_shown = value["time_constant_ms"], 1000.0 * plant.spin_up_time_constant_s(
-                b, eff, value["at_speed_rad_s"])
-        else:
-            cold, warm = plant.full_drive_speeds(b, eff, value["supply_v"])
-            shown, true_shown = value["warm_speed_loss_percent"], 100.0 * (1.0 - warm / cold)
+                b, {"rotor_lag": strength}, value["at_speed_rad_s"])
+        else:  # the same quantity on the bench itself
+            shown, true_shown = value["warm_speed_loss_percent"], ph.fitted_value(
+                effect, strength, b, value["supply_v"])["warm_speed_loss_percent"]
     return {"effect": "control" if control else effect, "hidden": effect, "seed": seed, "named": data["named"],
             "first": data["named"][0] if data["named"] else "(nothing)",
             "before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
@@ -141,8 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed .. first-seed+seeds-1")
-    ap.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
-    ap.add_argument("--far-bench", action="store_true",
+    which = ap.add_mutually_exclusive_group()
+    which.add_argument("--nominal-bench", action="store_true", help="the nominal bench, hidden effects at 1")
+    which.add_argument("--far-bench", action="store_true",
                     help="benches of another motor class (random_bench.draw_far_bench: 3S/4S, other speed and power)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--effects", default=",".join(c.EFFECTS))

@@ -618,6 +618,14 @@ class Heating:
                 "extra_drop_z": self.z, "full_drive_speed_rad_s": self.full_speed_rad_s}
 
 
+def _static_map_terms(pwm: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``identify_heating``'s static map, one for both sets: cubic in the PWM level, voltage and
+    voltage x level (levels and volts centred on the bench's middle for conditioning)."""
+    p = (np.asarray(pwm, dtype=float) - 0.075) / 0.025
+    v = np.asarray(v, dtype=float) - 11.5
+    return np.column_stack([np.ones_like(p), p, p**2, p**3, v, v * p])
+
+
 def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) -> Heating:
     """Thermal sensitivity on the measured and on the reference data, fitted together.
 
@@ -638,25 +646,22 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
             k = np.searchsorted(change, s.t, side="right") - 1
             ok = ((s.t - change[np.clip(k, 0, len(change) - 1)]) >= 0.7) & np.isfinite(s.speed) \
                 & np.isfinite(s.voltage) & np.isfinite(th)
-            p = (s.pwm[ok] - 0.075) / 0.025
-            v = s.voltage[ok] - 11.5
             duty = throttle(s.pwm[ok], c.PWM_STOP)
             t_d = th[ok] * duty
-            rows.append(np.column_stack([np.ones_like(p), p, p**2, p**3, v, v * p,
+            rows.append(np.column_stack([_static_map_terms(s.pwm[ok], s.voltage[ok]),
                                          t_d * (which == 0), t_d * (which == 1)]))
             ys.append(s.speed[ok])
             holds_.append(n_holds + k[ok])  # the hold each sample belongs to: the unit of the test
             n_holds += len(change)
             if which == 0 and ok.any():
                 hottest = max(hottest, float(np.max(th[ok])))
-                volts.append(v)
+                volts.append(s.voltage[ok])
     A, y = np.vstack(rows), np.concatenate(ys)
     if len(y) < 20:
         return Heating(0.0, 0.0, 0.0)
     beta, *_ = np.linalg.lstsq(A, y, rcond=None)
-    p_full = (c.PWM_FULL - 0.075) / 0.025
-    v_med = float(np.median(np.concatenate(volts))) if volts else 0.0
-    full = float(np.array([1.0, p_full, p_full**2, p_full**3, v_med, v_med * p_full]) @ beta[:6])
+    v_med = float(np.median(np.concatenate(volts))) if volts else 11.5
+    full = float(_static_map_terms([c.PWM_FULL], [v_med])[0] @ beta[:6])
     return Heating(float(beta[6]), float(beta[7]), hottest,
                    _clustered_se(A, y - A @ beta, np.concatenate(holds_), np.array([0, 0, 0, 0, 0, 0, -1, 1])),
                    full if full > 0.0 else math.inf)
