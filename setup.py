@@ -8,7 +8,7 @@ package_name = "bldc_propulsion"
 
 # `ros2 run bldc_propulsion <name>`: every subcommand of the `bldc-propulsion` entry point,
 # plus the rclpy nodes.
-SUBCOMMANDS = ["info", "simulate", "train", "evaluate", "replay", "discrepancy", "import-csv"]
+SUBCOMMANDS = ["info", "simulate", "train", "evaluate", "replay", "discrepancy", "import-csv", "import-log"]
 NODES = {
     "battery_filter": "bldc_propulsion.nodes.battery_filter_node:main",
     "tachometer": "bldc_propulsion.nodes.tachometer_node:main",
@@ -27,7 +27,13 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
     ],
     install_requires=["setuptools", "numpy", "scipy", "rosbags>=0.10", "matplotlib"],
-    extras_require={"test": ["pytest", "hypothesis", "mcap"]},
+    # flight-log importers (import-log): pyulog (BSD-3) reads PX4 ULog; pymavlink (LGPL-3.0,
+    # optional and imported only when a DataFlash log is read) reads ArduPilot .bin logs
+    extras_require={
+        "px4": ["pyulog"],
+        "ardupilot": ["pymavlink"],
+        "test": ["pytest", "hypothesis", "mcap", "pyulog", "pymavlink"],
+    },
     python_requires=">=3.10",
     zip_safe=True,
     maintainer="bldc_propulsion developers",

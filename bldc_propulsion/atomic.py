@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import BadInputError, OutputExistsError
+from .specs import spec_path
 
 #: File in every report directory the tool writes: only such a directory is replaced by a report.
 REPORT_MARKER = ".bldc-propulsion-report"
@@ -163,7 +164,7 @@ def check_output(path: str | os.PathLike[str], kind: OutputKind, *, force: bool 
     for src in inputs:
         if src is None or not str(src):
             continue
-        s = Path(src)
+        s = Path(spec_path(src))  # a recording named PATH@NS is the file PATH
         if _same(final, s) or _inside(resolved, s.resolve()) or _inside(s.resolve(), resolved):
             raise BadInputError(f"{where}: is (or holds, or lies inside) the input {s} of this command; "
                                 "an output never replaces an input")

@@ -35,6 +35,7 @@ from rosbags.typesys import Stores, get_typestore
 from . import contract as c
 from .atomic import RECORDING, atomic_output
 from .errors import BagError, one_line
+from .specs import split_spec
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
@@ -43,6 +44,11 @@ _FLOAT64 = struct.Struct("<d")
 #: Start of simulated recordings: a fixed, plausible wall-clock epoch so that bags look like
 #: real ones to ``ros2 bag play`` and stay byte-for-byte reproducible.
 SIM_EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z
+
+STRING = "std_msgs/msg/String"
+#: Added topic (not in the contract's tables): one String at the start of an imported recording
+#: saying where it came from and how the log's units were mapped, so that ``info`` can show it.
+TOPIC_IMPORT_SOURCE = "import/source"
 
 
 def _slash(topic: str) -> str:
@@ -62,7 +68,7 @@ BULK_SQLITE_MAX_BYTES = 512 * 2**20
 
 #: Topics one vehicle shares between its motors (one pack, one battery filter): with a
 #: namespace they are read from it when it has them, else from the root (interfaces.md).
-SHARED_TOPICS: tuple[str, ...] = (c.TOPIC_BATTERY_ADC, c.TOPIC_BATTERY_VOLTAGE)
+SHARED_TOPICS: tuple[str, ...] = (c.TOPIC_BATTERY_ADC, c.TOPIC_BATTERY_VOLTAGE, "battery/current")
 #: A motor's own topics: a vehicle's recording has them under the motors' namespaces only.
 MOTOR_TOPICS: tuple[str, ...] = (c.TOPIC_PWM, c.TOPIC_TACH_ADC)
 #: Most topic names a missing-topic message lists.
@@ -408,6 +414,17 @@ class Recording:
         for _, ts, msg in self.messages([topic]):
             yield ts, np.asarray(msg.data, dtype=np.float32)
 
+    def texts(self, topic: str) -> list[str]:
+        """Every String of ``topic`` at the recording's root, whatever the namespace (notes such
+        as TOPIC_IMPORT_SOURCE); [] when it is not recorded as String."""
+        saved, self.namespace = self.namespace, None
+        try:
+            if not self.has(topic, STRING):
+                return []
+            return [str(msg.data) for _, _, msg in self.messages([topic])]
+        finally:
+            self.namespace = saved
+
 
 @dataclass
 class Bulk:
@@ -669,8 +686,9 @@ class _Float64:
 
 def open_recording(path: str | os.PathLike[str], namespace: str | None = None) -> Recording:
     """Open a rosbag2 directory (MCAP or SQLite3) or a single .mcap file for reading; with
-    ``namespace``, one motor of a vehicle's recording (see Recording)."""
-    return Recording(path, namespace)
+    ``namespace``, one motor of a vehicle's recording (see Recording); ``PATH@NS`` names the
+    motor in the path itself (specs.py) and wins over ``namespace``."""
+    return Recording(*split_spec(path, namespace))
 
 
 class BagWriter:
@@ -834,6 +852,14 @@ class BagWriter:
 
     def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "") -> None:
         self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix))
+
+    def write_string(self, topic: str, t: float, text: str) -> None:
+        self.write_msg(topic, STRING, t, TYPESTORE.types[STRING](data=str(text)))
+
+    def write_import_source(self, text: str, t: float = 0.0) -> None:
+        """The note of an imported recording (TOPIC_IMPORT_SOURCE): where it came from and how
+        the log's units became the contract's, written once at its first time ``t``."""
+        self.write_string(TOPIC_IMPORT_SOURCE, t, text)
 
 
 _MCAP_MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log/publish time

@@ -100,6 +100,7 @@ main_evaluate = _entry("evaluate")
 main_replay = _entry("replay")
 main_discrepancy = _entry("discrepancy")
 main_import_csv = _entry("import-csv")
+main_import_log = _entry("import-log")
 
 
 def console_main() -> None:

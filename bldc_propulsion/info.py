@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from . import contract as c
-from .bagio import open_recording
+from .bagio import TOPIC_IMPORT_SOURCE, open_recording
 from .errors import BadInputError, one_line
 
 
@@ -40,6 +40,7 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
                         "gaps": s.gaps, "max_gap_s": s.max_gap_s} for s in stats],
             "namespaces": rec.namespaces_with(c.TOPIC_PWM),
             "pwm": None, "battery_voltage_v": None, "tachometer": None, "speed_rad_s": None,
+            "import_source": [],  # how an imported log's units were mapped (import-csv, import-log)
         }
         problems: dict[str, str] = {}
 
@@ -67,8 +68,12 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
             _, v, source = read_speed(rec)
             out["speed_rad_s"] = {**(_range(v) or {}), "source": source}
 
+        def import_notes() -> None:
+            out["import_source"] = rec.texts(TOPIC_IMPORT_SOURCE)
+
         if not rec.salvaged:
-            for key, read in (("pwm", pwm), ("battery", voltage), ("tachometer", tach), ("speed", speed)):
+            for key, read in (("import_source", import_notes), ("pwm", pwm), ("battery", voltage),
+                              ("tachometer", tach), ("speed", speed)):
                 attempt(key, read)
         replay_inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         out["motors_elsewhere"] = motors = rec.motors_elsewhere()
@@ -118,6 +123,8 @@ def summary_text(info: dict[str, Any]) -> str:
              f"Messages:         {info['messages']}"]
     if info["damaged"]:
         lines.append(f"Damaged:          {info['damaged']}")
+    for text in info.get("import_source") or []:
+        lines.append(f"Source:           {text}")
     lines.append("Topics:")
     width = max([len(t["topic"]) for t in info["topics"]] + [10])
     for t in info["topics"]:

@@ -9,7 +9,7 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 |---|---|---|---|
 | ``format_version`` | () int64 | all | 2 |
 | ``kind`` | () unicode | all | ``network``, ``physics`` or ``hybrid`` |
-| ``thrust_coefficient`` | () float64 | all | b in thrust = b w^2 (N s^2/rad^2) |
+| ``thrust_coefficient`` | () float64 | all | b in thrust = b w^2 (N s^2/rad^2); NaN: none (speed only) |
 | ``metadata_json`` | () unicode | all | JSON object: provenance, costs, ``feature_params`` |
 | ``input_names`` | (n,) unicode | network, hybrid | model inputs in order (core/features.py registry; a hybrid's include ``physics_speed``) |
 | ``input_min``, ``input_max`` | (n,) float64 | network, hybrid | scaling of inputs to [-1, 1] |
@@ -21,13 +21,18 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 | ``supply_v`` | () float64 | physics, hybrid | the stiff supply (V) that battery_voltage strength 0 gives |
 | ``supply_tau_s`` | () float64 | physics, hybrid | the filter the voltage input comes through (s; 0: the terminal's) |
 
+A model trained with no thrust measured or stated has no b (``thrust_coefficient`` None, NaN in
+the file) rather than another propeller's: it predicts speed only.
+
 Files are read with ``allow_pickle=False`` (a model file cannot run code) and validated
 completely; every problem is a ``ModelError("<path>: <field>: <what is wrong>")``.
 """
 
 from __future__ import annotations
 
+import enum
 import json
+import math
 import os
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
@@ -47,8 +52,24 @@ NETWORK, PHYSICS, HYBRID = "network", "physics", "hybrid"
 KINDS = (NETWORK, PHYSICS, HYBRID)
 #: The input of a hybrid's network that is the physics part's predicted speed (rad/s).
 PHYSICS_SPEED = c.INPUT_PHYSICS_SPEED
-#: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough, for when nothing is fitted
+#: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough; the estimator's
+#: first-principles fallback only (a trained model's b is measured, stated, or absent)
 NOMINAL_THRUST_COEFFICIENT = 2.8e-5
+
+
+class _FromCT(enum.Enum):
+    FROM_CT = "from the propeller's CT"
+
+
+#: ``PlantModel``'s default b: its constants' CT (``PlantParams.thrust_coefficient``), distinct
+#: from None (no b), so that ``dataclasses.replace`` of a model without b keeps it without b.
+FROM_CT = _FromCT.FROM_CT
+
+
+def _thrust_or_none(b: float | None) -> float | None:
+    """b as a float, None when the model has none (None or NaN, as the file stores it)."""
+    return None if b is None or math.isnan(float(b)) else float(b)
+
 
 _FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s")
 _COMMON_KEYS = ("format_version", "kind", "thrust_coefficient", "metadata_json")
@@ -81,11 +102,12 @@ class NetworkModel:
     W2: np.ndarray
     b2: float
     pwm_tau_s: float = c.PAPER_PWM_TAU_S
-    thrust_coefficient: float = NOMINAL_THRUST_COEFFICIENT
+    thrust_coefficient: float | None = NOMINAL_THRUST_COEFFICIENT  #: None: no b, speed only
     metadata: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.input_names = tuple(str(n) for n in self.input_names)
+        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)
         for k in ("input_min", "input_max", "W1", "b1", "W2"):
             setattr(self, k, np.array(getattr(self, k), dtype=float))
         for k in _FLOAT_KEYS_SCALAR:
@@ -138,11 +160,12 @@ class NetworkModel:
         }
 
 
-def _common_arrays(kind: str, thrust_coefficient: float, metadata: dict[str, Any]) -> dict[str, np.ndarray]:
+def _common_arrays(kind: str, thrust_coefficient: float | None, metadata: dict[str, Any]) -> dict[str, np.ndarray]:
     return {
         "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
         "kind": np.array(kind, dtype=np.str_),
-        "thrust_coefficient": np.array(thrust_coefficient, dtype=np.float64),
+        "thrust_coefficient": np.array(np.nan if thrust_coefficient is None else thrust_coefficient,
+                                       dtype=np.float64),
         "metadata_json": np.array(json.dumps(metadata, sort_keys=True), dtype=np.str_),
     }
 
@@ -157,7 +180,8 @@ class PlantModel:
     params: PlantParams  #: a BenchParams is cut down to its plant constants
     effects: dict[str, float]  #: every contract effect
     supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
-    thrust_coefficient: float | None = None  #: b (N s^2/rad^2); None: the propeller's CT gives it
+    #: b (N s^2/rad^2); FROM_CT (default): the constants' CT gives it; None: no b (speed only)
+    thrust_coefficient: float | None | _FromCT = FROM_CT
     metadata: dict[str, Any] = field(default_factory=dict)
     #: time constant (s) of the filter the voltage input comes through: the battery filter's
     #: (None), 0 for a supply measured directly (plant.Supply)
@@ -172,9 +196,9 @@ class PlantModel:
 
             self.supply_tau_s = BatteryFilterConfig().tau_s
         self.supply_tau_s = float(self.supply_tau_s)
-        if self.thrust_coefficient is None:
+        if self.thrust_coefficient is FROM_CT:
             self.thrust_coefficient = self.params.thrust_coefficient
-        self.thrust_coefficient = float(self.thrust_coefficient)
+        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)  # type: ignore[arg-type]
         if not isinstance(self.metadata, dict):
             raise ModelError("model: metadata must be a dict")
         _check(self._arrays(), "model")
@@ -194,7 +218,8 @@ class PlantModel:
         }
 
     @classmethod
-    def _of(cls, a: Mapping[str, np.ndarray], thrust_coefficient: float, metadata: dict[str, Any]) -> "PlantModel":
+    def _of(cls, a: Mapping[str, np.ndarray], thrust_coefficient: float | None,
+            metadata: dict[str, Any]) -> "PlantModel":
         """From validated arrays."""
         return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))),
                    dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]))),
@@ -240,7 +265,7 @@ class HybridModel:
                              f"(has {', '.join(self.network.input_names)})")
 
     @property
-    def thrust_coefficient(self) -> float:
+    def thrust_coefficient(self) -> float | None:
         return self.network.thrust_coefficient
 
     @property
@@ -298,9 +323,11 @@ def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) ->
         raise ModelError(f"{where}: {msg}")
 
     kind = _check_kind(a, fail)
-    _check_floats(a, {"thrust_coefficient": ()}, fail)
-    if not float(a["thrust_coefficient"]) >= 0:
-        fail("thrust_coefficient must be >= 0")
+    b = a["thrust_coefficient"]
+    if b.dtype.kind != "f" or b.shape != ():
+        fail(f"thrust_coefficient must be a scalar float, got {b.dtype} shape {b.shape}")
+    if not (np.isnan(b) or (np.isfinite(b) and float(b) >= 0)):  # NaN: no b
+        fail(f"thrust_coefficient must be >= 0 and finite, or NaN for none (got {float(b)!r})")
     meta = _check_metadata(a, fail)
     if kind != PHYSICS:
         _check_network(a, kind, meta, check_names, fail)
@@ -530,7 +557,7 @@ def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> 
     kind, meta = _check(arrays, str(p))
     if kind not in kinds:
         raise ModelError(f"{p}: kind {kind}: a {' or '.join(kinds)} model is needed here")
-    thrust = float(arrays["thrust_coefficient"])
+    thrust = _thrust_or_none(float(arrays["thrust_coefficient"]))
     try:
         plant = PlantModel._of(arrays, thrust, meta) if kind != NETWORK else None
         if kind == PHYSICS:

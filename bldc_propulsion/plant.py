@@ -382,6 +382,42 @@ def held(sample_t: np.ndarray, sample_v: np.ndarray, t: np.ndarray) -> np.ndarra
     return sample_v[np.maximum(np.searchsorted(sample_t, t, side="right") - 1, 0)]
 
 
+def check_initial_speed(w: object) -> float:
+    """``w`` as the rotor speed a run starts from (rad/s: finite, >= 0), else BadInputError."""
+    try:
+        x = float(w)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise BadInputError(f"initial_speed: {w!r} is not a number") from None
+    if not (math.isfinite(x) and x >= 0.0):
+        raise BadInputError(f"initial_speed: {w!r} must be a finite rotor speed >= 0 (rad/s)")
+    return x
+
+
+#: Most rounds of ``running_supply_current``'s fixed point: each shrinks its error by
+#: R_s duty^2 / (R_s duty^2 + R_winding + R_esc), below 0.15 on the nominal bench and below 0.5
+#: unless the pack's resistance exceeds the motor circuit's.
+_SUPPLY_ROUNDS = 60
+
+
+def running_supply_current(step: Step, w: float, temp: float, duty: float, source_v: float,
+                           source_resistance_ohm: float) -> float:
+    """The low-passed supply current (A) of a rotor already running at ``w`` under ``duty``.
+
+    A battery filter started on a running motor starts on the loaded terminal voltage: it has
+    already passed the drop of the present current, so the part :class:`Supply` puts back is the
+    present supply current, ib = duty * i(source_v + R_s ib) (a fixed point; i as ``step``
+    computes it). Starting it at 0 instead would take that drop off the motor a second time and
+    decay only with the filter's 2 s. The batch path and the stream call this with the same
+    floats, so they start alike.
+    """
+    ib = 0.0
+    for _ in range(_SUPPLY_ROUNDS):
+        last, ib = ib, duty * step(w, temp, duty, source_v + source_resistance_ohm * ib)[2]
+        if ib == last:
+            break
+    return ib
+
+
 def motor_response(
     params: PlantParams,
     effects: Mapping[str, float],
@@ -391,12 +427,18 @@ def motor_response(
     v_ref: float,
     supply_tau_s: float = 0.0,
     hold_supply: bool = False,
+    initial_speed: float = 0.0,
 ) -> np.ndarray:
     """Rotor speed (rad/s) at the times ``t_out``, driven by a recording's command events
     (t, level) and a measured supply voltage (t, V): the batch path of the physics model.
 
-    The rotor starts at rest at the first command (or ``t_out[0]`` if earlier), steps of
-    ``params.sim_step_s``; the speed is linearly interpolated onto ``t_out``. The supply is
+    The rotor starts at ``initial_speed`` (rad/s; 0: at rest) at the first command (or
+    ``t_out[0]`` if earlier), steps of ``params.sim_step_s``; the speed is linearly interpolated
+    onto ``t_out``. A recording that begins with the rotor turning starts in its running state:
+    the first command counts as applied since before the dead time (a rotor at rest counts
+    PWM_STOP before it, which would brake a turning one for the dead time), the low-passed supply
+    current is the running one (:func:`running_supply_current`), and the winding is at ambient
+    temperature (nothing in a recording says how warm it is). The supply is
     linearly interpolated onto the steps (held before the first and after the last sample), or
     with ``hold_supply`` held from the latest sample at or before each step: what a stream knows
     then, so ``core.plant_stream.PlantStream`` gives the same numbers sample by sample.
@@ -405,8 +447,11 @@ def motor_response(
     eff = resolve_effects(effects)
     p = check_plant(params)
     cmd_t, cmd = check_command(pwm_events)
+    w0 = check_initial_speed(initial_speed)
     t_out = np.asarray(t_out, dtype=float)
     t0 = min(float(cmd_t[0]), float(t_out[0]))
+    if w0 > 0.0:  # running: the first command held since long before (no PWM_STOP before it)
+        cmd_t, cmd = np.concatenate(([-np.inf], cmd_t)), np.concatenate((cmd[:1], cmd))
     dt = p.sim_step_s
     n = int(math.ceil((float(t_out[-1]) - t0) / dt - 1e-9)) + 1
     step_t = t0 + np.arange(n) * dt
@@ -417,9 +462,9 @@ def motor_response(
     duty = esc_duty(p, eff, cmd_t, cmd, step_t).tolist()
     step = make_step(p, eff, sp.source_resistance_ohm)
     rs, a_lp = sp.source_resistance_ohm, sp.lowpass_gain
-    w = 0.0
+    w = w0
     temp = p.ambient_temperature_c
-    ib_lp = 0.0
+    ib_lp = running_supply_current(step, w0, temp, duty[0], source[0], rs) if w0 > 0.0 else 0.0
     speed = [0.0] * n
     for k in range(n):
         d = duty[k]

@@ -25,6 +25,7 @@ from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.features import zero_order_hold
 from .core.tachometer import STARTING, TachometerConfig, TachometerDecoder
 from .errors import BadInputError, BagError
+from .specs import spec_path
 
 #: Grid on which features and targets are aligned: 100 Hz resolves the rotor's ~0.1 s time
 #: constant and the 50 Hz command, and matches the estimator node's output rate.
@@ -51,6 +52,11 @@ class Signals:
     #: raw event streams, for features that need them (e.g. PWM command times)
     pwm_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
     voltage_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
+
+    @property
+    def key(self) -> tuple[str, str | None]:
+        """What makes two recordings the same data: the content and the motor read from it."""
+        return self.sha256, self.namespace
 
     @property
     def duration_s(self) -> float:
@@ -181,8 +187,8 @@ def load_signals(
     need_speed: bool = True,
     namespace: str | None = None,
 ) -> Signals:
-    """Read one recording (one motor's topics with ``namespace``) and align its signals on a
-    ``grid_rate_hz`` grid."""
+    """Read one recording (one motor's topics with ``namespace``; ``PATH@NS`` names it in the
+    path: specs.py) and align its signals on a ``grid_rate_hz`` grid."""
     with open_recording(path, namespace) as rec:
         if rec.message_count == 0:
             raise BagError(f"{path}: recording is empty")
@@ -218,7 +224,7 @@ def load_signals(
         )
     return Signals(
         path=str(path),
-        sha256=recording_sha256(path),
+        sha256=recording_sha256(spec_path(path)),
         t=grid,
         pwm=zero_order_hold(pwm_t, pwm, grid),
         voltage=np.interp(grid, volt_t, volt),
@@ -240,10 +246,11 @@ def load_all(paths: Sequence[str | os.PathLike[str]], what: str, namespace: str 
 
 
 def unique(out: list[Signals], what: str) -> list[Signals]:
-    """``out`` unless a recording is in it twice (same content): BadInputError naming both."""
-    seen: dict[str, str] = {}
+    """``out`` unless a recording is in it twice (same content, same motor): BadInputError naming
+    both. Two motors of one vehicle's recording are two recordings."""
+    seen: dict[tuple[str, str | None], str] = {}
     for s in out:
-        if s.sha256 in seen:
-            raise BadInputError(f"{s.path}: same recording as {seen[s.sha256]} ({what})")
-        seen[s.sha256] = s.path
+        if s.key in seen:
+            raise BadInputError(f"{s.path}: same recording as {seen[s.key]} ({what})")
+        seen[s.key] = s.path
     return out

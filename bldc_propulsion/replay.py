@@ -7,10 +7,15 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
 - ``rotor/speed`` and ``rotor/rpm`` after each ``tachometer/adc`` batch that has a speed to
   stand behind (``core.tach_output.SpeedOutput``: none across a break, 0 only when stopped),
 - ``predicted/speed`` and ``predicted/thrust`` on the estimator's 100 Hz grid from the first
-  PWM message, fed with the published filtered voltage as the node is through ``battery/voltage``,
+  PWM message, fed with the published filtered voltage as the node is through ``battery/voltage``
+  (no ``predicted/thrust`` for a model without a thrust coefficient, as the node publishes none),
 - ``diagnostics`` once a second with every core's status.
 A recording that already carries ``battery/voltage`` (e.g. an imported thrust-stand log) feeds
-the estimator from it instead of filtering ``battery/adc``.
+the estimator from it instead of filtering ``battery/adc``. A recording with the measured
+topics and not the raw ones (``battery/voltage`` without ``battery/adc``, ``rotor/speed``
+without ``tachometer/adc``: what ``import-csv`` writes) has them copied to the output as
+recorded, as they would be on the bus while it plays, and the stage with no input (battery
+filter, tachometer) is not run: its status is not reported, the summary says so in one line.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from . import contract as c
 from .atomic import RECORDING, check_output
 from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
-from .core.estimator import ThrustEstimator, fallback_model
+from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
 from .core.tachometer import TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
@@ -96,6 +101,13 @@ def _replay(
         has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
         if has_voltage:
             inputs.append(c.TOPIC_BATTERY_VOLTAGE)
+        # measured topics standing in for raw ones the recording lacks: used as recorded
+        measured = [topic for topic, raw, ok in (
+            (c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_BATTERY_ADC, has_voltage),
+            (c.TOPIC_ROTOR_SPEED, c.TOPIC_TACH_ADC, rec.has(c.TOPIC_ROTOR_SPEED, c.FLOAT64)),
+        ) if ok and not rec.has(raw)]
+        if c.TOPIC_ROTOR_SPEED in measured:
+            inputs.append(c.TOPIC_ROTOR_SPEED)
         for topic, msgtype in ((c.TOPIC_PWM, c.FLOAT64), (c.TOPIC_BATTERY_ADC, c.FLOAT64),
                                (c.TOPIC_TACH_ADC, c.FLOAT32_ARRAY)):
             if rec.has(topic):
@@ -108,7 +120,7 @@ def _replay(
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
-            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage)
+            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured)
             if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
@@ -121,11 +133,14 @@ def _replay(
             node.counts["messages_out"] = bag.messages_written
         counts, per_topic_in = node.counts, node.per_topic_in
         tach.check_timeout(end)  # a tachometer silent until the end: its status says so
-        statuses = [*filt.status(), *tach.status(), *est.status()]
+        statuses = [*([] if c.TOPIC_BATTERY_VOLTAGE in measured else filt.status()),
+                    *([] if c.TOPIC_ROTOR_SPEED in measured else tach.status()), *est.status()]
         n = max(est.predictions, 1)
         ranged = None if est.is_fallback else RangeReport(
             str(in_path), est.clipped / n, {k: v / n for k, v in est.clipped_by_input.items() if v})
-        warning = ranged.warning() if ranged else None
+        warnings = [w for w in (ranged.warning() if ranged else None,) if w]
+        if est.thrust_coefficient is None:
+            warnings.append(f"--model {model_path}: no {c.TOPIC_PREDICTED_THRUST} written: {NO_THRUST_MESSAGE}")
         return {
             "path": str(out_path),
             "input": str(in_path),
@@ -136,7 +151,8 @@ def _replay(
             "duration_s": end,
             "read_error": rec.read_error,
             "out_of_training_range": ranged.as_dict() if ranged else None,
-            "warnings": [warning] if warning else [],
+            "measured_inputs": ["/" + topic for topic in measured],
+            "warnings": warnings,
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
                 for s in statuses
@@ -148,17 +164,23 @@ class _Nodes:
     """The three nodes' cores, timers and publishers over one replay."""
 
     def __init__(self, bag: BagWriter, filt: BatteryFilter, tach: TachometerDecoder,
-                 est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool) -> None:
+                 est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool,
+                 measured: Iterable[str] = ()) -> None:
         self.bag, self.filt, self.tach, self.est = bag, filt, tach, est
         self.has_voltage = has_voltage
+        #: battery/voltage, rotor/speed recorded in place of the raw topics: copied to the output
+        self.measured = frozenset(measured)
         self.speed_out = SpeedOutput(tach)
         self.predictions = Ticker(ESTIMATOR_RATE_HZ)
         self.voltage_out = Ticker(VOLTAGE_RATE_HZ)
         self.next_diag: float | None = None
         self.counts = {"messages_in": 0, "messages_out": 0}
         self.per_topic_in: dict[str, int] = {}
-        #: the battery filter's diagnostics; the bulk path hands out statuses taken in advance
-        self.filter_status: Callable[[], list[Any]] = filt.status
+        #: the battery filter's diagnostics; the bulk path hands out statuses taken in advance.
+        #: A stage that has no input because the recording holds its output reports nothing.
+        self.filter_status: Callable[[], list[Any]] = (
+            list if c.TOPIC_BATTERY_VOLTAGE in self.measured else filt.status)
+        self.tach_status: Callable[[], list[Any]] = list if c.TOPIC_ROTOR_SPEED in self.measured else tach.status
         (self.speed_topic, self.thrust_topic, self.voltage_topic, self.rotor_topic,
          self.rpm_topic, self.diag_topic) = map(topic_out, (
             c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
@@ -175,10 +197,11 @@ class _Nodes:
             p = est.predict(tick)
             if p.ready:
                 bag.write_float64(self.speed_topic, tick, p.speed_rad_s)
-                bag.write_float64(self.thrust_topic, tick, p.thrust_n)
+                if p.thrust_n is not None:
+                    bag.write_float64(self.thrust_topic, tick, p.thrust_n)
         while next_diag is not None and next_diag <= t:
             self.tach.check_timeout(next_diag)
-            statuses = [*self.filter_status(), *self.tach.status(), *est.status()]
+            statuses = [*self.filter_status(), *self.tach_status(), *est.status()]
             bag.write_diagnostics(self.diag_topic, next_diag, statuses)
             next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
         self.next_diag = next_diag
@@ -195,12 +218,25 @@ class _Nodes:
         if not self.has_voltage:
             self.est.update_voltage(t, v)
 
+    def voltage_recorded(self, t: float, v: float) -> None:
+        """The recording's battery/voltage: the estimator's voltage; also the output's when
+        there is no battery/adc for the filter to publish from."""
+        if c.TOPIC_BATTERY_VOLTAGE in self.measured:
+            self.bag.write_battery_state(self.voltage_topic, t, v)
+        self.est.update_voltage(t, v)
+
+    def speed_recorded(self, t: float, w: float) -> None:
+        """The recording's rotor/speed (no tachometer/adc to decode): the output's, as recorded."""
+        self.bag.write_float64(self.rotor_topic, t, w)
+        self.bag.write_float64(self.rpm_topic, t, w * c.RAD_S_TO_RPM)
+
     def tach_batch(self, t: float, samples: Any) -> None:
         self.tach.process_batch(t, samples, result=False)
         speed = self.speed_out.after_batch()
         if speed is not None:
             self.bag.write_float64(self.rotor_topic, t, speed)
             self.bag.write_float64(self.rpm_topic, t, speed * c.RAD_S_TO_RPM)
+            self.est.update_speed(t, speed)  # as the estimator node takes rotor/speed
 
     # --- the reference: every message in turn ----------------------------------------------
     def run_reference(self, messages: Iterable[tuple[str, float, Any]]) -> None:
@@ -218,9 +254,11 @@ class _Nodes:
                 if v is not None and self.voltage_out.take(t):
                     self.voltage_published(t, v)
             elif topic == c.TOPIC_BATTERY_VOLTAGE:
-                self.est.update_voltage(t, float(msg.voltage))
+                self.voltage_recorded(t, float(msg.voltage))
             elif topic == c.TOPIC_TACH_ADC:
                 self.tach_batch(t, msg.data)
+            elif topic == c.TOPIC_ROTOR_SPEED:
+                self.speed_recorded(t, float(msg.data))
 
     # --- the bulk path ----------------------------------------------------------------------
     def run_bulk(self, bulk: Bulk, t0_ns: int) -> None:
@@ -230,8 +268,8 @@ class _Nodes:
         Every message is a possible timer point (the first message at or after the next
         prediction or diagnostics time triggers them, and the tick times depend on which
         message did), so the message times stay one array searched for the next trigger;
-        between triggers only events are visited: PWM, tachometer batches, battery/voltage
-        messages and the battery samples after which the filter publishes. The battery filter
+        between triggers only events are visited: PWM, tachometer batches, battery/voltage and
+        rotor/speed messages and the battery samples after which the filter publishes. The battery filter
         runs over the samples in arrays (``BatteryFilter.process``, the same arithmetic as
         ``update``), cut at the diagnostics times so that its counters there are exact.
         """
@@ -259,6 +297,8 @@ class _Nodes:
                 self.tach.expect(vals)  # their level trackers are computed many at a time
             elif topic == c.TOPIC_BATTERY_VOLTAGE:
                 events += zip(where, [3] * len(where), vals.tolist())
+            elif topic == c.TOPIC_ROTOR_SPEED:
+                events += zip(where, [4] * len(where), vals.tolist())
             elif topic == c.TOPIC_BATTERY_ADC:
                 events += self._battery(np.asarray(where), np.asarray(times)[where], vals)
         events.sort(key=lambda e: e[0])
@@ -310,8 +350,10 @@ class _Nodes:
                 self.voltage_published(t, value)
             elif kind == 2:
                 self.tach_batch(t, value)
+            elif kind == 3:
+                self.voltage_recorded(t, value)
             else:
-                self.est.update_voltage(t, value)
+                self.speed_recorded(t, value)
             done = pos + 1
         while True:
             j = bisect.bisect_left(times, min(predictions.next_s, self.next_diag), done)
@@ -328,6 +370,15 @@ def summary_text(info: dict[str, Any]) -> str:
         f"  messages in {info['messages_in']}, out {info['messages_out']}; "
         f"model: {info['model'] or 'first-principles fallback'}",
     ]
+    measured = info.get("measured_inputs") or []
+    if measured:
+        stages = {"/" + c.TOPIC_BATTERY_VOLTAGE: ("to the estimator and the output", "/" + c.TOPIC_BATTERY_ADC,
+                                                  "battery filter"),
+                  "/" + c.TOPIC_ROTOR_SPEED: ("to the output", "/" + c.TOPIC_TACH_ADC, "tachometer")}
+        lines.append(
+            "  [INFO] measured " + " and ".join(f"{m} ({stages[m][0]})" for m in measured)
+            + " used as recorded: the recording has no " + " or ".join(stages[m][1] for m in measured)
+            + ", so the " + " and ".join(stages[m][2] for m in measured) + " did not run")
     for s in info["status"]:
         level = ("OK", "WARN", "ERROR")[min(int(s["level"]), 2)]
         vals = ", ".join(f"{k}={v}" for k, v in s["values"].items() if _worth_saying(k, v))

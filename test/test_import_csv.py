@@ -13,6 +13,8 @@ import pytest
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.errors import BadInputError, OutputExistsError
 from bldc_propulsion.commands import import_csv as import_command
+from bldc_propulsion.recordings import load_signals
+from bldc_propulsion.training.csv_command import align_by_speed
 from bldc_propulsion.training.import_csv import import_csv
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "real"
@@ -64,7 +66,7 @@ def test_small_csv_against_hand_computed_truth(tmp_path: Path) -> None:
 
     with open_recording(out) as rec:
         assert set(rec.topics()) == {"pwm", "battery/voltage", "rotor/speed", "thrust/measured",
-                                     "battery/current"}
+                                     "battery/current", "import/source"}
     # /pwm: 50 Hz frames from 0 to 0.13 s -> 0, 0.02, ..., 0.12; the command held from each row
     t, pwm = read(out, "pwm")
     np.testing.assert_allclose(t, np.arange(7) * 0.02, atol=1e-9)
@@ -288,3 +290,327 @@ def test_real_coastdown_log(tmp_path: Path) -> None:
     t_5pct = tw[after][np.nonzero(w[after] < 0.05 * plateau)[0][0]]
     assert t_5pct - t_stop > 1.5, "coast-down to 5 % takes seconds, not one ESC frame"
     assert w[after][0] > 0.5 * plateau
+
+
+# --- thrust units ----------------------------------------------------------------------------
+@pytest.mark.parametrize("unit,factor", [("N", 1.0), ("kgf", 9.80665), ("gf", 9.80665e-3),
+                                         ("lbf", 4.4482216152605)])
+def test_thrust_units_hand_computed(tmp_path: Path, unit: str, factor: float) -> None:
+    header = f"Time (s),ESC signal (µs),Thrust ({unit}),Motor Optical Speed (RPM)"
+    src = write_csv(tmp_path / "t.csv", header, ["0,1000,0,0", "0.5,1400,250,6000", "1.0,1500,312.5,7000"])
+    info = import_csv(src, tmp_path / "t.bag")
+    assert info["thrust_unit_in_log"] == unit and info["columns_used"]["thrust"] == f"Thrust ({unit})"
+    np.testing.assert_allclose(read(tmp_path / "t.bag", "thrust/measured")[1],
+                               np.array([0.0, 250.0, 312.5]) * factor, rtol=1e-15)
+    assert f"'Thrust ({unit})' in {unit}" in import_command.run(_parser().parse_args(
+        [str(src), "-o", str(tmp_path / "u.bag")])).text
+
+
+def test_thrust_in_an_unknown_unit_is_named_not_guessed(tmp_path: Path) -> None:
+    src = write_csv(tmp_path / "oz.csv", "Time (s),ESC signal (µs),Thrust (ozf)", ["0,1000,0", "0.5,1400,25"])
+    info = import_csv(src, tmp_path / "oz.bag")
+    assert info["thrust_unit_in_log"] is None
+    assert any("'Thrust (ozf)'" in w and "not one of N, kgf, gf, lbf" in w for w in info["warnings"])
+    with open_recording(tmp_path / "oz.bag") as rec:
+        assert not rec.has("thrust/measured")
+
+
+# --- where the command comes from ------------------------------------------------------------
+EMPTY_ESC = ["0,,16.0,0", "0.5,,15.9,3000", "1.0,,15.8,6000"]
+H_CMD = "Time (s),ESC signal (µs),Voltage (V),Motor Optical Speed (RPM)"
+
+
+def test_empty_command_column_is_named_with_the_way_out(tmp_path: Path) -> None:
+    src = write_csv(tmp_path / "empty.csv", H_CMD, EMPTY_ESC)
+    with pytest.raises(BadInputError) as err:
+        import_csv(src, tmp_path / "e.bag")
+    msg = str(err.value)
+    assert msg.startswith(str(src)) and "\n" not in msg
+    assert "'ESC signal (µs)' is empty in all 3 rows" in msg
+    assert "--command-column NAME" in msg and "--command-from" in msg
+    assert not (tmp_path / "e.bag").exists()
+
+
+@pytest.mark.parametrize("unit_col,option,values,levels", [
+    ("Throttle (%)", None, ["0", "50", "100"], [0.05, 0.075, 0.10]),
+    ("Throttle", "percent", ["0", "50", "100"], [0.05, 0.075, 0.10]),
+    ("Duty", "duty", ["0", "0.5", "0.2"], [0.05, 0.075, 0.06]),
+    ("Servo 1 (µs)", None, ["1000", "1500", "1250"], [0.05, 0.075, 0.0625]),
+])
+def test_command_column_levels_hand_computed(tmp_path: Path, unit_col: str, option: str | None,
+                                             values: list[str], levels: list[float]) -> None:
+    header = f"Time (s),ESC signal (µs),{unit_col},Motor Optical Speed (RPM)"
+    rows = [f"{t},,{v},{rpm}" for t, v, rpm in zip(("0", "0.04", "0.08"), values, ("0", "3000", "6000"))]
+    src = write_csv(tmp_path / "c.csv", header, rows)
+    info = import_csv(src, tmp_path / "c.bag", command_column=unit_col, command_unit=option)
+    t, pwm = read(tmp_path / "c.bag", "pwm")
+    np.testing.assert_allclose(t, [0.0, 0.02, 0.04, 0.06, 0.08], atol=1e-9)
+    np.testing.assert_allclose(pwm, [levels[0], levels[0], levels[1], levels[1], levels[2]], rtol=0, atol=1e-15)
+    unit = option or ("us" if "µs" in unit_col else "percent")
+    assert info["command"]["column"] == unit_col and info["command"]["unit"] == unit
+    assert ("0.05 + 0.05" in info["command"]["mapping"]) == (unit != "us")
+    assert info["command_levels"] == sorted(set(levels))
+
+
+def test_command_options_refused_with_one_line(tmp_path: Path) -> None:
+    header = "Time (s),ESC signal (µs),Throttle (%),Duty,Servo 1 (µs)"
+    src = write_csv(tmp_path / "o.csv", header, ["0,,0,0,1000", "0.5,,50,0.5,1500", "1.0,,120,0.9,1600"])
+    cases = [
+        (dict(command_column="Duty"), "--command-column 'Duty': its name states no unit"),
+        (dict(command_column="Servo 1 (µs)", command_unit="percent"), "contradicts the unit in the name"),
+        (dict(command_column="Throttle (%)"), "line 4, column 'Throttle (%)': 120 % is outside 0..100 %"),
+        (dict(command_column="Nope (%)"), "no column 'Nope (%)' (--command-column)"),
+        (dict(command_column="Duty", command_unit="volts"), "--command-unit volts: must be one of"),
+        (dict(command_unit="duty"), "--command-unit duty: only with --command-column"),
+        (dict(command_column="Duty", command_unit="duty", command_from=src), "give the command one way"),
+        (dict(command_from=tmp_path / "missing.csv"), "missing.csv: no such file"),
+        (dict(command_from=src), "--command-from " + str(src) + ": is the log being imported itself"),
+        (dict(command_from=write_csv(tmp_path / "n.csv", "Time (s),RPM", ["0,0", "1,10"])),
+         "n.csv: no 'Timestamp', 'Duty' column; --command-from reads an AutoQuad ESC32 log"),
+        (dict(command_from=write_csv(tmp_path / "aq.csv", "Timestamp,RPM,Duty", ["2019-11-05 17:14:08:947,0,0",
+                                                                                "2019-11-05 17:14:09:000,9,5"])),
+         "o.csv: no speed column with data; --command-from aligns"),
+        (dict(command_from=write_csv(tmp_path / "bad.csv", "Timestamp,RPM,Duty", ["yesterday,0,0"])),
+         "bad.csv: line 2, column 'Timestamp': 'yesterday' is not a date and time"),
+        (dict(command_from=write_csv(tmp_path / "d.csv", "Timestamp,RPM,Duty", ["2019-11-05 17:14:08:947,0,101"])),
+         "d.csv: line 2, column 'Duty': 101 % is outside 0..100 %"),
+    ]
+    for kw, expected in cases:
+        with pytest.raises(BadInputError) as err:
+            import_csv(src, tmp_path / "o.bag", **kw)
+        assert expected in str(err.value) and "\n" not in str(err.value), (kw, str(err.value))
+        assert not (tmp_path / "o.bag").exists()
+
+
+def test_command_column_beside_a_filled_esc_column_and_percent_that_looks_like_duty(tmp_path: Path) -> None:
+    src = write_csv(tmp_path / "w.csv", "Time (s),ESC signal (µs),Throttle (%)",
+                    ["0,1000,0", "0.5,1100,0.5", "1.0,1200,0.9"])
+    info = import_csv(src, tmp_path / "w.bag", command_column="Throttle (%)")
+    assert any("'ESC signal (µs)' has data in 3 rows, not used" in w for w in info["warnings"])
+    assert any("never exceeds 1 %" in w and "--command-unit duty" in w for w in info["warnings"])
+    assert info["esc_us_levels"] == []
+
+
+def test_command_arguments_on_the_command_line(tmp_path: Path) -> None:
+    args = _parser().parse_args(["x.csv", "-o", "y.bag", "--command-column", "Throttle (%)",
+                                 "--command-unit", "percent"])
+    assert (args.command_column, args.command_unit, args.command_from) == ("Throttle (%)", "percent", None)
+    args = _parser().parse_args(["x.csv", "-o", "y.bag", "--command-from", "esc.csv"])
+    assert args.command_from == "esc.csv" and args.command_column is None
+    with pytest.raises(SystemExit):  # one way or the other
+        _parser().parse_args(["x.csv", "-o", "y.bag", "--command-from", "esc.csv", "--command-column", "D"])
+    src = write_csv(tmp_path / "log.csv", H_CMD, EMPTY_ESC)
+    args = _parser().parse_args([str(src), "-o", str(tmp_path / "l.bag"), "--command-from", str(tmp_path / "esc.csv")])
+    with pytest.raises(BadInputError, match="esc.csv: no such file"):  # the option reaches the converter
+        args.run(args)
+    args = _parser().parse_args([str(src), "-o", str(tmp_path / "l.bag"), "--command-column", "Voltage (V)"])
+    with pytest.raises(BadInputError, match="--command-column 'Voltage \\(V\\)': its name states no unit"):
+        args.run(args)
+
+
+# --- --command-from: a simulated run logged by two clocks --------------------------------------
+AQ_HEADER = ("Timestamp,Amps,Batt. Volts,Motor Volts,RPM,Duty,Comm. Period,Bad Detects,ADC Window,"
+             "Idle Time,State,Phase A Avg.,Phase B Avg.,Phase C Avg.,Composite Avg.,FET Step")
+RC_START_S = 0.5  #: simulation time of the stand log's first row
+AQ_PERIOD_S = 0.015
+
+
+def _write_stand_log(path: Path, res, rng: np.random.Generator, stop_s: float) -> None:
+    """The thrust stand's rows (~125 Hz, jittered) with the command column empty."""
+    sim_t = RC_START_S + np.cumsum(rng.uniform(0.006, 0.010, int(stop_s / 0.006)))
+    sim_t = sim_t[sim_t < stop_s]
+    rpm = np.interp(sim_t, res.truth_t, res.truth_speed) * 60 / (2 * np.pi)
+    rpm *= 1 + 0.003 * rng.standard_normal(len(sim_t))
+    volts = np.interp(sim_t, res.truth_t, res.truth_voltage)
+    thrust = np.interp(sim_t, res.truth_t, res.truth_thrust)
+    rows = [f"{t - RC_START_S:.6f},,{v:.4f},{f:.5f},{r:.0f}" for t, v, f, r in zip(sim_t, volts, thrust, rpm)]
+    write_csv(path, "Time (s),ESC signal (µs),Voltage (V),Thrust (N),Motor Electrical Speed (RPM)", rows)
+
+
+def _write_autoquad_log(path: Path, res, rng: np.random.Generator, start_s: float, stop_s: float) -> None:
+    """The ESC's own log: duty (%) and RPM every ~15 ms, stamped to the millisecond from
+    ``start_s`` of simulation time on its own clock (a wall-clock date)."""
+    from datetime import datetime, timedelta
+
+    base = datetime(2019, 11, 5, 17, 14, 8, 947000)
+    periods = rng.uniform(0.8, 1.2, int((stop_s - start_s) / AQ_PERIOD_S)) * AQ_PERIOD_S
+    ms = np.floor(1000 * np.cumsum(np.r_[0.0, periods]))
+    lines = [AQ_HEADER]
+    for m in ms:
+        sim = start_s + m / 1000.0
+        if sim >= stop_s:
+            break
+        level = res.pwm[max(np.searchsorted(res.pwm_t, sim + 1e-9, side="right") - 1, 0)]
+        duty = (level - 0.05) / 0.05 * 100.0
+        rpm = np.interp(sim, res.truth_t, res.truth_speed) * 60 / (2 * np.pi) * (1 + 0.005 * rng.standard_normal())
+        stamp = base + timedelta(milliseconds=float(m))
+        lines.append(f"{stamp:%Y-%m-%d %H:%M:%S}:{stamp.microsecond // 1000:03d},1.0,15.9,8.0,{rpm:.1f},"
+                     f"{duty:.4f},33,0,0,95.6,4,0,0,0,0,3")
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture(scope="module")
+def two_clocks(tmp_path_factory):
+    """One simulated run of random steps: the stand's log from 0.5 s, the ESC's from 3.037 s
+    (log time = ESC log time + 2.537 s), and the ESC log of another run (another seed)."""
+    from bldc_propulsion.sim import simulate
+
+    d = tmp_path_factory.mktemp("two_clocks")
+    res = simulate("random_steps", 40.0, seed=7)
+    shift = 2.537
+    _write_stand_log(d / "stand.csv", res, np.random.default_rng(1), 39.5)
+    _write_autoquad_log(d / "esc.csv", res, np.random.default_rng(2), RC_START_S + shift, 37.0)
+    _write_autoquad_log(d / "other_run.csv", simulate("random_steps", 40.0, seed=8), np.random.default_rng(3),
+                        RC_START_S + shift, 37.0)
+    return d, res, shift
+
+
+def test_command_from_recovers_a_known_clock_offset(two_clocks, tmp_path: Path) -> None:
+    d, res, shift = two_clocks
+    info = import_csv(d / "stand.csv", tmp_path / "s.bag", command_from=d / "esc.csv")
+    al = info["alignment"]
+    assert abs(al["offset_s"] - shift) <= AQ_PERIOD_S, al  # within one sample of the ESC's log
+    assert al["correlation"] > 0.99 and all(abs(x) < 0.05 for x in al["local_offsets_s"] if x is not None)
+    assert al["speed_ratio_other_over_log"] == pytest.approx(1.0, abs=0.01)
+    assert info["command"] == {"column": "Duty", "file": str(d / "esc.csv"), "unit": "percent",
+                               "mapping": info["command"]["mapping"]}
+    # only the rows inside the ESC log's span, on the stand's clock
+    assert info["skipped"]["outside_command_log"] > 0
+    assert info["time_start_s"] >= shift - AQ_PERIOD_S
+    assert info["time_start_s"] + info["duration_s"] <= 37.0 - RC_START_S
+    # /pwm is the simulated command, held from the ESC log's rows: equal except next to a change
+    t, pwm = read(tmp_path / "s.bag", "pwm")
+    sim_t = t + info["time_start_s"] + RC_START_S  # bag times count from its first message
+    truth = res.pwm[np.searchsorted(res.pwm_t, sim_t + 1e-9, side="right") - 1]
+    wrong = np.abs(pwm - truth) > 1e-6
+    near_change = np.array([np.min(np.abs(res.pwm_t[1:][np.diff(res.pwm) != 0] - s)) < 2 * AQ_PERIOD_S for s in sim_t])
+    assert wrong.mean() < 0.02 and np.all(near_change[wrong])
+    sig = load_signals(tmp_path / "s.bag")
+    assert sig.speed_source == "rotor/speed (recorded)" and sig.voltage_source == "battery/voltage (recorded)"
+
+
+def test_command_from_another_run_is_refused(two_clocks, tmp_path: Path) -> None:
+    d, _, _ = two_clocks
+    with pytest.raises(BadInputError) as err:
+        import_csv(d / "stand.csv", tmp_path / "x.bag", command_from=d / "other_run.csv")
+    msg = str(err.value)
+    assert "does not line up" in msg and "other_run.csv" in msg and "stand.csv" in msg and "\n" not in msg
+    assert not (tmp_path / "x.bag").exists()
+
+
+def test_align_by_speed_offsets_both_ways() -> None:
+    """A ramp-and-steps speed sampled on two clocks: the offset, whichever file starts first."""
+    t = np.arange(0.0, 60.0, 0.01)
+    speed = np.where(t < 5, 0.0, 1000 + 300 * np.floor((t - 5) / 4.0) % 3000) + 40 * np.sin(t)
+    for offset in (-7.311, 0.0, 4.253):
+        t_other = np.arange(10.0, 50.0, 0.015)
+        other = np.interp(t_other + offset, t, speed)
+        al = align_by_speed(t, speed, t_other, other, log_name="log", other_name="other")
+        assert al.offset_s == pytest.approx(offset, abs=0.015)
+        assert al.speed_rms_rpm < 0.01 * al.speed_range_rpm
+
+
+def test_align_by_speed_refuses_a_profile_that_repeats() -> None:
+    """The same 40 s staircase over and over: offsets 40 s apart fit equally; refused, not guessed."""
+    t = np.arange(0.0, 400.0, 0.01)
+    speed = 1000 + 300 * (np.floor(t / 4.0) % 10)
+    t_other = np.arange(100.0, 300.0, 0.015)
+    with pytest.raises(BadInputError, match="the run repeats itself, so the clock offset is ambiguous"):
+        align_by_speed(t, speed, t_other, np.interp(t_other + 3.3, t, speed), log_name="log", other_name="other")
+
+
+# --- the esc_test logs --------------------------------------------------------------------------
+ESC_TEST = REAL / "esc_test"
+NO_COMMAND = ["Log_2019-11-05_171350.csv", "Log_2019-11-07_184325.csv", "Log_2019-11-07_174807.csv",
+              "Log_2019-11-07_175456.csv", "Log_2019-11-07_211050.csv"]
+
+
+@pytest.mark.parametrize("name", NO_COMMAND)
+def test_esc_test_logs_without_a_command_say_so(name: str, tmp_path: Path) -> None:
+    src = ESC_TEST / name
+    if not src.is_file():
+        pytest.skip(f"real log not available: {src}")
+    with pytest.raises(BadInputError) as err:
+        import_csv(src, tmp_path / "x.bag")
+    msg = str(err.value)
+    assert msg.startswith(str(src)) and "command column 'ESC signal (µs)' is empty in all" in msg
+    assert "--command-from" in msg and "\n" not in msg
+
+
+@pytest.mark.skipif(not (ESC_TEST / "Log_2019-11-09_181347.csv").is_file(), reason="esc_test logs not available")
+def test_esc_test_f80_log_with_its_own_pwm_steps(tmp_path: Path) -> None:
+    info = import_csv(ESC_TEST / "Log_2019-11-09_181347.csv", tmp_path / "f80.bag")
+    assert info["rows"] == 15684 and info["warnings"] == []
+    assert info["esc_us_levels"] == [1000.0 + 50 * k for k in range(20)]  # 1050 -> 1950 us steps, 1000 stop
+    assert info["speed_check_power_over_torque_ratio"] == pytest.approx(1.0, abs=1e-3)  # shaft RPM already
+    assert info["thrust_unit_in_log"] == "gf" and info["command"]["column"] == "ESC signal (µs)"
+    tw, w = read(tmp_path / "f80.bag", "rotor/speed")
+    assert w.max() == pytest.approx(18005 * RPM)
+
+
+@pytest.fixture(scope="module")
+def f40(tmp_path_factory):
+    src, esc = ESC_TEST / "Log_2019-11-05_171350.csv", ESC_TEST / "f40_steps_5-2.csv"
+    if not (src.is_file() and esc.is_file()):
+        pytest.skip("esc_test logs not available")
+    d = tmp_path_factory.mktemp("f40")
+    return d, import_csv(src, d / "f40.bag", command_from=esc)
+
+
+def test_esc_test_f40_with_the_autoquad_log(f40) -> None:
+    """The ESC32v3 + F40 run: its AutoQuad log (duty, RPM at ~67 Hz) aligned by speed."""
+    d, info = f40
+    al = info["alignment"]
+    # measured: offset +12.979 s, correlation 0.9989, RMS 204 rpm = 1.3 % of the 15957 rpm range,
+    # thirds within 13 ms, the ESC's RPM 1.002 x the stand's (both shaft RPM)
+    assert al["offset_s"] == pytest.approx(12.98, abs=0.05)
+    assert al["correlation"] > 0.998 and al["speed_rms_share_of_range"] < 0.03
+    assert all(abs(x) < 0.05 for x in al["local_offsets_s"])
+    assert al["speed_ratio_other_over_log"] == pytest.approx(1.0, abs=0.02)
+    assert info["warnings"] == [] and info["thrust_unit_in_log"] == "gf"
+    # the duty steps of 5 % from 10 to 100 % (and 0 = stop), as PWM levels 0.05 + 0.05 x duty
+    t, pwm = read(d / "f40.bag", "pwm")
+    held = {round(float(lv), 6) for lv in np.unique(pwm) if np.count_nonzero(pwm == lv) >= 50}  # >= 1 s
+    assert {round(0.05 + 0.05 * p / 100, 6) for p in [0, *range(10, 101, 5)]} <= held
+    # causality: the stand's speed moves half-way to its new plateau within 0.15 s of each step
+    tw, w = read(d / "f40.bag", "rotor/speed")
+    steps = np.flatnonzero(np.abs(np.diff(pwm)) >= 0.002) + 1
+    inner = [k for k in steps if pwm[k - 1] > 0.05 and pwm[k] > 0.05]
+    assert len(inner) >= 18
+    for k in inner:
+        ts = t[k]
+        before = np.median(w[(tw > ts - 0.5) & (tw < ts - 0.02)])
+        after = np.median(w[(tw > ts + 1.0) & (tw < ts + 1.5)])
+        seg = (tw > ts - 0.5) & (tw < ts + 1.5)
+        crossed = tw[seg][(w[seg] - 0.5 * (before + after)) * np.sign(after - before) > 0][0]
+        assert -0.05 < crossed - ts < 0.15, (ts, crossed - ts)
+
+
+@pytest.mark.skipif(not (ESC_TEST / "Log_2019-11-09_181347.csv").is_file(), reason="esc_test logs not available")
+def test_esc_test_f40_bag_trains_and_agrees_with_the_f80_on_the_propeller(f40, tmp_path: Path) -> None:
+    """Same propeller on every esc_test log: b of thrust = b w^2 (gf converted) agrees across
+    the F40 (command from the AutoQuad log) and the F80 (its own PWM column)."""
+    from bldc_propulsion.training.train import fit_thrust_coefficient, train_model
+
+    d, _ = f40
+    import_csv(ESC_TEST / "Log_2019-11-09_181347.csv", tmp_path / "f80.bag")
+    a, b = load_signals(d / "f40.bag"), load_signals(tmp_path / "f80.bag")
+    b40, b80 = fit_thrust_coefficient([a]).coefficient, fit_thrust_coefficient([b]).coefficient
+    assert b40 == pytest.approx(b80, rel=0.05)  # measured 4.421e-6 and 4.470e-6 N s^2/rad^2
+    out = train_model([a], [b], hidden=5, max_epochs=5)
+    assert out.train_rmse_rad_s < 0.5 * np.std(a.speed)
+
+
+@pytest.mark.skipif(not (ESC_TEST / "esc32v3_f60-1.csv").is_file(), reason="esc_test logs not available")
+def test_esc_test_f60_autoquad_log_is_not_of_the_same_run(tmp_path: Path) -> None:
+    """esc32v3_f60-1.csv is listed with Log_2019-11-07_184325.csv, but it is another run of the
+    same protocol: it starts at 18:45:58, after the stand's log (named 18:43:25, 100.9 s) has
+    ended, and its steps last 5-8 % less (11.85/5.60/5.20 s against 12.50/6.10/5.65 s). No one
+    offset lines them up (best correlation 0.980; thirds of the overlap want -1.0, +1.0 and
+    +0.1 s), so the import is refused rather than written with a misplaced command."""
+    with pytest.raises(BadInputError) as err:
+        import_csv(ESC_TEST / "Log_2019-11-07_184325.csv", tmp_path / "f60.bag",
+                   command_from=ESC_TEST / "esc32v3_f60-1.csv")
+    msg = str(err.value)
+    assert "does not line up" in msg and "not a record of the same run" in msg and "\n" not in msg
+    assert not (tmp_path / "f60.bag").exists()

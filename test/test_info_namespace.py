@@ -237,3 +237,30 @@ def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
         for topic in (c.TOPIC_ROTOR_SPEED, c.TOPIC_PREDICTED_SPEED):
             assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic))), topic
         assert all(np.array_equal(x, y) for x, y in zip(v.battery_voltages(), b.battery_voltages()))
+
+
+def test_a_namespace_per_recording_trains_on_one_motor_and_validates_on_another(home, tmp_path):
+    """BAG@NS (specs.py): motor 0 and motor 1 of one flight are two recordings; the suffix wins
+    over --namespace; one motor given twice is still refused, and an output never replaces the
+    recording named with a suffix."""
+    bag = home / "vehicle"
+    m1 = load_signals(f"{bag}@motor1", namespace="motor0")  # the suffix wins
+    direct = load_signals(bag, namespace="motor1")
+    assert m1.namespace == "motor1" and np.array_equal(m1.speed, direct.speed)
+    assert m1.key != load_signals(f"{bag}@motor0").key
+    before = digest(home)
+    ok = run("train", f"{bag}@motor0", "--validation", f"{bag}@motor1", "-o", tmp_path / "m.npz",
+             "--hidden", "5", "--restarts", "2", "--max-epochs", "40", "--patience", "40", "--json",
+             cwd=tmp_path)
+    assert ok.returncode == 0, ok.stderr
+    sources = json.loads(ok.stdout)
+    assert sources["model"].endswith("m.npz")
+    same = run("train", f"{bag}@motor0", "--validation", bag, "--namespace", "motor0", "-o", tmp_path / "n.npz",
+               cwd=tmp_path)
+    assert same.returncode == 2 and "same recording as training recording" in same.stderr
+    ev = run("evaluate", "--model", tmp_path / "m.npz", f"{bag}@motor0", f"{bag}@motor1", "--json", cwd=tmp_path)
+    assert ev.returncode == 0, ev.stderr
+    assert [r["path"] for r in json.loads(ev.stdout)["recordings"]] == [f"{bag}@motor0", f"{bag}@motor1"]
+    onto = run("replay", f"{bag}@motor1", "-o", bag, "--force", cwd=tmp_path)
+    assert onto.returncode == 2 and "an output never replaces an input" in onto.stderr
+    assert digest(home) == before

@@ -71,6 +71,28 @@ def test_stream_equals_the_batch_path(case: str, recording: SimResult) -> None:
     assert np.ptp(want) > 200.0  # the rotor did move
 
 
+@pytest.mark.parametrize("case", CASES)
+def test_stream_equals_the_batch_path_from_a_running_start(case: str, recording: SimResult) -> None:
+    """The recording cut at 3 s, the rotor turning there: both start from the same speed (the
+    running state: command held, supply current already filtered) and stay equal."""
+    params, eff, every, tau = CASES[case]
+    cut = 3.0
+    w0 = float(np.interp(cut, recording.truth_t, recording.truth_speed))
+    grid = np.arange(cut + 0.013, 11.9, 0.01)
+    ev = [e for e in events(recording, every, grid, seed=len(case)) if e[0] >= cut]
+    got = run(PlantStream(params, eff, 11.5, tau, initial_speed=w0), ev)
+    v = BatteryFilter().process(recording.battery_t, recording.battery_adc)
+    p, b = recording.pwm_t >= cut, recording.battery_t[::every] >= cut
+    want = motor_response(params, eff, (recording.pwm_t[p], recording.pwm[p]),
+                          (recording.battery_t[::every][b], v[::every][b]), grid, 11.5, tau, hold_supply=True,
+                          initial_speed=w0)
+    assert np.max(np.abs(got - want)) < 1e-9
+    assert w0 > 200.0 and abs(want[0] - w0) < 0.05 * w0  # started turning, no braking transient
+    rest = motor_response(params, eff, (recording.pwm_t[p], recording.pwm[p]),
+                          (recording.battery_t[::every][b], v[::every][b]), grid, 11.5, tau, hold_supply=True)
+    assert rest[0] < 0.5 * w0  # as before: from rest
+
+
 def test_predicting_more_or_less_often_changes_nothing(recording: SimResult) -> None:
     params, eff, every, tau = CASES["nominal, 20 Hz voltage"]
     fine = np.arange(0.013, 11.9, 0.001)

@@ -50,10 +50,19 @@ def nan_of(a: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize("key", ["input_min", "input_max", "output_min", "output_max", "W2", "b2",
-                                 "pwm_tau_s", "thrust_coefficient"])
+                                 "pwm_tau_s"])
 def test_nan_in_any_float_array(tmp_path, arrays, key):
     p = write(tmp_path / "m.npz", {**arrays, key: nan_of(arrays[key])})
     with pytest.raises(ModelError, match=rf"^{p}: {key} contains NaN or inf"):
+        load_model(p)
+
+
+def test_thrust_coefficient_nan_is_no_b_and_inf_is_refused(tmp_path, arrays):
+    """NaN is how a file says the model has no b (nothing measured or stated); inf is damage."""
+    p = write(tmp_path / "none.npz", {**arrays, "thrust_coefficient": np.array(np.nan)})
+    assert load_model(p).thrust_coefficient is None
+    p = write(tmp_path / "inf.npz", {**arrays, "thrust_coefficient": np.array(np.inf)})
+    with pytest.raises(ModelError, match=rf"^{p}: thrust_coefficient must be >= 0 and finite"):
         load_model(p)
 
 

@@ -129,3 +129,95 @@ def test_truncated_recording_keeps_the_readable_part(bench, tmp_path):
         assert "cut" in str(exc)
         return
     assert info["read_error"] and info["messages_in"] > 0
+
+
+# --- a recording with the measured topics and not the raw ones (an imported thrust-stand log) ---
+def _stand_csv(path: Path, res, volts_scale: float = 1.0) -> Path:
+    """The simulated run as a thrust stand logs it (100 Hz rows: ESC us, voltage, thrust, RPM)."""
+    t = np.arange(0.0, res.truth_t[-1], 0.01)
+    esc = 20000.0 * res.pwm[np.searchsorted(res.pwm_t, t + 1e-9, side="right") - 1]
+    volts = volts_scale * np.interp(t, res.truth_t, res.truth_voltage)
+    thrust = np.interp(t, res.truth_t, res.truth_thrust)
+    rpm = np.interp(t, res.truth_t, res.truth_speed) * 60 / (2 * np.pi)
+    rows = [f"{a:.3f},{e:.0f},{v:.4f},{f:.5f},{r:.1f}" for a, e, v, f, r in zip(t, esc, volts, thrust, rpm)]
+    header = "Time (s),ESC signal (µs),Voltage (V),Thrust (N),Motor Optical Speed (RPM)"
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def imported(tmp_path_factory):
+    from bldc_propulsion.training.import_csv import import_csv
+
+    d = tmp_path_factory.mktemp("imported")
+    res = simulate("random_steps", 8.0, seed=22)
+    import_csv(_stand_csv(d / "stand.csv", res), d / "stand")
+    import_csv(_stand_csv(d / "low.csv", res, volts_scale=0.75), d / "low")
+    return d
+
+
+def test_imported_recording_uses_its_measured_topics(imported, tmp_path):
+    from bldc_propulsion.commands import replay as replay_command
+    import argparse
+
+    d = imported
+    p = argparse.ArgumentParser()
+    replay_command.add_arguments(p)
+    result = replay_command.run(p.parse_args([str(d / "stand"), "-o", str(tmp_path / "out")]))
+    info = result.data
+    assert info["measured_inputs"] == ["/battery/voltage", "/rotor/speed"]
+    assert [s["name"] for s in info["status"]] == ["thrust estimator"]  # the stages without input did not run
+    assert result.warnings == []
+    info_lines = [ln for ln in result.text.splitlines() if "[INFO]" in ln]
+    assert len(info_lines) == 1 and "/battery/voltage" in info_lines[0] and "/rotor/speed" in info_lines[0]
+    assert "battery/adc sample" not in result.text and "tachometer/adc batch" not in result.text
+    with open_recording(d / "stand") as rec, open_recording(tmp_path / "out") as out:
+        assert set(out.topics()) == set(c.OUTPUT_TOPICS)
+        # measured speed and voltage: as recorded (times and values), rpm beside the speed
+        t_in, w_in = rec.scalars(c.TOPIC_ROTOR_SPEED)
+        t_out, w_out = out.scalars(c.TOPIC_ROTOR_SPEED)
+        np.testing.assert_array_equal(w_out, w_in)
+        np.testing.assert_allclose(t_out + (out.t0_ns - rec.t0_ns) * 1e-9, t_in, atol=1e-9)
+        np.testing.assert_allclose(out.scalars(c.TOPIC_ROTOR_RPM)[1], w_in * 60 / (2 * np.pi), rtol=1e-12)
+        np.testing.assert_array_equal(out.battery_voltages()[1], rec.battery_voltages()[1])
+        assert abs(out.count(c.TOPIC_PREDICTED_SPEED) - 800) <= 3  # 100 Hz over 8 s
+        for status in [m for _, _, m in out.messages([c.TOPIC_DIAGNOSTICS])][:3]:
+            assert [s.name for s in status.status] == ["thrust estimator"]
+
+
+def test_imported_recording_voltage_reaches_the_estimator(imported, tmp_path):
+    """The same commands on a pack at 75 % of the voltage: the fallback physics predicts less
+    speed (it would predict the same if the recorded voltage were not used)."""
+    d = imported
+    replay_bag(d / "stand", tmp_path / "full")
+    replay_bag(d / "low", tmp_path / "low")
+    with open_recording(tmp_path / "full") as a, open_recording(tmp_path / "low") as b:
+        full, low = a.scalars(c.TOPIC_PREDICTED_SPEED)[1], b.scalars(c.TOPIC_PREDICTED_SPEED)[1]
+    busy = full > 100.0
+    assert busy.sum() > 200 and np.all(low[busy] < 0.95 * full[busy])
+
+
+def test_imported_recording_bulk_path_equals_reference(imported, tmp_path):
+    from _replay_corpus import differences
+
+    ref = replay_bag(imported / "stand", tmp_path / "ref", reference=True)
+    fast = replay_bag(imported / "stand", tmp_path / "fast")
+    assert differences(tmp_path / "ref", tmp_path / "fast", ref, fast) == []
+
+
+def test_raw_topics_win_over_measured_ones(bench, tmp_path):
+    """A recording with tachometer/adc and a rotor/speed too: the tachometer decodes, the
+    recorded speed is not copied (nor are the stages' statuses dropped)."""
+    from _replay_corpus import _write
+    from bldc_propulsion.sim.record import _streams
+
+    _, res = bench
+    streams = [s for s in _streams(res) if not s[0].startswith(c.TRUTH_PREFIX)]
+    fake = (c.TOPIC_ROTOR_SPEED, np.arange(0.0, 12.0, 0.1), np.full(120, 12345.0))
+    _write(tmp_path / "both", [*streams, fake])
+    info = replay_bag(tmp_path / "both", tmp_path / "out")
+    assert info["measured_inputs"] == []
+    assert [s["name"] for s in info["status"]] == ["battery filter", "tachometer", "thrust estimator"]
+    with open_recording(tmp_path / "out") as out:
+        speeds = out.scalars(c.TOPIC_ROTOR_SPEED)[1]
+    assert len(speeds) > 500 and not np.any(speeds == 12345.0)

@@ -114,11 +114,12 @@ def test_thrust_fit_by_hand():
         speed = np.linspace(100.0, 600.0, 20)
         thrust = 3e-5 * speed**2 + 0.01 * (-1.0) ** np.arange(20)
 
-    fit = fit_thrust_coefficient([S()], default=1.0)
+    fit = fit_thrust_coefficient([S()], 1.0)  # measured wins over a stated b (and warns: test_thrust_coefficient.py)
     x, y = S.speed**2, S.thrust
     assert fit.coefficient == pytest.approx(np.dot(x, y) / np.dot(x, x), rel=1e-12)
-    none = fit_thrust_coefficient([], default=2.5e-5)
-    assert none.coefficient == 2.5e-5 and "configured" in none.source
+    given = fit_thrust_coefficient([], 2.5e-5)
+    assert given.coefficient == 2.5e-5 and given.residual_rms_n is None
+    assert fit_thrust_coefficient([]).coefficient is None  # nothing measured or stated: no b
 
 
 def test_model_file_round_trips_into_the_estimator_core(trained, bags, tmp_path):

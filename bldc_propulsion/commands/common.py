@@ -52,7 +52,8 @@ def add_namespace_argument(p: argparse.ArgumentParser) -> None:
     """``--namespace motorN``: one motor of a vehicle's recording (interfaces.md, "A quadrotor")."""
     p.add_argument("--namespace", metavar="NS",
                    help="read one motor of a vehicle's recording: its topics under /NS/ (e.g. motor0), "
-                        "the battery topics from /NS/ if recorded there, else from the root")
+                        "the battery topics from /NS/ if recorded there, else from the root. One "
+                        "recording's own motor: BAG@NS (e.g. flight.mcap@motor1), which wins over --namespace")
 
 
 def number(kind: type = float, lo: float | None = None, hi: float | None = None,

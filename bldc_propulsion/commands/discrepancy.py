@@ -12,7 +12,9 @@ from typing import Any
 from .. import contract as c
 from ..atomic import CONFIG, MODEL, REPORT, check_outputs
 from ..errors import BadInputError
+from ..priors import MotorPriors, add_prior_arguments, priors_from_args
 from ..recordings import load_all, load_signals, unique
+from ..specs import spec_path
 from ..training.evaluate import input_range
 from ..discrepancy.workflow import (
     ALPHA, MIN_EFFECT, Options, check_effect_names, check_holdout, run_workflow)
@@ -49,7 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                           "value}, \"effects\": {name: strength}, \"supply_v\": V} in which effects not listed are "
                           "OFF and supply_v (the stiff supply when battery_voltage is off) defaults to the "
                           "measured median (what -o writes), or a physics model .npz. Kv and CP are calibrated "
-                          "on the measured data first")
+                          "on the measured data first. With --motor-kv, --prop-diameter-in, ... the bench is "
+                          "resized to your motor first and its Kv and CP are judged against what you stated; a "
+                          "CONFIG's constants win where both give one (with a warning)")
     p.add_argument("--measured", nargs="+", required=True, metavar="BAG",
                    help="recordings the model is to be checked against")
     p.add_argument("--reference", nargs="+", metavar="BAG",
@@ -76,6 +80,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="replace an existing output of the same kind (a model / CONFIG written by this "
                         "tool, a report folder it made)")
     add_namespace_argument(p)
+    # the user's motor: where the physics fit starts, what its Kv and CP are judged against
+    add_prior_arguments(p, thrust=False)
 
 
 def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
@@ -92,7 +98,7 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
         candidates = [path, os.path.join(os.path.dirname(os.path.abspath(model_path)), path)]
         if isinstance(src, dict) and src.get("abs_path"):
             candidates.append(str(src["abs_path"]))  # where it was at training time
-        hit = next((p for p in candidates if os.path.exists(p)), None)
+        hit = next((p for p in candidates if os.path.exists(spec_path(p))), None)  # PATH@NS: specs.py
         if hit is None:
             missing.append(path)
         elif hit not in found:
@@ -136,6 +142,10 @@ def run(args: argparse.Namespace) -> CommandResult:
     # any kind: a physics model (or a hybrid's physics part) goes down the physics path
     model = load_model(args.model) if args.model is not None else None
     physics = model is None or model.kind != NETWORK
+    priors = priors_from_args(args)
+    if not physics and priors.stated:
+        raise BadInputError(f"{_stated_options(priors)[0]}: states the motor a physics fit starts from, so it goes "
+                            f"with --physics or a physics/hybrid --model, not the network {args.model}")
     check_outputs([(args.output, CONFIG if physics and not _is_npz(args.output) else MODEL, "-o"),
                    (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
@@ -188,8 +198,9 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
         if value is not None:
             raise BadInputError(f"{flag}: retrains a network, so it goes with a network --model, not {where}")
     warnings: list[str] = []
+    priors = priors_from_args(args)
     if loaded is None:
-        base, model = args.physics or None, _physics_input(args.physics)
+        base, model = args.physics or None, _physics_input(args.physics)  # a bad CONFIG fails before any work
     else:
         base = str(args.model)
         plant = loaded.plant if loaded.kind == HYBRID else loaded
@@ -199,6 +210,18 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
             warnings.append(f"--model {args.model}: a hybrid: its physics part is checked, without the "
                             f"network's correction{out}")
     measured, reference, holdout = _recordings(args, list(args.reference or []))
+    if loaded is None and not _is_npz(args.physics):
+        # the start: the stated motor under the CONFIG (which wins where both give a constant), sized
+        # at the measured recordings' voltage; neither given: the nominal bench
+        from ..discrepancy.physics import NOMINAL_START_WARNING, start_model
+
+        model, notes, start_warnings = start_model(args.physics or None, priors, _median_voltage(measured))
+        # (from the nominal bench, every fit flag says so: "nominal (no CONFIG given)")
+        warnings += [w for w in start_warnings if w != NOMINAL_START_WARNING]
+        for line in notes:
+            progress(f"start: {line}")
+    else:
+        warnings += _model_vs_priors(model, priors, where)
     opts = Options(max_effects=args.max_effects, restrict=args.effects, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report,
                    report_force=args.force)
@@ -218,6 +241,39 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
 
     return _finish(args, result, save, "the physics model" if _is_npz(args.output) else "the physics config",
                    warnings)
+
+
+def _stated_options(priors: MotorPriors) -> list[str]:
+    """The prior options the user gave, as they are spelled on the command line."""
+    names = {"motor_kv_rpm_per_v": "--motor-kv", "pole_count": "--pole-count", "cells": "--cells",
+             "propeller_diameter_m": "--prop-diameter-in", "propeller_pitch_m": "--prop-pitch-in"}
+    return [opt for name, opt in names.items() if getattr(priors, name) is not None]
+
+
+def _median_voltage(signals: list[Any]) -> float | None:
+    """The recordings' median battery voltage (V), None without one (sizes the stated motor)."""
+    import numpy as np
+
+    v = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in signals]) if signals else np.zeros(0)
+    return float(np.median(v)) if len(v) else None
+
+
+def _model_vs_priors(model: Any, priors: MotorPriors, where: str) -> list[str]:
+    """A model file's constants win over stated priors (it was fitted); one warning per stated
+    Kv or CP the model's value is outside the prior's range of (``priors.physics_start``)."""
+    from ..priors import physics_start
+
+    start = physics_start(priors) if priors.stated else None
+    if start is None:
+        return []
+    out = [f"{', '.join(_stated_options(priors))}: {where} gives every constant; the stated motor is not its start"]
+    for name, (lo, hi) in start.ranges.items():
+        value = float(getattr(model.params, name))
+        if not lo <= value <= hi:
+            out.append(f"{where}: {name} {value:.4g} is outside {lo:.4g}-{hi:.4g} around the stated "
+                       f"{getattr(start.params, name):.4g} ({start.stated[name]}): another motor or propeller, or "
+                       "a fit that stands in for something else")
+    return out
 
 
 def _is_npz(path: str | None) -> bool:

@@ -58,10 +58,13 @@ class Evaluation:
 
     def as_dict(self) -> dict[str, Any]:
         return {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
+                "thrust_coefficient": self.model.thrust_coefficient,
                 "recordings": [s.as_dict() for s in self.scores]}
 
     def lines(self) -> list[str]:
-        out = [f"model {self.path} ({self.model.kind}): overall RMSE {self.rmse_rad_s:.2f} rad/s"]
+        out = [f"model {self.path} ({self.model.kind}): overall RMSE {self.rmse_rad_s:.2f} rad/s"
+               + ("; thrust unavailable: the model has no thrust coefficient"
+                  if self.model.thrust_coefficient is None else "")]
         for s in self.scores:
             out.append(
                 f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
@@ -97,6 +100,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models)]
     first = evals[0]  # the contract's keys: the first (or only) model's figures
     data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
+                            "thrust_coefficient": first.model.thrust_coefficient,
                             "recordings": [s.as_dict() for s in first.scores]}
     lines = [line for e in evals for line in e.lines()]
     rows = comparison(evals) if len(evals) > 1 else []

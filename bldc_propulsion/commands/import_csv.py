@@ -13,12 +13,15 @@ DESCRIPTION = (
     "Convert the CSV log a RCbenchmark / Tyto Robotics thrust stand exports (ESC signal "
     "in microseconds, voltage, current, thrust, RPM) into a bag with the contract's "
     "topics (/pwm at 50 Hz, /battery/voltage, /rotor/speed, /thrust/measured), so that "
-    "data from a commercial stand trains, evaluates and goes through discrepancy."
+    "data from a commercial stand trains, evaluates and goes through discrepancy. Thrust "
+    "in N, kgf, gf or lbf. When the ESC's own tool set the command (the ESC signal column "
+    "is empty), give it with --command-column or --command-from."
 )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Arguments of ``import-csv``: ``CSV -o BAG [--force] [--pole-pairs N]``."""
+    """Arguments of ``import-csv``: ``CSV -o BAG [--force] [--pole-pairs N]
+    [--command-column NAME [--command-unit U] | --command-from ESC_LOG.csv]``."""
     parser.add_argument("csv", metavar="CSV", help="RCbenchmark / Tyto Robotics CSV log")
     parser.add_argument("-o", "--output", required=True, help="bag directory to write")
     parser.add_argument("--force", action="store_true", help="replace an existing output")
@@ -31,13 +34,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             "the pole count set in its setup). Not used when optical RPM has data."
         ),
     )
+    command = parser.add_mutually_exclusive_group()
+    command.add_argument(
+        "--command-column", metavar="NAME",
+        help=(
+            "read the ESC command from this column of the log instead of 'ESC signal (µs)' "
+            "(which is empty when the ESC's own tool set the command), e.g. 'Servo 1 (µs)'"
+        ),
+    )
+    command.add_argument(
+        "--command-from", metavar="ESC_LOG.csv",
+        help=(
+            "read the command from the ESC's own log of the same run (AutoQuad ESC32 utility CSV: "
+            "Timestamp, RPM, Duty in %%); its clock is aligned to the log's by cross-correlating "
+            "the speed both files record, and the import is refused if they do not line up"
+        ),
+    )
+    parser.add_argument(
+        "--command-unit", metavar="us|duty|percent",
+        help=(
+            "unit of --command-column: us (pulse width), duty (0..1) or percent (0..100); a duty "
+            "maps to the PWM level 0.05 + 0.05 x duty. Default: the unit in the column's name "
+            "('(µs)', '(%%)')"
+        ),
+    )
 
 
 def run(args: argparse.Namespace) -> CommandResult:
     """Run the import; ``--json`` data has ``path``, ``rows`` and the full summary."""
     from ..training.import_csv import import_csv, summary_text
 
-    check_output(args.output, RECORDING, force=args.force, inputs=[args.csv])  # before any work
-    progress(f"importing {args.csv}")
-    info = import_csv(args.csv, args.output, force=args.force, pole_pairs=args.pole_pairs)
+    check_output(args.output, RECORDING, force=args.force,
+                 inputs=[args.csv, args.command_from])  # before any work
+    progress(f"importing {args.csv}" + (f" with the command from {args.command_from}" if args.command_from else ""))
+    info = import_csv(args.csv, args.output, force=args.force, pole_pairs=args.pole_pairs,
+                      command_column=args.command_column, command_unit=args.command_unit,
+                      command_from=args.command_from)
     return CommandResult(info, summary_text(info), warnings=list(info.get("warnings", [])))

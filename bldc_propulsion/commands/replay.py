@@ -13,7 +13,9 @@ DESCRIPTION = (
     "tachometer decoder, thrust estimator) in message-time order, and write every "
     "output topic (/battery/voltage, /rotor/speed, /rotor/rpm, /predicted/speed, "
     "/predicted/thrust, /diagnostics) to a new MCAP bag: what the nodes would publish "
-    "during `ros2 bag play`."
+    "during `ros2 bag play`. A recording that holds the measured /battery/voltage or "
+    "/rotor/speed instead of /battery/adc or /tachometer/adc (an imported thrust-stand log) "
+    "has them used as recorded, and the stage without input is not run."
 )
 
 

@@ -14,9 +14,10 @@ from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
 from ..model import save_model
+from ..priors import add_prior_arguments, priors_from_args
 from ..recordings import Signals, load_all
 from ..training.evaluate import predict_speed
-from ..training.train import train_model
+from ..training.train import ThrustFit, stated_thrust, train_model
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 NAME = "train"
@@ -26,12 +27,21 @@ DESCRIPTION = (
     "through a 0.25 s lag) with Levenberg-Marquardt on the training recordings, stop "
     "early on separate validation recordings, and save weights, scaling and "
     "provenance to an .npz model file. With --kind physics, fit the bench's physics "
-    "(Kv, CP, effect strengths) instead, judged on the validation recordings."
+    "(Kv, CP, effect strengths) instead, judged on the validation recordings. "
+    "The thrust coefficient b (thrust = b w^2) comes from, in this order: least squares on the "
+    "training recordings' /thrust/measured; --thrust-coefficient; --vehicle-mass-kg with "
+    "--motor-count, assuming the vehicle hovers: its mean total thrust while airborne equals "
+    "its weight m g, shared equally, so b = m g / (N mean(w^2)) over the samples with the rotor "
+    "clearly turning; --propeller-ct with --prop-diameter-in (b = CT rho D^4 / (4 pi^2), sea "
+    "level air). Else the model has no b: it predicts speed only, and replay and the nodes "
+    "publish no thrust."
 )
 
-#: b of the nominal bench (12x4.5 propeller, CT ~0.105, rho 1.225, D 0.305 m): used when no
-#: recording has /thrust/measured and no --thrust-coefficient is given.
-DEFAULT_THRUST_COEFFICIENT = 2.8e-5
+#: Said when a model gets no b: nothing downstream will have a thrust.
+NO_THRUST_WARNING = (
+    "no thrust coefficient: the model predicts speed only (replay and the nodes publish no "
+    "predicted/thrust); record /thrust/measured, or give --thrust-coefficient, --vehicle-mass-kg "
+    "with --motor-count, or --propeller-ct with --prop-diameter-in")
 #: LM runs from different initial weights, best on validation kept (see train_model): on the
 #: bundled bags one run's chirp error below 0.5 Hz spans 1.7-5.4 % of the range over seeds.
 DEFAULT_RESTARTS = 5
@@ -65,6 +75,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "squares, the ESC's braking chosen on the validation recordings; hybrid: that "
                         "physics plus a network (inputs physics_speed and --inputs) trained on what it "
                         "gets wrong")
+    p.add_argument("--physics-config", metavar="CONFIG",
+                   help="--kind physics/hybrid: start the fit from this physics CONFIG (JSON, as `discrepancy "
+                        "--physics CONFIG` reads it) instead of the stated motor (--motor-kv, --prop-diameter-in, "
+                        "...) or the simulator's 12 in bench; where it and a stated prior both give a constant, "
+                        "the CONFIG wins (with a warning)")
     p.add_argument("--inputs", type=_inputs,
                    help="comma-separated model inputs (default: battery_voltage,pwm,pwm_filtered)")
     p.add_argument("--hidden", type=HIDDEN, help="hidden neurons, 1..200 (default 25)")
@@ -75,13 +90,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-epochs", type=EPOCHS, help="epoch limit (default 1000)")
     p.add_argument("--patience", type=EPOCHS,
                    help="stop after this many epochs without validation improvement (default 6)")
-    p.add_argument("--thrust-coefficient", type=number(float, 0.0, 1e-2, lo_open=True),
-                   default=DEFAULT_THRUST_COEFFICIENT,
-                   help="b in thrust = b w^2 (N s^2/rad^2) when no recording has /thrust/measured")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
     p.add_argument("--force", action="store_true",
                    help="replace an existing model file (a model only) and report folder (one this tool made)")
     add_namespace_argument(p)
+    add_prior_arguments(p)  # what the user states of motor, propeller, vehicle; b among them
 
 
 def _check_disjoint(train: list[str], validation: list[str]) -> None:
@@ -101,24 +114,29 @@ def _network_options(args: argparse.Namespace) -> None:
             raise BadInputError(f"--{name.replace('_', '-')}: trains a network, so it goes with --kind network")
     if c.INPUT_PHYSICS_SPEED in args.inputs:
         raise BadInputError(f"--inputs {c.INPUT_PHYSICS_SPEED}: the physics model's speed is no input of a network")
+    if args.kind == "network" and getattr(args, "physics_config", None):
+        raise BadInputError(f"--physics-config {args.physics_config}: the physics fit's start, so it goes with "
+                            "--kind physics or hybrid")
 
 
 def run(args: argparse.Namespace) -> CommandResult:
     _network_options(args)
+    priors = priors_from_args(args)  # options that go together, checked before any work
     out = Path(args.output)
     check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
-                  inputs=[*args.train, *args.validation])
+                  inputs=[*args.train, *args.validation, args.physics_config])
     _check_disjoint(args.train, args.validation)
     progress(f"reading {len(args.train)} training and {len(args.validation)} validation recordings")
     train = load_all(args.train, "training", args.namespace)
     validation = load_all(args.validation, "validation", args.namespace)
-    by_hash = {s.sha256: s.path for s in train}
+    by_key = {s.key: s.path for s in train}
     for s in validation:
-        if s.sha256 in by_hash:
-            raise BadInputError(f"{s.path}: same recording as training recording {by_hash[s.sha256]}")
+        if s.key in by_key:
+            raise BadInputError(f"{s.path}: same recording as training recording {by_key[s.key]}")
+    stated = stated_thrust(priors, train)  # b the user stated (hover: from the training recordings)
 
     if args.kind == "physics":
-        return _run_physics(args, out, train, validation)
+        return _run_physics(args, out, train, validation, stated)
     run = [0]
 
     def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
@@ -134,13 +152,13 @@ def run(args: argparse.Namespace) -> CommandResult:
     if hybrid:  # the physics first; the network learns what it gets wrong
         from ..training.fit_physics import train_hybrid, train_physics
 
-        physics = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
+        physics = train_physics(train, validation, thrust_coefficient=stated, priors=priors_from_args(args),
+                                config=args.physics_config, progress=progress)
         progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
                  f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
         outcome = train_hybrid(physics, inputs=args.inputs, **network)
     else:
-        outcome = train_model(train, validation, inputs=inputs,
-                              thrust_coefficient=args.thrust_coefficient, **network)
+        outcome = train_model(train, validation, inputs=inputs, thrust_coefficient=stated, **network)
     meta = outcome.model.metadata
     runs = len(meta["restarts"])
     warnings = []
@@ -157,6 +175,10 @@ def run(args: argparse.Namespace) -> CommandResult:
     if stuck and not warnings:
         warnings.append(f"{stuck} of {runs} training runs never improved on their initial weights "
                         "(the kept run did)")
+    warnings += physics.warnings if hybrid else []  # the physics part's start and fit flags
+    thrust_line, thrust_warnings = _thrust_summary(outcome.thrust)
+    warnings += thrust_warnings
+    meta["thrust_fit"] = outcome.thrust.as_metadata()  # a hybrid's: its physics part's b
     save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
@@ -171,15 +193,13 @@ def run(args: argparse.Namespace) -> CommandResult:
         "train_rmse_rad_s": outcome.train_rmse_rad_s,
         "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
         "thrust_coefficient": outcome.thrust.coefficient,
-        "thrust_fit": {"source": outcome.thrust.source, "residual_rms_n": outcome.thrust.residual_rms_n,
-                       "samples": outcome.thrust.samples},
+        "thrust_fit": outcome.thrust.as_metadata(),
         "samples": meta["samples"],
         "best_seed": meta["best_seed"],
         "restarts": meta["restarts"],
     }
     if args.report:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
-    fit = outcome.thrust
     text = "\n".join([
         ("physics fitted, then " if hybrid else "")
         + f"trained {len(inputs)}-{args.hidden}-1 on {', '.join(inputs)}: "
@@ -188,21 +208,33 @@ def run(args: argparse.Namespace) -> CommandResult:
            if args.restarts > 1 else ""),
         f"  RMSE training {outcome.train_rmse_rad_s:.2f} rad/s, validation {outcome.validation_rmse_rad_s:.2f} rad/s "
         f"({meta['samples']['train']} / {meta['samples']['validation']} samples)",
-        f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source}"
-        + (f", residual {fit.residual_rms_n:.3f} N RMS)" if fit.residual_rms_n is not None else ")"),
+        thrust_line,
         f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
     ])
     data["warnings"] = warnings
     return CommandResult(data, text, warnings=warnings)
 
 
-def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], validation: list[Signals]) -> CommandResult:
-    """``--kind physics``: training/fit_physics.py."""
+def _thrust_summary(fit: ThrustFit) -> tuple[str, list[str]]:
+    """The summary's line on b (where it came from, or that there is none) and the warnings to
+    print with it: the fit's, and without b that nothing downstream will have a thrust."""
+    if fit.coefficient is None:
+        return f"  no thrust coefficient ({fit.source}): speed only", [*fit.warnings, NO_THRUST_WARNING]
+    residual = f", residual {fit.residual_rms_n:.3f} N RMS" if fit.residual_rms_n is not None else ""
+    return f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source}{residual})", list(fit.warnings)
+
+
+def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], validation: list[Signals],
+                 stated: ThrustFit | None) -> CommandResult:
+    """``--kind physics``: training/fit_physics.py; ``stated``: the b the user stated."""
     from ..training.fit_physics import train_physics
 
-    outcome = train_physics(train, validation, thrust_coefficient=args.thrust_coefficient, progress=progress)
-    save_model(outcome.model, out, force=args.force)
+    outcome = train_physics(train, validation, thrust_coefficient=stated, priors=priors_from_args(args),
+                            config=args.physics_config, progress=progress)
     m, fit = outcome.model, outcome.thrust
+    thrust_line, thrust_warnings = _thrust_summary(fit)
+    m.metadata["thrust_fit"] = fit.as_metadata()  # with the assumption of a b derived from stated numbers
+    save_model(m, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
         "kind": "physics",
@@ -213,19 +245,21 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
         "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
         "candidates": outcome.candidates,
         "thrust_coefficient": fit.coefficient,
-        "thrust_fit": {"source": fit.source, "residual_rms_n": fit.residual_rms_n, "samples": fit.samples},
+        "thrust_fit": fit.as_metadata(),
     }
     if args.report:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
     consts = ", ".join(f"{k} {v:.4g}" for k, v in data["constants"].items())
     strengths = ", ".join(f"{k} {v:.2f}" for k, v in m.effects.items())
-    warnings = [f"fitted at the bound of its range: {b}" for b in outcome.candidates[0]["at_bound"]]
+    warnings = [*outcome.warnings, *thrust_warnings]  # the start's, and the kept fit's flags
+    refused = sum(1 for d in outcome.candidates if d["refused"])  # contradicted the stated motor
     text = "\n".join([
         f"fitted the bench physics ({m.metadata['fit']}, the least validation error of "
-        f"{len(outcome.candidates)} fits): {consts}",
+        f"{len(outcome.candidates) - refused} fits"
+        + (f"; {refused} more contradicted the stated motor" if refused else "") + f"): {consts}",
         f"  effect strengths: {strengths}",
         f"  RMSE training {outcome.train_rmse_rad_s:.2f} rad/s, validation {outcome.validation_rmse_rad_s:.2f} rad/s",
-        f"  thrust coefficient b = {fit.coefficient:.4g} N s^2/rad^2 ({fit.source})",
+        thrust_line,
         f"  saved {out}" + (f"; figures in {data['report']}" if args.report else ""),
     ])
     data["warnings"] = warnings

@@ -6,11 +6,19 @@ network's correction). The model's inputs are computed by core/features.py (the 
 evaluate use the same code). Inputs
 outside the training range are clipped to it and the prediction is flagged: the network was
 never fitted there, so its output is an extrapolation guard, not a measurement. The predicted
-speed is clamped at >= 0 (the rotor does not turn backwards) and thrust = b w^2.
+speed is clamped at >= 0 (the rotor does not turn backwards) and thrust = b w^2; a model
+without b (nothing measured or stated when it was trained) predicts no thrust, and its status
+says why, rather than a thrust from another propeller's b.
 
 Samples are checked at the door, as the PX4 battery estimator does: non-finite values, PWM
 levels outside 0.0..0.2, voltages outside 0..60 V and timestamps older than the previous
 sample of the same signal are rejected and counted; they do not touch the state.
+
+A measured rotor speed (``update_speed``: ``rotor/speed``), when there is one, is never a model
+input (the prediction stays a prediction): it only says where a physics stream starts. At its
+first command (after construction, ``reset`` or ``restart_physics``) the physics starts from the
+latest measured speed, instead of at rest, so a node started on a turning rotor is not wrong by
+the whole speed for the rotor's time constant. A network model ignores it.
 """
 
 from __future__ import annotations
@@ -24,8 +32,23 @@ import numpy as np
 from .. import contract as c
 from ..errors import BadInputError
 from ..model import HYBRID, NETWORK, NOMINAL_THRUST_COEFFICIENT, PHYSICS
-from .features import FeatureState, pwm_ok, voltage_ok
+from .features import REST_SPEED_RAD_S, FeatureState, PhysicsSpeed, pwm_ok, voltage_ok
 from .status import OK, WARN, CoreStatus, counters
+
+#: A measured speed (``update_speed``) is where the physics starts only if it was taken at most
+#: this long (s) before the start: the rotor's time constant is ~0.1 s, so an older one says
+#: little of the speed now (and a tachometer gone silent nothing).
+MEASURED_SPEED_MAX_AGE_S = 0.25
+#: A physics stream started at rest with no measured speed yet is started again from the first
+#: measured speed taken within this (s) of its first command (rebuilt from the inputs since):
+#: the tachometer's first speed needs a batch and a revolution (~20-30 ms at speed), so after a
+#: node or a recording starts on a turning rotor a command often comes first. Predictions made
+#: before it came were from rest (replay of a bag cut at speed: the first grid time).
+START_WINDOW_S = 0.1
+#: Highest measured speed taken (rad/s); faster is a fault of the measurement (the tachometer's
+#: own limit is 2000 rad/s).
+MEASURED_SPEED_MAX_RAD_S = 1.0e5
+_PWM, _VOLTAGE = 0, 1  # kinds of the inputs kept in the start window
 
 
 class SpeedModel(Protocol):
@@ -34,7 +57,7 @@ class SpeedModel(Protocol):
     input_names: tuple[str, ...]
     input_min: np.ndarray
     input_max: np.ndarray
-    thrust_coefficient: float
+    thrust_coefficient: float | None  #: None: the model has no b (speed only)
 
     def feature_params(self) -> dict[str, dict[str, float]]: ...
 
@@ -46,12 +69,15 @@ class Prediction:
     """One prediction; speed/thrust are NaN when not ready (no PWM or needed voltage yet)."""
 
     speed_rad_s: float
-    thrust_n: float
+    thrust_n: float | None  #: None: no thrust coefficient, so no thrust at all
     clipped: bool  #: some input was outside the training range and clipped to it
     ready: bool
 
 
 _NOT_READY = Prediction(math.nan, math.nan, False, False)
+#: Why a model predicts no thrust, on diagnostics (the nodes) and in replay's recording.
+NO_THRUST_MESSAGE = ("model has no thrust coefficient: train with measured thrust or "
+                     "--thrust-coefficient / --vehicle-mass-kg")
 
 
 @dataclass(frozen=True)
@@ -157,11 +183,13 @@ class ThrustEstimator:
     """Streaming estimator: ``update_pwm``, ``update_voltage``, ``predict(t)``."""
 
     def __init__(self, model: SpeedModel, thrust_coefficient: float | None = None) -> None:
+        """``thrust_coefficient``: b overriding the model's (None: the model's, which may be None:
+        no thrust predicted)."""
         b = model.thrust_coefficient if thrust_coefficient is None else float(thrust_coefficient)
-        if not (math.isfinite(b) and b >= 0.0):
+        if b is not None and not (math.isfinite(b) and b >= 0.0):
             raise BadInputError(f"thrust_coefficient must be finite and >= 0, got {b!r}")
         self.model = model
-        self.thrust_coefficient = b
+        self.thrust_coefficient: float | None = b
         self.is_fallback = bool(getattr(model, "is_fallback", False))
         self.features = FeatureState(model.input_names, model.feature_params())
         self._lo = [float(v) for v in model.input_min]
@@ -181,11 +209,42 @@ class ThrustEstimator:
         self.predict_time_clamped = 0  #: predict(t) asked for a time before the latest input
         self._reported = (0, 0, 0)
         self._last = _NOT_READY
+        # the measured speed's part (physics_speed inputs only; see the module doc)
+        self._physics = [f for f in self.features.features if isinstance(f, PhysicsSpeed)]
+        self.speed_accepted = 0
+        self.speed_rejected = 0  #: not finite, negative, implausible, or older than the latest
+        self.physics_starts_measured = 0  #: physics streams started from a measured speed
+        self._measured: tuple[float, float] | None = None  #: latest measured (t, rad/s)
+        self._restart_physics_state()
+
+    def _restart_physics_state(self) -> None:
+        """No physics stream started: the next command starts one."""
+        self._start_t: float | None = None  #: the physics stream's first command
+        #: inputs since a start at rest, while a measured speed may still start it (START_WINDOW_S),
+        #: from the latest voltage before it: (kind, t, value)
+        self._start_log: list[tuple[int, float, float]] | None = None
+        self._volt_last: tuple[float, float] | None = None  #: latest accepted voltage (t, V)
 
     def reset(self) -> None:
-        """Forget the inputs (counters stay)."""
+        """Forget the inputs (counters stay; the latest measured speed too: it starts the next
+        physics stream if it is recent then)."""
         self.features.reset()
         self._last = _NOT_READY
+        self._restart_physics_state()
+
+    def restart_physics(self) -> None:
+        """Start the physics again at the next command, from the latest measured speed (the
+        other inputs keep their state): after a stall of the commands, what the rotor did
+        meanwhile is not known to the model but is to the measurement."""
+        if not self._physics:
+            return
+        volt = self._volt_last
+        for f in self._physics:
+            f.reset()
+            if volt is not None:
+                f.update_voltage(*volt)
+        self._restart_physics_state()
+        self._volt_last = volt
 
     # --- inputs ------------------------------------------------------------------------------
 
@@ -199,6 +258,8 @@ class ThrustEstimator:
         if last is not None and t < last:
             self.pwm_rejected_time += 1
             return False
+        if self._physics and (self._start_t is None or self._start_log is not None):
+            self._physics_command(t, pwm)
         self.features.update_pwm(t, pwm)
         self.pwm_accepted += 1
         return True
@@ -215,7 +276,72 @@ class ThrustEstimator:
             return False
         self.features.update_voltage(t, volts)
         self.voltage_accepted += 1
+        if self._physics:
+            self._volt_last = (t, volts)
+            if self._start_log is not None:
+                self._keep(_VOLTAGE, t, volts)
         return True
+
+    def update_speed(self, t: float, speed_rad_s: float) -> bool:
+        """A measured rotor speed (rad/s, ``rotor/speed``) at t (s); False if rejected (not
+        finite, negative, above MEASURED_SPEED_MAX_RAD_S, or older than the latest). Never a
+        model input: it only says where a physics stream starts (module doc)."""
+        t, w = float(t), float(speed_rad_s)
+        if not (math.isfinite(t) and 0.0 <= w <= MEASURED_SPEED_MAX_RAD_S) or \
+                (self._measured is not None and t < self._measured[0]):
+            self.speed_rejected += 1
+            return False
+        self._measured = (t, w)
+        self.speed_accepted += 1
+        log = self._start_log
+        if log is not None:  # the physics started at rest with nothing measured yet
+            self._start_log = None
+            since = t - self._start_t  # type: ignore[operator]
+            if w >= REST_SPEED_RAD_S and -MEASURED_SPEED_MAX_AGE_S <= since <= START_WINDOW_S:
+                self._start_from(w, log)
+        return True
+
+    def measured_speed_at(self, t: float) -> float | None:
+        """The latest measured speed (rad/s; 0 below REST_SPEED_RAD_S: rest) if it was taken at
+        most MEASURED_SPEED_MAX_AGE_S before t (s), else None."""
+        m = self._measured
+        if m is None or not t - m[0] <= MEASURED_SPEED_MAX_AGE_S:
+            return None
+        return m[1] if m[1] >= REST_SPEED_RAD_S else 0.0
+
+    def _physics_command(self, t: float, level: float) -> None:
+        """A command while the physics has not started, or may still start from a measurement."""
+        if self._start_t is None:  # this command starts it
+            self._start_t = t
+            w = self.measured_speed_at(t)
+            if w is None:  # nothing measured (recently): at rest unless a measurement follows soon
+                self._start_log = [(_VOLTAGE, *self._volt_last)] if self._volt_last else []
+            elif w > 0.0:
+                for f in self._physics:
+                    f.set_initial_speed(w)
+                self.physics_starts_measured += 1
+        if self._start_log is not None:
+            self._keep(_PWM, t, level)
+
+    def _keep(self, kind: int, t: float, value: float) -> None:
+        """Keep an input for a start from a measured speed, while START_WINDOW_S lasts."""
+        if t - self._start_t > START_WINDOW_S:  # type: ignore[operator]
+            self._start_log = None
+        else:
+            self._start_log.append((kind, t, value))  # type: ignore[union-attr]
+
+    def _start_from(self, w: float, log: list[tuple[int, float, float]]) -> None:
+        """Start the physics again from ``w`` (rad/s) at its first command, over the inputs it
+        has had since (the same order)."""
+        for f in self._physics:
+            f.reset()
+            f.set_initial_speed(w)
+            for kind, t, x in log:
+                if kind == _PWM:
+                    f.update_pwm(t, x)
+                else:
+                    f.update_voltage(t, x)
+        self.physics_starts_measured += 1
 
     # --- output ------------------------------------------------------------------------------
 
@@ -248,7 +374,8 @@ class ThrustEstimator:
             return _NOT_READY
         w = max(w, 0.0)
         self.predictions += 1
-        self._last = Prediction(w, self.thrust_coefficient * w * w, clipped, True)
+        b = self.thrust_coefficient
+        self._last = Prediction(w, None if b is None else b * w * w, clipped, True)
         return self._last
 
     # --- diagnostics -------------------------------------------------------------------------
@@ -278,8 +405,8 @@ class ThrustEstimator:
             model="fallback" if self.is_fallback else getattr(self.model, "kind", NETWORK),
             inputs=",".join(self._names),
             speed_rad_s=self._last.speed_rad_s,
-            thrust_n=self._last.thrust_n,
-            thrust_coefficient=self.thrust_coefficient,
+            thrust_n=math.nan if self._last.thrust_n is None else self._last.thrust_n,
+            thrust_coefficient="none" if self.thrust_coefficient is None else self.thrust_coefficient,
             predictions=self.predictions,
             not_ready=self.not_ready,
             clipped_predictions=self.clipped,
@@ -293,4 +420,10 @@ class ThrustEstimator:
         )
         for name, k in self.clipped_by_input.items():
             values[f"clipped_{name}"] = k
-        return [CoreStatus("thrust estimator", level, msg, counters(**values))]
+        if self.speed_accepted or self.speed_rejected:  # only where a measured speed comes
+            values.update(speed_accepted=self.speed_accepted, speed_rejected=self.speed_rejected,
+                          physics_starts_measured=self.physics_starts_measured)
+        out = [CoreStatus("thrust estimator", level, msg, counters(**values))]
+        if self.thrust_coefficient is None:  # a status of its own: the speed's may say more
+            out.append(CoreStatus("thrust", WARN, NO_THRUST_MESSAGE, {"thrust_coefficient": "none"}))
+        return out

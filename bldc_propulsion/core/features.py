@@ -226,22 +226,91 @@ class PwmLowpass(Feature):
         return out
 
 
+#: The ``physics_speed`` input's parameter that starts the rotor turning: its speed (rad/s) at the
+#: first command, 0 at rest. Not a model constant but where one recording or stream starts: set
+#: per recording from its measured speed (``measured_start_speed``; training.train.features_of)
+#: and by the estimator from a measured speed (core/estimator.py); never stored in a model file.
+INITIAL_SPEED = "initial_speed_rad_s"
+#: A measured speed below this (rad/s) is rest: about the tachometer's slowest measurable speed
+#: (its 0.3 s timeout is a revolution at ~5 rad/s), and a start from it differs from one at rest
+#: by less than the tachometer's noise.
+REST_SPEED_RAD_S = 5.0
+#: ``measured_start_speed`` looks at a recording's first START_SAMPLES measured samples (50 ms
+#: on the 100 Hz grid) and trusts them when START_AGREE of them lie within START_TOLERANCE of
+#: their median: a lone spike (or two) is outvoted, and a rotor still spinning up after a step
+#: (~10 % of its speed per 10 ms on the nominal bench) still agrees.
+START_SAMPLES = 5
+START_AGREE = 3
+START_TOLERANCE = 0.2
+#: The measured speed is the physics' start only when it starts within this (s) of the first
+#: command, where the physics starts: the tachometer's first speed needs a batch and a revolution
+#: (~10-30 ms at speed). A recording whose speed starts later (a part of a longer one, cut after
+#: its commands began) runs the physics from its first command at rest, as before.
+START_GAP_S = 0.1
+
+
+def measured_start_speed(t: np.ndarray, speed: np.ndarray, first_command_t: float) -> float:
+    """The rotor's speed (rad/s) where a recording starts, from its measured speed ``speed`` on
+    the grid ``t``: the earliest of the first START_SAMPLES samples that agrees with the others
+    (see START_AGREE), 0 (rest, as a recording starting from rest) when the rotor is at rest
+    (REST_SPEED_RAD_S), when the samples do not agree or are not all finite, or when they start
+    more than START_GAP_S from ``first_command_t`` (where the physics starts)."""
+    t, speed = np.asarray(t, dtype=float), np.asarray(speed, dtype=float)
+    if len(t) < START_SAMPLES or not abs(float(t[0]) - float(first_command_t)) <= START_GAP_S:
+        return 0.0
+    x = speed[:START_SAMPLES]
+    if not np.all(np.isfinite(x)):
+        return 0.0
+    m = float(np.median(x))
+    near = np.abs(x - m) <= START_TOLERANCE * m
+    if m < REST_SPEED_RAD_S or int(near.sum()) < START_AGREE:
+        return 0.0
+    return float(x[int(np.argmax(near))])
+
+
+def start_params(params: Mapping[str, Mapping[str, float]], initial_speed: float) -> dict[str, dict[str, float]]:
+    """Feature parameters with the ``physics_speed`` input starting at ``initial_speed`` (rad/s);
+    the others as given (a copy)."""
+    out = {k: dict(v) for k, v in params.items()}
+    out.setdefault(c.INPUT_PHYSICS_SPEED, {})[INITIAL_SPEED] = float(initial_speed)
+    return out
+
+
+def with_measured_start(names: Sequence[str], params: Mapping[str, Mapping[str, float]], t: np.ndarray,
+                        speed: np.ndarray, pwm_t: np.ndarray) -> Mapping[str, Mapping[str, float]]:
+    """``params`` with a ``physics_speed`` among ``names`` starting where a recording (grid
+    ``t``, measured ``speed``, command times ``pwm_t``) starts (:func:`measured_start_speed`),
+    unless they set its initial speed already; ``params`` itself for any other inputs."""
+    if c.INPUT_PHYSICS_SPEED not in names or INITIAL_SPEED in params.get(c.INPUT_PHYSICS_SPEED, {}) \
+            or not len(pwm_t):
+        return params
+    return start_params(params, measured_start_speed(t, speed, float(pwm_t[0])))
+
+
 class PhysicsSpeed(Feature):
     """The plant's speed (rad/s) under a physics model's constants (core/plant_stream.py): the
     whole of a ``physics`` model, an input of a ``hybrid`` one. Parameters: ``STREAM_DEFAULTS``
-    (the model file's physics arrays give them: ``model.PlantModel.feature_params``)."""
+    (the model file's physics arrays give them: ``model.PlantModel.feature_params``) and
+    ``INITIAL_SPEED`` (0: the rotor at rest at the first command)."""
 
     name = c.INPUT_PHYSICS_SPEED
     signals = ("pwm", "voltage")
-    defaults = dict(STREAM_DEFAULTS)
+    defaults = {**STREAM_DEFAULTS, INITIAL_SPEED: 0.0}
 
     def check_params(self) -> None:
         why = stream_problem(self.params)
+        if not why and not self.params[INITIAL_SPEED] >= 0.0:
+            why = f"{INITIAL_SPEED} {self.params[INITIAL_SPEED]!r} must be a speed >= 0"
         if why:
             raise ModelError(f"model input '{self.name}': {why}")
 
     def reset(self) -> None:
-        self._stream = PlantStream.of(self.params)
+        self._stream = PlantStream(*split_params(self.params), initial_speed=self.params[INITIAL_SPEED])
+
+    def set_initial_speed(self, w: float) -> None:
+        """Start the rotor at ``w`` (rad/s) at the first command, which must not have arrived
+        yet (the estimator's measured speed; the parameter stays as given)."""
+        self._stream.set_initial_speed(w)
 
     def update_pwm(self, t: float, level: float) -> None:
         self._stream.update_pwm(t, level)
@@ -261,7 +330,7 @@ class PhysicsSpeed(Feature):
         if ok.any():
             params, effects, supply_v, tau = split_params(self.params)
             out[ok] = motor_response(params, effects, (pwm_t, pwm), (volt_t, volt), grid_t[ok], supply_v,
-                                     tau, hold_supply=True)
+                                     tau, hold_supply=True, initial_speed=self.params[INITIAL_SPEED])
         return out
 
 

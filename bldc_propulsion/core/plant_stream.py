@@ -7,7 +7,9 @@ the batch path's numbers (tested to 1e-9). Plain floats throughout: a few micros
 
 Time rules (the batch path's, said causally):
 
-* the rotor is at rest at the first command, t0; steps at t0 + k dt;
+* the rotor is at rest at the first command, t0 (or at the stream's ``initial_speed``, in the
+  running state ``plant.motor_response`` describes: the first command counts as applied since
+  before the dead time); steps at t0 + k dt;
 * step k sees the latest command frame at or before t_k - dead time (PWM_STOP before the
   first) and the latest voltage sample at or before t_k (the first sample before it);
 * a step is *committed* (its state kept) once an input stamped after it has arrived: inputs
@@ -30,8 +32,8 @@ from collections.abc import Mapping
 
 from ..contract import EFFECTS, PWM_STOP
 from ..plant import (
-    FRAME_TOLERANCE_S, PLANT_FIELDS, PlantParams, Supply, check_plant, dead_time_s, make_step,
-    plant_problem, resolve_effects, start_level, strength_problem, throttle,
+    FRAME_TOLERANCE_S, PLANT_FIELDS, PlantParams, Supply, check_initial_speed, check_plant, dead_time_s,
+    make_step, plant_problem, resolve_effects, running_supply_current, start_level, strength_problem, throttle,
 )
 from .battery_filter import BatteryFilterConfig
 
@@ -85,6 +87,8 @@ class PlantStream:
     """``update_pwm(t, level)``, ``update_voltage(t, volts)``, ``speed_at(t)``; see the module doc.
 
     ``v_ref``, ``supply_tau_s``: how the voltage drives the plant (``plant.Supply``).
+    ``initial_speed`` (rad/s): the rotor's speed at the first command (0: at rest); equal to
+    ``plant.motor_response(..., initial_speed=...)`` as at rest.
     The caller checks the samples (finite, plausible, time not going backwards per signal).
     """
 
@@ -94,7 +98,7 @@ class PlantStream:
         return cls(*split_params(d))
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], v_ref: float,
-                 supply_tau_s: float) -> None:
+                 supply_tau_s: float, initial_speed: float = 0.0) -> None:
         eff = resolve_effects(effects)
         p = check_plant(params)
         sp = Supply.of(p, eff, v_ref, supply_tau_s)
@@ -106,10 +110,13 @@ class PlantStream:
         self._map = (start_level(p, eff), p.esc_throttle_exponent)
         self._supply = (sp.v_ref, sp.strength, sp.source_resistance_ohm, sp.lowpass_gain)
         self.late_inputs = 0
-        self.reset()
+        self.reset(initial_speed)
 
-    def reset(self) -> None:
-        """Forget the inputs and the state: the rotor at rest again at the next command."""
+    def reset(self, initial_speed: float | None = None) -> None:
+        """Forget the inputs and the state: the rotor at ``initial_speed`` (rad/s; None: the
+        one given last, 0 at first) again at the next command."""
+        if initial_speed is not None:
+            self.initial_speed = check_initial_speed(initial_speed)
         self._t0: float | None = None
         self._horizon = -math.inf  #: latest input time: steps before it are final
         self._pt: list[float] = []  #: command frames from the first not yet applied (index _pi)
@@ -119,14 +126,22 @@ class PlantStream:
         # committed state: next step, speed, winding temperature, low-passed supply current,
         # command applied and its duty, input indices, speed output of the step before
         self._k = 0
-        self._w = 0.0
+        self._w = self.initial_speed
         self._temp = self.params.ambient_temperature_c
         self._ib_lp = 0.0
         self._level = PWM_STOP
         self._duty = throttle(PWM_STOP, *self._map)
         self._pi = 0
         self._vi = 0
-        self._w_last = 0.0
+        self._w_last = self.initial_speed
+
+    def set_initial_speed(self, w: float) -> None:
+        """The rotor's speed (rad/s) at the first command, while none has arrived (the inputs
+        received so far are kept); ValueError after it: the stream has started."""
+        if self._t0 is not None:
+            raise ValueError("initial speed: the stream has started (reset it first)")
+        self.initial_speed = check_initial_speed(w)
+        self._w = self._w_last = self.initial_speed
 
     @property
     def ready(self) -> bool:
@@ -139,6 +154,8 @@ class PlantStream:
         t, level = float(t), float(level)  # numpy scalars would make every step 3x slower
         if self._t0 is None:
             self._t0 = t
+            if self.initial_speed > 0.0:  # running: this command held since before the dead time
+                self._level, self._duty = level, throttle(level, *self._map)
         elif self._k and t <= self._t0 + (self._k - 1) * self._dt - self._delay + FRAME_TOLERANCE_S:
             self.late_inputs += 1  # a committed step should have seen it
         self._pt.append(t)
@@ -156,13 +173,13 @@ class PlantStream:
 
     # --- output ------------------------------------------------------------------------------
     def speed_at(self, t: float) -> float:
-        """Rotor speed (rad/s) at t (s); NaN until ready; 0 before the first command. A time
-        before the last committed step is answered at that step."""
+        """Rotor speed (rad/s) at t (s); NaN until ready; the initial speed (0: at rest) before
+        the first command. A time before the last committed step is answered at that step."""
         t0, t = self._t0, float(t)
         if t0 is None or not self._vt or not math.isfinite(t):
             return math.nan
         if t < t0:
-            return 0.0
+            return self.initial_speed
         self._advance(t - LATE_S)
         dt = self._dt
         j = int((t - t0) // dt)
@@ -229,6 +246,8 @@ class PlantStream:
                     duty = throttle(level, threshold, exponent)
             while vi + 1 < n_v and vt[vi + 1] <= ts:
                 vi += 1
+            if k == 0 and w > 0.0:  # started running: the supply current already filtered
+                ib_lp = running_supply_current(step, w, temp, duty, v_ref + sbv * (vv[vi] - v_ref), rs)
             prev = last
             last, w, i, temp = step(w, temp, duty, v_ref + sbv * (vv[vi] - v_ref) + rs * ib_lp)
             ib_lp += a_lp * (duty * i - ib_lp)

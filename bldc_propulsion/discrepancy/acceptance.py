@@ -60,13 +60,13 @@ def check_holdout_disjoint(holdout: Sequence[Signals], **others: Sequence[Signal
     """BadInputError (one line) when a holdout recording is also one of ``others`` (by option
     name, e.g. measured=..., reference=...): same path, same files or same messages."""
     for opt, sigs in others.items():
-        seen = {}
+        seen: dict[object, str] = {}
         for s in sigs:
             seen[str(Path(s.path).resolve())] = s.path
-            seen[s.sha256] = s.path
+            seen[s.key] = s.path  # the same files and motor (another motor of a flight is other data)
             seen[content_fingerprint(s)] = s.path
         for h in holdout:
-            for key, how in ((str(Path(h.path).resolve()), "the same file"), (h.sha256, "the same files"),
+            for key, how in ((str(Path(h.path).resolve()), "the same file"), (h.key, "the same files"),
                              (content_fingerprint(h), "the same messages")):
                 if key in seen:
                     raise BadInputError(f"--holdout {h.path}: {how} as --{opt} {seen[key]}; the holdout must "

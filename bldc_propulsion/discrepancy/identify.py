@@ -605,17 +605,23 @@ class Heating:
                 and self.z >= HEATING_MIN_Z)
 
     def describe(self) -> str:
+        # without a battery voltage (or too few settled samples) there is no static map, so no
+        # full-drive speed to take the threshold from: said in words, never "inf rad/s"
+        drop = (f"{HEATING_MIN_DROP * self.full_speed_rad_s:.1f} rad/s ({100 * HEATING_MIN_DROP:.2g} % of the "
+                f"{self.full_speed_rad_s:.0f} rad/s at full drive)" if math.isfinite(self.full_speed_rad_s) else
+                f"{100 * HEATING_MIN_DROP:.2g} % of the full-drive speed, not computed here: no battery voltage "
+                "or too few settled samples, so heating is not named;")
         return (f"at the measured data's hottest thermal state ({self.hottest:.2f}, time constant "
                 f"{HEATING_TAU_S:.0f} s) the steady speed is {self.drop_rad_s:.1f} rad/s lower than the "
                 f"reference's response to the same state predicts ({self.z:.1f} standard errors; named from "
-                f"{HEATING_MIN_DROP * self.full_speed_rad_s:.1f} rad/s ({100 * HEATING_MIN_DROP:.2g} % of the "
-                f"{self.full_speed_rad_s:.0f} rad/s at full drive) and {HEATING_MIN_Z:g} standard errors at a thermal state from "
-                f"{HEATING_MIN_STATE:g})")
+                f"{drop} and {HEATING_MIN_Z:g} standard errors at a thermal state from {HEATING_MIN_STATE:g})")
 
-    def as_dict(self) -> dict[str, float]:
+    def as_dict(self) -> dict[str, float | None]:
+        """(The full-drive speed None when it could not be computed: JSON has no infinity.)"""
         return {"measured_rad_s_per_unit": self.measured, "reference_rad_s_per_unit": self.reference,
                 "hottest_thermal_state": self.hottest, "extra_drop_rad_s": self.drop_rad_s,
-                "extra_drop_z": self.z, "full_drive_speed_rad_s": self.full_speed_rad_s}
+                "extra_drop_z": self.z,
+                "full_drive_speed_rad_s": self.full_speed_rad_s if math.isfinite(self.full_speed_rad_s) else None}
 
 
 def _static_map_terms(pwm: np.ndarray, v: np.ndarray) -> np.ndarray:

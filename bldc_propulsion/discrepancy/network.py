@@ -175,7 +175,7 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
                 + ")" if warm else ")"))
     kw: dict[str, Any] = {
         "inputs": inputs, "hidden": hidden, "seed": opts.seed, "pwm_tau_s": float(model.pwm_tau_s),
-        "feature_params": feature_params, "thrust_coefficient": float(model.thrust_coefficient),
+        "feature_params": feature_params, "thrust_coefficient": model.thrust_coefficient,
         "max_epochs": opts.max_epochs, "patience": opts.patience,
     }
     if not warm:

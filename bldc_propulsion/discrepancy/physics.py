@@ -34,7 +34,9 @@ from scipy.optimize import least_squares
 from .. import contract as c
 from ..atomic import CONFIG, atomic_output
 from ..core.battery_filter import BatteryFilterConfig
+from ..core.features import measured_start_speed
 from ..errors import BadInputError
+from ..priors import MotorPriors, physics_start
 from ..plant import full_drive_speeds, motor_response, resolve_effects, spin_up_time_constant_s
 from ..sim.params import BenchParams, params_with_overrides
 from ..recordings import Signals
@@ -129,15 +131,26 @@ class PhysicsModel:
     #: the CONFIG file it was read from; None: the package's nominal bench (no CONFIG given), whose
     #: constants stand for an unknown motor and propeller (see PLAUSIBLE_FACTOR)
     source: str | None = None
+    #: CALIBRATED constants the user stated through ``priors`` options (name: the options, e.g.
+    #: "--motor-kv 1900"; ``start_model``): judged against like a CONFIG's, whatever ``source``
+    stated: dict[str, str] = dataclasses.field(default_factory=dict)
+    #: per CALIBRATED constant, the range (low, high) every fit may search where it is not
+    #: LOG_RANGE_BASE around the start (``priors.physics_start``: a stated Kv +-30 %, a stated
+    #: propeller's CP x3), whatever a fit starts from
+    ranges: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def predict(self, s: Signals) -> np.ndarray:
-        """Speed (rad/s) on the recording's grid."""
+        """Speed (rad/s) on the recording's grid; the rotor starts at the recording's measured
+        speed when it is already turning there (``core.features.measured_start_speed``): a fit
+        to a log cut mid-run that started it at rest would bend every constant to explain the
+        spin-up it never made."""
         ok = np.isfinite(s.voltage)
         if not ok.any():
             raise BadInputError(f"{s.path}: no valid battery voltage for the physics model")
         assert self.supply_v is not None, "with_supply first"
+        w0 = measured_start_speed(s.t, s.speed, float(s.pwm_events[0][0])) if len(s.pwm_events[0]) else 0.0
         return motor_response(self.params, self.effects, s.pwm_events, (s.t[ok], s.voltage[ok]), s.t,
-                              self.supply_v, supply_tau_s(s))
+                              self.supply_v, supply_tau_s(s), initial_speed=w0)
 
     def with_supply(self, signals: Sequence[Signals]) -> "PhysicsModel":
         """The model with its stiff-supply voltage set to the median battery voltage of
@@ -159,6 +172,15 @@ class PhysicsModel:
 
     def constants(self) -> dict[str, float]:
         return {n: float(getattr(self.params, n)) for n in CALIBRATED}
+
+    def basis(self, name: str) -> tuple[str, bool]:
+        """What this model's value of the constant ``name`` is (a fit is measured from it), and
+        whether the user stated it: a CONFIG's value, a stated prior, or the nominal bench's."""
+        if name in self.stated:
+            return f"stated ({self.stated[name]})", True
+        if self.source is not None:
+            return "CONFIG", True
+        return ("start (not stated)" if self.stated else "nominal (no CONFIG given)"), False
 
     def config(self) -> dict[str, Any]:
         """JSON-able CONFIG: the constants that differ from the package's bench, all strengths."""
@@ -220,41 +242,77 @@ def describe(name: str, strength: float, model: PhysicsModel) -> str:
 
 
 # --- CONFIG files -----------------------------------------------------------------------------------
-def load_config(path: str | None) -> PhysicsModel:
-    """The package's nominal bench with every effect OFF (``path`` None or empty), or a CONFIG
-    file {"params": {field: value}, "effects": {name: strength}, "supply_v": volts}: effects it
-    does not list are OFF, ``sim_step_s`` defaults to PHYSICS_STEP_S, ``supply_v`` (the stiff
-    supply of battery_voltage strength 0) to the measured recordings' median battery voltage.
-    BadInputError naming the file and the key."""
+def load_config(path: str | None, base: BenchParams | None = None, option: str = "--physics") -> PhysicsModel:
+    """The package's nominal bench (or ``base``) with every effect OFF (``path`` None or empty), or
+    a CONFIG file {"params": {field: value}, "effects": {name: strength}, "supply_v": volts} over
+    it: effects it does not list are OFF, ``sim_step_s`` defaults to PHYSICS_STEP_S, ``supply_v``
+    (the stiff supply of battery_voltage strength 0) to the measured recordings' median battery
+    voltage. BadInputError naming the ``option``, the file and the key."""
+    base = base or BenchParams()
     if not path:
-        return PhysicsModel(dataclasses.replace(BenchParams(), sim_step_s=PHYSICS_STEP_S),
-                            {name: 0.0 for name in c.EFFECTS})
+        return PhysicsModel(dataclasses.replace(base, sim_step_s=PHYSICS_STEP_S), {name: 0.0 for name in c.EFFECTS})
+    cfg = _config_file(path, option)
+    try:
+        p = params_with_overrides(base, {"sim_step_s": PHYSICS_STEP_S, **cfg.get("params", {})})
+        eff = resolve_effects({**{name: 0.0 for name in c.EFFECTS}, **cfg.get("effects", {})})
+    except BadInputError as exc:
+        raise BadInputError(f"{option} {path}: {exc}") from None
+    supply = cfg.get("supply_v")
+    if supply is not None and (isinstance(supply, bool) or not isinstance(supply, (int, float))
+                               or not math.isfinite(supply) or supply <= 0):
+        raise BadInputError(f"{option} {path}: supply_v {supply!r} must be a voltage > 0 (or null)")
+    return PhysicsModel(p, eff, None if supply is None else float(supply), str(path))
+
+
+def _config_file(path: str, option: str) -> dict[str, Any]:
+    """The CONFIG file's JSON object, its keys and the types of 'params' and 'effects' checked."""
     try:
         with open(path, encoding="utf-8") as fh:
             cfg = json.load(fh)
     except OSError as exc:
-        raise BadInputError(f"--physics {path}: cannot read: {exc.strerror or exc}") from None
+        raise BadInputError(f"{option} {path}: cannot read: {exc.strerror or exc}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise BadInputError(f"--physics {path}: not valid JSON: {exc}") from None
+        raise BadInputError(f"{option} {path}: not valid JSON: {exc}") from None
     if not isinstance(cfg, dict):
-        raise BadInputError(f"--physics {path}: expected a JSON object with keys {', '.join(CONFIG_KEYS)}")
+        raise BadInputError(f"{option} {path}: expected a JSON object with keys {', '.join(CONFIG_KEYS)}")
     for key in cfg:
         if key not in CONFIG_KEYS:
-            raise BadInputError(f"--physics {path}: unknown key '{key}' (known: {', '.join(CONFIG_KEYS)})")
-    params, effects = cfg.get("params", {}), cfg.get("effects", {})
-    for key, value in (("params", params), ("effects", effects)):
-        if not isinstance(value, dict):
-            raise BadInputError(f"--physics {path}: '{key}' must be an object of name: number")
-    try:
-        p = params_with_overrides(BenchParams(), {"sim_step_s": PHYSICS_STEP_S, **params})
-        eff = resolve_effects({**{name: 0.0 for name in c.EFFECTS}, **effects})
-    except BadInputError as exc:
-        raise BadInputError(f"--physics {path}: {exc}") from None
-    supply = cfg.get("supply_v")
-    if supply is not None and (isinstance(supply, bool) or not isinstance(supply, (int, float))
-                               or not math.isfinite(supply) or supply <= 0):
-        raise BadInputError(f"--physics {path}: supply_v {supply!r} must be a voltage > 0 (or null)")
-    return PhysicsModel(p, eff, None if supply is None else float(supply), str(path))
+            raise BadInputError(f"{option} {path}: unknown key '{key}' (known: {', '.join(CONFIG_KEYS)})")
+    for key in ("params", "effects"):
+        if not isinstance(cfg.get(key, {}), dict):
+            raise BadInputError(f"{option} {path}: '{key}' must be an object of name: number")
+    return cfg
+
+
+#: Said when a physics fit starts from the simulator's bench because nothing of the motor was stated.
+NOMINAL_START_WARNING = ("no --motor-kv/--prop-diameter-in: starting from the simulator's 12 in bench "
+                         "(a 12x4.5 on a 710 kv motor at 3S); its constants stand for a motor nobody stated")
+
+
+def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float | None = None,
+                option: str = "--physics") -> tuple[PhysicsModel, list[str], list[str]]:
+    """The model a physics fit starts from, (model, notes, warnings): the user's motor
+    (``priors.physics_start``: the nominal bench resized to the stated Kv, propeller and pack, with
+    the narrower ranges of the stated constants) under a CONFIG file, which wins for every constant
+    it lists (a warning names each stated prior it overrides). Neither given: the nominal bench, and
+    a warning that says so (NOMINAL_START_WARNING). ``voltage_v``: the recordings' median battery
+    voltage (sizes the motor when no --cells is given)."""
+    start = physics_start(priors, voltage_v) if priors is not None else None
+    if start is None:
+        model = load_config(config, option=option)
+        return model, [], ([] if config else [NOMINAL_START_WARNING])
+    model = load_config(config, base=start.params, option=option)
+    warnings = list(start.warnings)
+    listed = set(_config_file(config, option).get("params", {})) if config else set()
+    stated = {}
+    for name, how in start.stated.items():
+        if name in listed:
+            warnings.append(f"{how}: {option} {config} sets {name} {getattr(model.params, name):.4g}, which wins "
+                            f"over the stated {getattr(start.params, name):.4g}")
+        else:
+            stated[name] = how
+    ranges = {n: r for n, r in start.ranges.items() if n in stated}
+    return dataclasses.replace(model, stated=stated, ranges=ranges), list(start.notes), warnings
 
 
 def save_config(model: PhysicsModel, path: str, force: bool, provenance: dict[str, Any]) -> None:
@@ -384,25 +442,43 @@ def base_range(hold: Sequence[str] = ()) -> np.ndarray:
     return np.where([n in hold for n in CALIBRATED], 0.0, LOG_RANGE_BASE)
 
 
+def base_window(model: PhysicsModel, hold: Sequence[str] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """(anchor, log half-width) of a first calibration per CALIBRATED constant: LOG_RANGE_BASE
+    around ``model``'s value, or the model's own range (a stated prior's, ``PhysicsModel.ranges``)
+    wherever the fit starts from; 0 (held at ``model``'s value) for those in ``hold``."""
+    anchor = np.array(list(model.constants().values()))
+    span = base_range(hold)
+    for j, n in enumerate(CALIBRATED):
+        if n in model.ranges and n not in hold:
+            lo, hi = model.ranges[n]
+            anchor[j], span[j] = math.sqrt(lo * hi), 0.5 * math.log(hi / lo)
+    return anchor, span
+
+
 def calibrate_base(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
-    """The CONFIG's constants calibrated (wide range); later fits stay between the result and
-    the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean). The
-    constants ``hold`` keep ``model``'s values (see HELD_AFTER_REFERENCE)."""
-    wide = base_range(hold)
+    """The CONFIG's constants calibrated (wide range, ``base_window``); later fits stay between the
+    result and the CONFIG's values, widened by LOG_RANGE_EFFECT (anchor at their geometric mean;
+    a stated prior's constant also inside its own range: a stated Kv's +-30 % holds for every later
+    fit too). The constants ``hold`` keep ``model``'s values (see HELD_AFTER_REFERENCE)."""
+    centre, wide = base_window(model, hold)
     config = np.log(np.array(list(model.constants().values())))
-    fit = calibrate(model, data, np.exp(config), wide)
+    own = np.array([n in model.ranges and n not in hold for n in CALIBRATED])  # a stated prior's range
+    fit = calibrate(model, data, np.where(own, centre, np.exp(config)), wide)
     cal = np.log(np.array(list(fit.model.constants().values())))
-    span = np.minimum(0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT, wide)
-    return dataclasses.replace(fit, anchor=np.exp(0.5 * (config + cal)), log_range=span)
+    anchor, span = 0.5 * (config + cal), np.minimum(0.5 * np.abs(config - cal) + LOG_RANGE_EFFECT, wide)
+    lo = np.maximum(np.minimum(config, cal) - LOG_RANGE_EFFECT, np.log(centre) - wide)
+    hi = np.minimum(np.maximum(config, cal) + LOG_RANGE_EFFECT, np.log(centre) + wide)
+    return dataclasses.replace(fit, anchor=np.exp(np.where(own, 0.5 * (lo + hi), anchor)),
+                               log_range=np.where(own, 0.5 * (hi - lo), span))
 
 
 def fit_reference(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> Fit:
-    """Reference first: the CALIBRATED constants (wide range; those in ``hold`` kept at
-    ``model``'s values) and the strength of every effect the CONFIG switches on, fitted to the
-    reference recordings: what the model needs to agree with its own data (structural), before
+    """Reference first: the CALIBRATED constants (wide range, ``base_window``; those in ``hold``
+    kept at ``model``'s values) and the strength of every effect the CONFIG switches on, fitted to
+    the reference recordings: what the model needs to agree with its own data (structural), before
     the measured data are asked what they need beyond it."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0)
-    return calibrate(model, data, np.array(list(model.constants().values())), base_range(hold), on, max_nfev=60)
+    return calibrate(model, data, *base_window(model, hold), on, max_nfev=60)
 
 
 #: A fitted constant (Kv, CP) or a strength the CONFIG sets is implausible when it ends more than this
@@ -414,14 +490,16 @@ def fit_reference(model: PhysicsModel, data: Data, hold: Sequence[str] = ()) -> 
 #: package's nominal bench, which stands for a motor and propeller nobody stated: a real 10 in
 #: propeller at 16.8 V is far from it) it is flagged all the same, not held against the verdict. The
 #: strength of an effect the workflow switches on has no CONFIG value to be measured from (0 = off)
-#: and is only checked against its bounds. A fit at a bound is never a basis for a verdict.
+#: and is only checked against its bounds. A fit at a bound is never a basis for a verdict. A
+#: constant the user stated through the priors options (``--motor-kv``, ``--prop-diameter-in`` with
+#: ``--prop-pitch-in``; ``PhysicsModel.stated``) is held against the verdict like a CONFIG's.
 PLAUSIBLE_FACTOR = 2.0
 
 
 @dataclass(frozen=True)
 class FitFlag:
     """A fitted quantity at a bound of its range, or implausibly far (PLAUSIBLE_FACTOR) from the
-    CONFIG's value."""
+    CONFIG's (or the stated prior's) value."""
 
     fit: str  #: which fit ("calibration on the measured data", "reference fit", "rotor_lag fit")
     quantity: str  #: a CALIBRATED constant, or "<effect> strength"
@@ -430,7 +508,13 @@ class FitFlag:
     low: float  #: the fit's range
     high: float
     at_bound: bool  #: True: at a bound of the range; False: implausibly far from the CONFIG
-    stated: bool = True  #: the CONFIG was given (a file), not the package's nominal bench
+    stated: bool = True  #: the value was stated (a CONFIG file, or a prior option), not the nominal bench's
+    #: what ``config`` is, for people ("CONFIG", "stated (--motor-kv 1900)", ...); None: from ``stated``
+    basis: str | None = None
+
+    @property
+    def label(self) -> str:
+        return self.basis or ("CONFIG" if self.stated else "nominal (no CONFIG given)")
 
     @property
     def blocks(self) -> bool:
@@ -441,22 +525,24 @@ class FitFlag:
     def why(self) -> str:
         if self.at_bound:
             return f"at a bound of its range {self.low:.4g}-{self.high:.4g}"
-        return (f"implausible: {self.value / self.config:.2g}x the {'CONFIG' if self.stated else 'nominal bench'}'s, "
+        whose = (f"{'CONFIG' if self.stated else 'nominal bench'}'s" if self.basis is None
+                 else f"{self.basis.split(' (')[0]} value")
+        return (f"implausible: {self.value / self.config:.2g}x the {whose}, "
                 f"outside {1 / PLAUSIBLE_FACTOR:g}-{PLAUSIBLE_FACTOR:g}x; range {self.low:.4g}-{self.high:.4g}")
 
     def text(self) -> str:
-        return (f"{self.fit}: {self.quantity} fitted {self.value:.4g} vs "
-                f"{'CONFIG' if self.stated else 'nominal (no CONFIG given)'} {self.config:.4g} ({self.why})")
+        return f"{self.fit}: {self.quantity} fitted {self.value:.4g} vs {self.label} {self.config:.4g} ({self.why})"
 
     def consequence(self) -> str:
         return ("the fit is not a basis for a verdict on it" if self.blocks else
-                "another motor or propeller than the nominal bench, or the constant stands in for a missing "
-                "effect: give --physics a CONFIG of the bench to have it held against the verdicts")
+                "another motor or propeller than the one the fit started from, or the constant stands in for a "
+                "missing effect: give --physics a CONFIG of the bench, or your motor's --motor-kv, "
+                "--prop-diameter-in and --prop-pitch-in, to have it held against the verdicts")
 
     def as_json(self) -> dict[str, Any]:
         return {"fit": self.fit, "quantity": self.quantity, "value": self.value, "config": self.config,
                 "low": self.low, "high": self.high, "at_bound": self.at_bound, "config_given": self.stated,
-                "not_a_basis_for_a_verdict": self.blocks, "why": self.why, "text": self.text()}
+                "basis": self.label, "not_a_basis_for_a_verdict": self.blocks, "why": self.why, "text": self.text()}
 
 
 def implausible(value: float, config: float) -> bool:
@@ -466,8 +552,9 @@ def implausible(value: float, config: float) -> bool:
 
 def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
     """The quantities of ``fit`` (named ``what``) that ended at a bound of their range or
-    implausibly far from ``config`` (the CONFIG as given): Kv and CP, and the fitted strengths;
-    a fitted COMPANION at a bound of its range."""
+    implausibly far from ``config`` (the CONFIG as given, or the start from the stated priors):
+    Kv and CP, and the fitted strengths; a fitted COMPANION at a bound of its range. A CALIBRATED
+    constant's flag is ``stated`` when a CONFIG was given or the user stated it (``PhysicsModel.basis``)."""
     out = []
     stated = config.source is not None
 
@@ -479,21 +566,25 @@ def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
         if span == 0.0:
             continue  # held, not fitted
         cfg = float(getattr(config.params, name))
+        label, given = config.basis(name)
+        basis = label if config.stated else None  # the texts of a CONFIG or nominal start stay as they were
         low, high, at_bound = log_range(value, a, span)
         if at_bound:
-            out.append(FitFlag(what, name, value, cfg, low, high, True, stated))
+            out.append(FitFlag(what, name, value, cfg, low, high, True, given, basis))
         elif implausible(value, cfg):
-            out.append(FitFlag(what, name, value, cfg, low, high, False, stated))
+            out.append(FitFlag(what, name, value, cfg, low, high, False, given, basis))
+    # (a start from stated priors that is no CONFIG: its other values are a start, not the nominal bench)
+    other = "start (not stated)" if config.stated and config.source is None else None
     for name, value in fit.companions().items():
         low, high, at_bound = log_range(value, fit.companion_anchor[name], COMPANION_LOG_RANGE)
         if at_bound:
-            out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated))
+            out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated, other))
     for name in fit.free:
         value, cfg = fit.model.effects[name], config.effects[name]
         if strength_at_bound(name, value):
-            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], True, stated))
+            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], True, stated, other))
         elif implausible(value, cfg):
-            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], False, stated))
+            out.append(FitFlag(what, f"{name} strength", value, cfg, 0.0, STRENGTH_MAX[name], False, stated, other))
     return out
 
 

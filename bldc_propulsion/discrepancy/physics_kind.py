@@ -93,8 +93,8 @@ class PhysicsKind:
         self.base = self.cur.model
         # (judged in the range it was calibrated in: calibrate_base hands on the narrower one of
         # the fits with effects)
-        wide = dataclasses.replace(self.cur, anchor=np.array(list(model.constants().values())),
-                                   log_range=ph.base_range(held))
+        centre, span = ph.base_window(model, held)
+        wide = dataclasses.replace(self.cur, anchor=centre, log_range=span)
         self.flags += ph.fit_flags(wide, self.config, "calibration on the measured data")
         progress(f"  calibrated: {constants_text(self.base)} (holdout RMSE {self.uncal_rmse:.2f} rad/s uncalibrated)")
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,

@@ -90,7 +90,8 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
           "(WARN on diagnostics). Can be changed at run time; a file that does not load is "
           "refused and the last good model kept.", core=False, read_only=False),
     Param("thrust_coefficient", 0.0, "b in thrust = b*w^2 (N s^2/rad^2); 0 = the model's "
-          "own coefficient.", 0.0, 1.0, core=False),
+          "own coefficient. A model without one (no thrust measured or stated in training) "
+          "publishes no predicted/thrust unless this states it.", 0.0, 1.0, core=False),
     Param("output_rate_hz", 100.0, "Rate of predicted/speed and predicted/thrust (Hz, node "
           "clock). Kept under `ros2 bag play --clock`: every output time passed by a /clock "
           "step is predicted.", 1.0, 1000.0, core=False),

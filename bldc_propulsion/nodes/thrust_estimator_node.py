@@ -1,4 +1,4 @@
-"""thrust_estimator: pwm + battery/voltage -> predicted/speed, predicted/thrust.
+"""thrust_estimator: pwm + battery/voltage (+ rotor/speed) -> predicted/speed, predicted/thrust.
 
 Timing: a PWM command (Float64, no header) is timed by its publisher's clock mapped onto the
 node clock (``stream_time.EventStream``), so commands queued during a stall keep their own
@@ -13,6 +13,16 @@ recording.
 What is not published: nothing before the first command and voltage; with pwm_timeout_s > 0,
 nothing while the command is older than that (diagnostics ERROR). A lost command (a jump in the
 publisher's sequence numbers) is counted and reported on diagnostics.
+
+rotor/speed (Float64 rad/s, the tachometer's), when something publishes it, is timed as pwm is
+and never predicted from: a physics or hybrid model's physics starts from the latest measured
+speed instead of at rest when it starts (the first command, and a command after a stale one:
+``core.estimator.ThrustEstimator.update_speed``), so a node started on a turning rotor is right
+from its first prediction. Without it nothing changes.
+
+A model without a thrust coefficient (trained with no thrust measured or stated) gives no
+predicted/thrust: the topic is not even advertised while such a model is loaded, and a
+diagnostics status (WARN) says why; the parameter thrust_coefficient > 0 states a b for it.
 
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
@@ -58,6 +68,7 @@ class ThrustEstimatorNode(Node):
         self.core = make_estimator(self.model_path, self.thrust_coefficient)  # BadInputError
         self.reload_error = ''
         self.pwm_stream = EventStream(params['use_source_timestamps'])
+        self.speed_stream = EventStream(params['use_source_timestamps'])
         self.pwm_timeout_s = params['pwm_timeout_s']
         self.ticks = Ticker(params['output_rate_hz'])
         self.output_delay_s = params['output_delay_s']
@@ -65,7 +76,8 @@ class ThrustEstimatorNode(Node):
         self.stale_ticks = 0  #: grid times not predicted because the command was stale
 
         self.speed_out = ScalarOutput(self, contract.TOPIC_PREDICTED_SPEED)
-        self.thrust_out = ScalarOutput(self, contract.TOPIC_PREDICTED_THRUST)
+        self.thrust_out: ScalarOutput | None = None
+        self.match_thrust_output()
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
         qos = input_qos(params['queue_depth'])
@@ -73,6 +85,8 @@ class ThrustEstimatorNode(Node):
             Float64, contract.TOPIC_PWM, WithInfo(self.on_pwm), qos)
         self.voltage_sub = self.create_subscription(
             BatteryState, contract.TOPIC_BATTERY_VOLTAGE, self.on_voltage, qos)
+        self.measured_speed_sub = self.create_subscription(
+            Float64, contract.TOPIC_ROTOR_SPEED, WithInfo(self.on_speed), qos)
         # Inputs emit the grid up to their own time; the timer only covers quiet inputs, so
         # it runs at most at FALLBACK_TIMER_HZ (each callback costs as much as a message).
         self.output_timer = self.create_timer(
@@ -83,18 +97,35 @@ class ThrustEstimatorNode(Node):
     def on_pwm(self, msg: Float64, info: dict | None) -> None:
         t, _lost = self.pwm_stream.place(arrival(self.now_s(), info))
         self.publish_until(t)
+        if self.command_stale(t) and self.core.measured_speed_at(t) is not None:
+            self.core.restart_physics()  # the rotor did something unknown meanwhile: measured
         if self.core.update_pwm(t, msg.data):
             self.last_pwm_s = t
             self.ticks.start(t)
+
+    def on_speed(self, msg: Float64, info: dict | None) -> None:
+        t, _lost = self.speed_stream.place(arrival(self.now_s(), info))
+        self.publish_until(t)
+        self.core.update_speed(t, msg.data)
 
     def on_voltage(self, msg: BatteryState) -> None:
         t = stamp_s(msg.header.stamp)
         self.publish_until(t)
         self.core.update_voltage(t, msg.voltage)
 
+    def match_thrust_output(self) -> None:
+        """predicted/thrust exists while the model has a b: a subscriber then sees no publisher,
+        rather than a topic that stays silent (the diagnostics say why)."""
+        if self.core.thrust_coefficient is not None and self.thrust_out is None:
+            self.thrust_out = ScalarOutput(self, contract.TOPIC_PREDICTED_THRUST)
+        elif self.core.thrust_coefficient is None and self.thrust_out is not None:
+            self.destroy_publisher(self.thrust_out.publisher)
+            self.thrust_out = None
+
     def on_timer(self) -> None:
         self.speed_out.refresh()
-        self.thrust_out.refresh()
+        if self.thrust_out is not None:
+            self.thrust_out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
 
     def command_stale(self, t: float) -> bool:
@@ -110,7 +141,8 @@ class ThrustEstimatorNode(Node):
             p = self.core.predict(tick)
             if p.ready:
                 self.speed_out.publish(float(p.speed_rad_s))
-                self.thrust_out.publish(float(p.thrust_n))
+                if self.thrust_out is not None and p.thrust_n is not None:
+                    self.thrust_out.publish(float(p.thrust_n))
 
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
@@ -150,6 +182,7 @@ class ThrustEstimatorNode(Node):
                 self.get_logger().error(str(e))
                 return SetParametersResult(successful=False, reason=str(e))
             self.core, self.model_path, self.reload_error = core, p.value, ''
+            self.match_thrust_output()
             self.get_logger().info(f'model: {p.value or "first-principles fallback"}')
         return SetParametersResult(successful=True)
 

@@ -16,6 +16,9 @@ from .train import features_of
 #: Command frequency bands (Hz) for chirp recordings: the paper notes the error grows with the
 #: PWM signal's frequency; these bands quantify it around the rotor's ~1.5 Hz corner.
 BANDS_HZ: tuple[tuple[float, float], ...] = ((0.0, 0.5), (0.5, 1.0), (1.0, 2.0), (2.0, 4.0))
+#: Why a recording's score has no thrust error.
+THRUST_NOT_RECORDED = "no /thrust/measured in the recording"
+THRUST_NO_COEFFICIENT = "the model has no thrust coefficient (it predicts speed only)"
 
 
 def model_inputs(model: Model, sig: Signals) -> np.ndarray:
@@ -30,7 +33,9 @@ def input_range(model: Model, sig: Signals) -> RangeReport:
 
 def predict_speed(model: Model, sig: Signals, X: np.ndarray | None = None) -> np.ndarray:
     """Predicted speed (rad/s) on the recording's grid, clipped to >= 0 as the estimator does;
-    inputs clipped to the training range, as the estimator clips them."""
+    inputs clipped to the training range, as the estimator clips them. A physics or hybrid
+    model's physics starts from the recording's measured speed when its rotor is already turning
+    at the start (a log cut mid-run: ``training.train.features_of``), not at rest."""
     X = model_inputs(model, sig) if X is None else X
     X = np.clip(X, model.input_min, model.input_max)
     return np.maximum(model.forward(X), 0.0)
@@ -74,8 +79,10 @@ class RecordingScore:
     samples: int
     bands: list[dict[str, float]] = field(default_factory=list)
     out_of_range: RangeReport | None = None
-    #: thrust RMSE (N) of b w^2 against /thrust/measured, when the recording has it
+    #: thrust RMSE (N) of b w^2 against /thrust/measured, when the recording has it and the model a b
     thrust_rmse_n: float | None = None
+    #: why there is no thrust RMSE (None: there is one)
+    thrust_unavailable: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -88,6 +95,7 @@ class RecordingScore:
             "bands": self.bands,
             "out_of_training_range": self.out_of_range.as_dict() if self.out_of_range else None,
             "thrust_rmse_n": self.thrust_rmse_n,
+            "thrust_unavailable": self.thrust_unavailable,
         }
 
 
@@ -108,7 +116,11 @@ def score(model: Model, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
         samples=int(ok.sum()),
         out_of_range=range_report(model, X, sig.path),
     )
-    if sig.thrust is not None:  # thrust = b w^2 from the same predicted speed
+    if sig.thrust is None:
+        out.thrust_unavailable = THRUST_NOT_RECORDED
+    elif model.thrust_coefficient is None:
+        out.thrust_unavailable = THRUST_NO_COEFFICIENT
+    else:  # thrust = b w^2 from the same predicted speed
         t_err = model.thrust_coefficient * pred**2 - sig.thrust
         t_ok = np.isfinite(t_err)
         out.thrust_rmse_n = float(np.sqrt(np.mean(t_err[t_ok] ** 2))) if t_ok.any() else None

@@ -24,6 +24,7 @@ from .. import contract as c
 from ..discrepancy import physics as ph
 from ..errors import BadInputError
 from ..model import HybridModel, PlantModel
+from ..priors import MotorPriors
 from ..recordings import Signals
 from .evaluate import predict_speed
 from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, train_model
@@ -51,6 +52,9 @@ class PhysicsOutcome:
     train_rmse_rad_s: float
     validation_rmse_rad_s: float
     candidates: list[dict[str, Any]]  #: every fit tried, with its figures; the kept one first
+    #: one line each: the start point's (nominal bench, a CONFIG over stated priors) and every flag
+    #: of the kept fit (``physics.fit_flags``) that did not refuse it
+    warnings: list[str] = dataclasses.field(default_factory=list)
 
 
 def rmse(model: PlantModel, signals: Sequence[Signals]) -> float:
@@ -68,17 +72,28 @@ def train_physics(
     train: Sequence[Signals],
     validation: Sequence[Signals],
     *,
-    thrust_coefficient: float,
+    thrust_coefficient: ThrustFit | float | None,
+    priors: MotorPriors | None = None,
+    config: str | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> PhysicsOutcome:
-    """Fit the nominal bench's plant to ``train`` (Kv, CP and every effect's strength, least
-    squares) from two ESCs, each with its throttle map held straight and then with its exponent
+    """Fit the plant to ``train`` (Kv, CP and every effect's strength, least squares) from the
+    user's motor (``physics.start_model``: the stated ``priors`` under a ``config`` file, which wins
+    where both are given; neither: the simulator's nominal bench, with a warning) for two ESCs,
+    each with its throttle map held straight and then with its exponent
     fitted too (from the straight fit), and keep the one ``validation`` prefers: an ESC that
     brakes actively (spin_down_asymmetry 0, held: BLHeli's default) and one that lets the rotor
     coast (its strength fitted from 1). Staircases and ramps rarely show how the rotor slows
     down after a large step, or tell a bent map from Kv, so the training data alone cannot
     choose; random steps do. The supply is the recordings' filtered battery voltage (the stiff
-    supply of battery_voltage strength 0: their median)."""
+    supply of battery_voltage strength 0: their median).
+
+    The kept fit is checked (``physics.fit_flags``): a fit whose Kv or CP ended at a bound of its
+    range or implausibly far from a value the user stated (a prior, or the CONFIG) is no model of
+    that motor: among the four, one without such a flag is kept, and when every one has it the
+    training is refused (BadInputError naming the constant, its value, the range and the stated
+    value). Other flags (constants or strengths at a bound, Kv or CP far from a start nobody
+    stated) are warnings (``PhysicsOutcome.warnings``)."""
     if not train or not validation:
         raise BadInputError("training needs at least one training and one validation recording")
     say = progress or (lambda text: None)
@@ -87,39 +102,78 @@ def train_physics(
         raise BadInputError(f"{train[0].path}: the recordings' battery voltages come from different sources "
                             "(filtered from battery/adc and recorded): a physics model takes one kind")
     tau = taus.pop()
-    nominal = ph.load_config(None)
+    volts = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in train])
+    base, notes, warnings = ph.start_model(config, priors, float(np.median(volts)) if len(volts) else None,
+                                              option="--physics-config")
+    for line in notes:
+        say(f"start: {line}")
     data = ph.Data.of(train, "training")
     t0 = time.perf_counter()
     candidates = []
     for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
-        start = dataclasses.replace(nominal, effects=effects).with_supply(train)
+        start = dataclasses.replace(base, effects=effects).with_supply(train)
         init = start  # the bent map starts from the straight fit
         for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)), (f"{esc}, throttle map bent", HELD)):
             say(f"fitting Kv, CP and the effects' strengths, {name}")
             fit = ph.fit_reference(init, data, hold=hold)
             init = fit.model
             m = _plant_model(fit.model, tau)
-            at_bound = [f.text() for f in ph.fit_flags(fit, start, "training fit") if f.at_bound]
+            flags = training_flags(fit, start)
             candidates.append({"fit": name, "constants": fit.model.constants(), "effects": dict(fit.model.effects),
-                               "at_bound": at_bound, "train_rmse_rad_s": rmse(m, train),
-                               "validation_rmse_rad_s": rmse(m, validation), "model": m})
+                               "at_bound": [f.text() for f in flags if f.at_bound],
+                               "fit_flags": [f.as_json() for f in flags],
+                               "refused": [f.text() for f in flags if refuses(f)],
+                               "train_rmse_rad_s": rmse(m, train),
+                               "validation_rmse_rad_s": rmse(m, validation), "model": m, "flags": flags})
             say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
-                f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s")
-    candidates.sort(key=lambda d: d["validation_rmse_rad_s"])
+                f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s"
+                + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f)))
+    # a fit that is no model of the stated motor is kept only when every fit is one: then refused
+    candidates.sort(key=lambda d: (bool(d["refused"]), d["validation_rmse_rad_s"]))
     best = candidates[0]
+    if best["refused"]:
+        f = next(f for f in best["flags"] if refuses(f))
+        who = base.stated.get(f.quantity) or f"--physics-config {config}"
+        raise BadInputError(f"{who}: the training recordings do not support it, so no model is written: {f.text()}; "
+                            f"all {len(candidates)} fits contradict it (a wrong rating or propeller, or an effect "
+                            "the physics lacks)")
+    warnings += [f.text() for f in best["flags"]]
     thrust = fit_thrust_coefficient(train, thrust_coefficient)
     model = dataclasses.replace(best["model"], thrust_coefficient=thrust.coefficient, metadata={
         "package_version": __version__,
         "sources": {"train": [_source(s) for s in train], "validation": [_source(s) for s in validation]},
         "fit": best["fit"],
-        "candidates": [{k: v for k, v in d.items() if k != "model"} for d in candidates],
+        "start": {"config": config, "stated": dict(base.stated), "notes": notes,
+                  "ranges": {n: list(r) for n, r in base.ranges.items()}},
+        "warnings": list(warnings),
+        "candidates": [{k: v for k, v in d.items() if k not in ("model", "flags")} for d in candidates],
         "training_seconds": time.perf_counter() - t0,
         "thrust_fit": {"source": thrust.source, "residual_rms_n": thrust.residual_rms_n, "samples": thrust.samples},
     })
     return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
-                          best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k != "model"}
-                                                          for d in candidates])
+                          best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k not in ("model", "flags")}
+                                                          for d in candidates], warnings)
+
+
+#: The constants whose flag against a stated value refuses a training fit: what the priors state.
+REFUSING = ("motor_kv_rpm_per_v", "propeller_cp")
+
+
+def training_flags(fit: ph.Fit, start: ph.PhysicsModel) -> list[ph.FitFlag]:
+    """``physics.fit_flags`` of a training fit: CALIBRATED constants at a bound or implausible,
+    strengths and companions at a bound only (every strength starts at 1 here, a start of the
+    procedure, not a value anybody stated). The coasting ESC's spin-down strength at 0 is no bound
+    hit: it is the braking ESC (a physical end, as 1 is), which the other candidates fit as such."""
+    return [f for f in ph.fit_flags(fit, start, "training fit")
+            if (f.at_bound or f.quantity in ph.CALIBRATED) and not (f.quantity == "spin_down_asymmetry strength"
+                                                                     and f.value <= 1e-3)]
+
+
+def refuses(flag: ph.FitFlag) -> bool:
+    """The flag makes the fit no model of the stated motor: Kv or CP at a bound of its range or
+    implausibly far from a value the user stated (a prior or the CONFIG)."""
+    return flag.quantity in REFUSING and flag.stated
 
 
 def residual_signals(model: PlantModel, signals: Sequence[Signals]) -> list[Signals]:

@@ -1,8 +1,8 @@
 """RCbenchmark / Tyto Robotics thrust-stand CSV log -> rosbag2 bag with the contract's topics.
 
 A commercial stand logs what this project's bench records, in other units and at its own
-rate: the ESC command in microseconds, the supply voltage, current, thrust (N or kgf) and
-speed (electrical and/or optical RPM), one row per sample (~4-50 Hz). The importer turns
+rate: the ESC command in microseconds, the supply voltage, current, thrust (N, kgf, gf or lbf) and
+speed (electrical and/or optical RPM), one row per sample (~4-150 Hz). The importer turns
 such a log into a bag that ``train``, ``evaluate`` and ``discrepancy`` read like a bench
 recording:
 
@@ -11,7 +11,7 @@ recording:
 | ``/pwm`` | Float64 | ESC us / 20000 us, zero-order hold of the logged command on a 50 Hz frame grid |
 | ``/battery/voltage`` | BatteryState | supply voltage, one per row with a voltage (measured directly, so already the filtered battery voltage) |
 | ``/rotor/speed`` | Float64 | rad/s, from optical RPM if it has data, else electrical RPM |
-| ``/thrust/measured`` | Float64 | N (kgf x 9.80665 when the log is in kgf) |
+| ``/thrust/measured`` | Float64 | N (x 9.80665 from kgf, x 9.80665e-3 from gf, x 4.4482216152605 from lbf) |
 | ``/battery/current`` | Float64 | A; an *addition* to the contract (it allows added topics), for thermal states |
 
 Speed from the electrical column: the RCbenchmark software converts the commutation
@@ -20,6 +20,12 @@ already mechanical RPM (checked on real logs: its own ``Mechanical Power (W)`` e
 ``Torque (N·m)`` x that column). ``pole_pairs`` is only for logs that hold raw electrical RPM
 (commutation RPM = shaft RPM x pole pairs); the returned dict says which source and which
 assumption were used, and warns when the speed disagrees with mechanical power / torque.
+
+The command: the ``ESC signal (µs)`` column, unless the ESC's own tool set it (the column is
+then empty, and the error says so): ``command_column`` names another column of the log (us,
+duty or percent), ``command_from`` another file (the AutoQuad ESC32 utility's log) whose clock
+is aligned to the log's by the speed both record (csv_command.py). Only the rows where the
+command is known are imported.
 
 Bag times are ``t0_ns + row time`` with a fixed ``t0_ns`` so the output is reproducible.
 """
@@ -41,14 +47,17 @@ from .. import contract as c
 from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
 from ..errors import BadInputError
+from .csv_command import (UNIT_RANGE, Alignment, OtherLog, align_by_speed, hold, mapping_text, out_of_range,
+                          read_autoquad, resolve_unit, to_level)
 
 #: Added topic (not in the contract's tables): supply current in amperes.
 TOPIC_BATTERY_CURRENT = "battery/current"
 
 KGF_TO_N = 9.80665
+GF_TO_N = 9.80665e-3
+LBF_TO_N = 4.4482216152605  #: international avoirdupois pound-force, exact
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
-ESC_MIN_US = 800.0  #: below any servo-protocol pulse: the column is not an ESC pulse width
-ESC_MAX_US = 2200.0
+ESC_MIN_US, ESC_MAX_US = UNIT_RANGE["us"]  #: outside: the column is not an ESC pulse width
 #: Relative disagreement between the written speed and mechanical power / torque that warns.
 SPEED_CHECK_TOLERANCE = 0.10
 
@@ -58,6 +67,11 @@ COL_VOLTAGE = "Voltage (V)"
 COL_CURRENT = "Current (A)"
 COL_THRUST_N = "Thrust (N)"
 COL_THRUST_KGF = "Thrust (kgf)"
+COL_THRUST_GF = "Thrust (gf)"  #: grams-force: the esc_test logs (RCbenchmark 1580/1585)
+COL_THRUST_LBF = "Thrust (lbf)"
+#: Thrust columns the importer reads, in the order it prefers them: (unit, factor to N).
+THRUST_COLUMNS = {COL_THRUST_N: ("N", 1.0), COL_THRUST_KGF: ("kgf", KGF_TO_N),
+                  COL_THRUST_GF: ("gf", GF_TO_N), COL_THRUST_LBF: ("lbf", LBF_TO_N)}
 COL_RPM_ELECTRICAL = "Motor Electrical Speed (RPM)"
 COL_RPM_OPTICAL = "Motor Optical Speed (RPM)"
 COL_TORQUE = "Torque (N·m)"
@@ -74,6 +88,26 @@ class _Table:
     cols: dict[str, np.ndarray]
     lines: np.ndarray
     skipped: dict[str, int] = field(default_factory=dict)
+    #: cells with data in ``ESC signal (µs)`` when another command is used (it is then ignored)
+    esc_cells_ignored: int = 0
+    #: ``Thrust (...)`` columns in a unit the importer does not know
+    other_thrust: list[str] = field(default_factory=list)
+
+    def keep(self, mask: np.ndarray, reason: str) -> None:
+        """Keep only the rows of ``mask``; the others are counted as skipped for ``reason``."""
+        self.skipped[reason] = int(np.count_nonzero(~mask))
+        self.time, self.lines = self.time[mask], self.lines[mask]
+        self.cols = {role: v[mask] for role, v in self.cols.items()}
+
+
+@dataclass(frozen=True)
+class _Command:
+    """Where the command is read: a column (its unit and the option that named it), or
+    ``column=None``: another file (``--command-from``), so a row needs only a time."""
+
+    column: str | None = COL_ESC
+    unit: str = "us"
+    option: str = ""  #: "" for the default column, "--command-column" when the user named it
 
 
 def _norm(name: str) -> str:
@@ -105,25 +139,30 @@ def _read_text(path: Path) -> str:
         ) from None
 
 
-def _header_index(path: Path, header: list[str]) -> dict[str, int]:
+def _header_index(path: Path, header: list[str], command: _Command) -> dict[str, int]:
     index: dict[str, int] = {}
     for k, name in enumerate(header):
         n = _norm(name)
         if n and n not in index:  # trailing comma -> empty name: ignored; duplicates: first wins
             index[n] = k
-    for required in (COL_TIME, COL_ESC):
-        if required not in index:
-            found = [n for n in index][:15]
-            more = ", ..." if len(index) > 15 else ""
-            shown = ", ".join(repr(n) for n in found) + more if found else "no column names"
-            raise BadInputError(
-                f"{path}: no {required!r} column; not an RCbenchmark/Tyto log? (found: {shown})"
-            )
+    found = [n for n in index][:15]
+    more = ", ..." if len(index) > 15 else ""
+    shown = ", ".join(repr(n) for n in found) + more if found else "no column names"
+    if COL_TIME not in index:
+        raise BadInputError(f"{path}: no {COL_TIME!r} column; not an RCbenchmark/Tyto log? (found: {shown})")
+    if command.column is not None and command.column not in index:
+        if command.option:
+            raise BadInputError(f"{path}: no column {command.column!r} ({command.option}); found: {shown}")
+        raise BadInputError(
+            f"{path}: no {command.column!r} column (found: {shown}); name the command's column with "
+            "--command-column NAME, or give --command-from ESC_LOG.csv"
+        )
     return index
 
 
-def _parse(path: Path, text: str) -> tuple[_Table, dict[str, str]]:
-    """Numeric table of the usable rows; BadInputError on the first bad cell."""
+def _parse(path: Path, text: str, command: _Command = _Command()) -> tuple[_Table, dict[str, str]]:
+    """Numeric table of the usable rows (a time and, unless it comes from another file, a
+    command); BadInputError on the first bad cell."""
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         header = next(reader)
@@ -133,20 +172,26 @@ def _parse(path: Path, text: str) -> tuple[_Table, dict[str, str]]:
         raise BadInputError(f"{path}: no header row") from None
     except csv.Error as exc:
         raise BadInputError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
-    index = _header_index(path, header)
+    index = _header_index(path, header, command)
 
-    used = {"time": COL_TIME, "esc": COL_ESC}
+    used = {"time": COL_TIME}
+    if command.column is not None:
+        used["esc"] = command.column  # the command, whatever its column and unit
     for role, name in (("voltage", COL_VOLTAGE), ("current", COL_CURRENT),
                        ("rpm_electrical", COL_RPM_ELECTRICAL), ("rpm_optical", COL_RPM_OPTICAL)):
         if name in index:
             used[role] = name
-    if COL_THRUST_N in index:
-        used["thrust"] = COL_THRUST_N
-    elif COL_THRUST_KGF in index:
-        used["thrust"] = COL_THRUST_KGF
+    thrust = next((name for name in THRUST_COLUMNS if name in index), None)
+    if thrust is not None:
+        used["thrust"] = thrust
+    other_thrust = [n for n in index if n.startswith("Thrust (") and n not in THRUST_COLUMNS]
     # only for a consistency check of the speed: never fail on these
     checks = {role: name for role, name in (("torque", COL_TORQUE), ("mech_power", COL_MECH_POWER))
               if name in index}
+    if command.column != COL_ESC and COL_ESC in index:
+        checks["esc_ignored"] = COL_ESC  # counted, to say that it was not used
+    lo, hi = UNIT_RANGE[command.unit]
+    rows_with_time = command_cells = 0
 
     values: dict[str, list[float]] = {role: [] for role in (*used, *checks)}
     lines: list[int] = []
@@ -179,15 +224,15 @@ def _parse(path: Path, text: str) -> tuple[_Table, dict[str, str]]:
                     cells[role] = float(row[k]) if k < len(row) and row[k].strip() else math.nan
                 except ValueError:
                     cells[role] = math.nan
-            t, esc = cells["time"], cells["esc"]
+            t, esc = cells["time"], cells.get("esc", 0.0)
+            rows_with_time += not math.isnan(t)
+            command_cells += not (math.isnan(t) or math.isnan(esc))
             if math.isnan(t) or math.isnan(esc):
-                skipped["no_time_or_esc"] += 1  # app-message rows and the like
+                skipped["no_time_or_esc"] += 1  # app-message rows, rows without a command
                 continue
-            if not ESC_MIN_US <= esc <= ESC_MAX_US:
+            if command.column is not None and not lo <= esc <= hi:
                 raise BadInputError(
-                    f"{path}: line {line}, column {COL_ESC!r}: {esc:g} us is outside "
-                    f"{ESC_MIN_US:g}..{ESC_MAX_US:g} us (not an ESC pulse width)"
-                )
+                    f"{path}: line {line}, column {command.column!r}: {out_of_range(esc, command.unit)}")
             if t <= last_t:
                 skipped["time_not_increasing"] += 1  # duplicate or backwards: keep the first
                 continue
@@ -198,22 +243,29 @@ def _parse(path: Path, text: str) -> tuple[_Table, dict[str, str]]:
     except csv.Error as exc:
         raise BadInputError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
 
-    if len(lines) < 2:
+    if command.column is not None and command_cells == 0 and rows_with_time >= 2:
+        # the stand logged everything but the command: it was set elsewhere (the ESC's own tool)
+        why = "" if command.option else " (the command was set outside the stand, e.g. by the ESC's own tool)"
         raise BadInputError(
-            f"{path}: {len(lines)} usable row(s) with a time and an ESC signal; at least 2 are needed"
-        )
+            f"{path}: command column {command.column!r} is empty in all {rows_with_time} rows{why}: give it with "
+            "--command-column NAME [--command-unit us|duty|percent] or --command-from ESC_LOG.csv (AutoQuad ESC32 log)")
+    if len(lines) < 2:
+        what = "a time" if command.column is None else f"a time and a command ({command.column!r})"
+        raise BadInputError(f"{path}: {len(lines)} usable row(s) with {what}; at least 2 are needed")
     cols = {role: np.asarray(v, dtype=float) for role, v in values.items()}
-    table = _Table(time=cols.pop("time"), cols=cols, lines=np.asarray(lines), skipped=skipped)
+    ignored = cols.pop("esc_ignored", None)
+    table = _Table(time=cols.pop("time"), cols=cols, lines=np.asarray(lines), skipped=skipped,
+                   esc_cells_ignored=0 if ignored is None else int(np.count_nonzero(np.isfinite(ignored))),
+                   other_thrust=other_thrust)
     return table, used
 
 
-def _pwm_frames(t: np.ndarray, esc_us: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """50 Hz frame times from the first to the last row and the ESC command held at each."""
+def _pwm_frames(t: np.ndarray, t_cmd: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """50 Hz frame times from the first to the last row and the PWM level in force at each:
+    the last command logged (at ``t_cmd``) at or before the frame (zero-order hold)."""
     n = int(math.floor((t[-1] - t[0]) * c.PWM_FRAME_HZ + 1e-9)) + 1
     frames = t[0] + np.arange(n) / c.PWM_FRAME_HZ
-    # the command in force at a frame is the last logged one at or before it (zero-order hold)
-    k = np.searchsorted(t, frames + 1e-9, side="right") - 1
-    return frames, esc_us[np.clip(k, 0, len(t) - 1)] / c.PWM_PERIOD_US
+    return frames, hold(t_cmd, level, frames)
 
 
 def _speed(table: _Table, pole_pairs: int | None) -> tuple[str | None, np.ndarray | None, str]:
@@ -234,6 +286,21 @@ def _speed(table: _Table, pole_pairs: int | None) -> tuple[str | None, np.ndarra
     return None, None, "no speed column with data: /rotor/speed not written"
 
 
+def thrust_law_samples(path: str | os.PathLike[str], pole_pairs: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(shaft speed rad/s, thrust N) of every row of a stand log that has both, whatever its
+    command: the thrust law T = b w^2 needs no command, and four of the esc_test logs were
+    commanded from outside the stand. BadInputError when the log has no speed or no thrust."""
+    src = Path(path)
+    table, used = _parse(src, _read_text(src), _Command(column=None))
+    _, rpm, _ = _speed(table, pole_pairs)
+    if rpm is None or "thrust" not in used:
+        raise BadInputError(f"{src}: no {'speed' if rpm is None else 'thrust'} column with data: no thrust law")
+    _, factor = THRUST_COLUMNS[used["thrust"]]
+    w, thrust = rpm * RPM_TO_RAD_S, table.cols["thrust"] * factor
+    ok = np.isfinite(w) & np.isfinite(thrust)
+    return w[ok], thrust[ok]
+
+
 def _speed_check(table: _Table, rpm: np.ndarray | None) -> float | None:
     """Median of (mechanical power / torque) / written speed: 1.0 when consistent."""
     torque, power = table.cols.get("torque"), table.cols.get("mech_power")
@@ -252,35 +319,109 @@ def _sha256(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+def _command_spec(column: str | None, unit: str | None,
+                  other: str | os.PathLike[str] | None) -> tuple[_Command, Path | None]:
+    """Where the command is read, from the options; BadInputError on a contradiction."""
+    if unit is not None and column is None:
+        raise BadInputError(f"--command-unit {unit}: only with --command-column (it is the unit of that column)")
+    if column is not None and other is not None:
+        raise BadInputError("--command-column and --command-from: give the command one way, not both")
+    if other is not None:
+        return _Command(column=None, unit="percent", option="--command-from"), Path(other)
+    if column is not None:
+        name = _norm(column)
+        if not name:
+            raise BadInputError("--command-column: the column name is empty")
+        return _Command(name, resolve_unit(name, unit), "--command-column"), None
+    return _Command(), None
+
+
+def _align_other(src: Path, other_src: Path, table: _Table, rpm: np.ndarray | None) -> tuple[OtherLog, Alignment]:
+    """The ESC's own log (``--command-from``) and its clock's offset to the log's."""
+    if table.esc_cells_ignored:
+        raise BadInputError(
+            f"{src}: has its own command in {COL_ESC!r} ({table.esc_cells_ignored} rows); --command-from "
+            "would replace it: omit --command-from")
+    if other_src.resolve() == src.resolve():
+        raise BadInputError(f"--command-from {other_src}: is the log being imported itself")
+    other = read_autoquad(other_src, _read_text(other_src))
+    if rpm is None or np.count_nonzero(np.isfinite(rpm)) < 3:
+        raise BadInputError(f"{src}: no speed column with data; --command-from aligns the two files' clocks "
+                            "by the speed both log")
+    return other, align_by_speed(table.time, rpm, other.t, other.rpm, log_name=str(src), other_name=str(other_src))
+
+
+def _command_warnings(src: Path, command: _Command, table: _Table, unit: str,
+                      alignment: Alignment | None) -> list[str]:
+    """What a user should check about the command read (never silent about a guess)."""
+    out = []
+    if command.option == "--command-column" and table.esc_cells_ignored:
+        out.append(f"{src}: {COL_ESC!r} has data in {table.esc_cells_ignored} rows, not used: the command "
+                   f"was read from {command.column!r} (--command-column)")
+    if command.column is not None and unit == "percent" and 0.0 < np.max(table.cols["esc"]) <= 1.0:
+        out.append(f"{src}: column {command.column!r} read as percent never exceeds 1 %; if it holds a duty "
+                   "cycle 0..1, give --command-unit duty")
+    if alignment is not None and alignment.speed_ratio is not None \
+            and abs(alignment.speed_ratio - 1.0) > SPEED_CHECK_TOLERANCE:
+        out.append(f"{src}: the --command-from file's RPM is {alignment.speed_ratio:.3g} x this log's speed once "
+                   "aligned: one of them is not shaft RPM (check --pole-pairs)")
+    return out
+
+
 def import_csv(
     csv_path: str | os.PathLike[str],
     out_path: str | os.PathLike[str],
     *,
     force: bool = False,
     pole_pairs: int | None = None,
+    command_column: str | None = None,
+    command_unit: str | None = None,
+    command_from: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Convert a thrust-stand CSV log into a bag at ``out_path``; returns a summary dict.
 
     ``pole_pairs`` (None: the electrical speed column is already shaft RPM, as the RCbenchmark
-    software writes it) divides a raw commutation-RPM column. Raises ``BadInputError`` (one line
-    naming the file) on bad input and when ``out_path`` may not be written (atomic.check_output);
-    nothing is written then.
+    software writes it) divides a raw commutation-RPM column. The command is the
+    ``ESC signal (µs)`` column unless ``command_column`` names another (in ``command_unit``: us,
+    duty or percent; None: the unit its name states) or ``command_from`` gives the AutoQuad
+    ESC32 log of the same run (its Duty, its clock aligned to the log's by speed). Raises
+    ``BadInputError`` (one line naming the file) on bad input and when ``out_path`` may not be
+    written (atomic.check_output); nothing is written then.
     """
     src, out = Path(csv_path), Path(out_path)
     if pole_pairs is not None and (isinstance(pole_pairs, bool) or int(pole_pairs) != pole_pairs
                                    or pole_pairs < 1):
         raise BadInputError(f"--pole-pairs {pole_pairs}: must be a positive integer")
-    check_output(out, RECORDING, force=force, inputs=[src])
+    command, other_src = _command_spec(command_column, command_unit, command_from)
+    check_output(out, RECORDING, force=force, inputs=[src, other_src])
     text = _read_text(src)
-    table, used = _parse(src, text)
+    table, used = _parse(src, text, command)
+    source, rpm, speed_note = _speed(table, pole_pairs)
+
+    alignment: Alignment | None = None
+    other_info: dict[str, Any] | None = None
+    if other_src is None:
+        unit = command.unit
+        t_cmd, level_cmd = table.time, to_level(table.cols["esc"], unit)
+    else:
+        other, alignment = _align_other(src, other_src, table, rpm)
+        unit = "percent"  # the ESC32 utility logs Duty in %
+        t_cmd, level_cmd = other.t + alignment.offset_s, to_level(other.duty_percent, unit)
+        inside = (table.time >= t_cmd[0]) & (table.time <= t_cmd[-1])
+        table.keep(inside, "outside_command_log")
+        rpm = None if rpm is None else rpm[inside]
+        if len(table.time) < 2:
+            raise BadInputError(f"{src}: fewer than 2 rows within the time span of {other_src} (--command-from)")
+        other_info = {"path": str(other_src), "rows": int(len(other.t)), "skipped_rows": other.skipped,
+                      "first_timestamp": other.first_timestamp, "column": "Duty", "sha256": other.sha256}
     t = table.time
     cols = table.cols
 
-    frames, pwm = _pwm_frames(t, cols["esc"])
-    source, rpm, speed_note = _speed(table, pole_pairs)
+    frames, pwm = _pwm_frames(t, t_cmd, level_cmd)
     thrust = cols.get("thrust")
-    if thrust is not None and used["thrust"] == COL_THRUST_KGF:
-        thrust = thrust * KGF_TO_N
+    thrust_unit, thrust_factor = THRUST_COLUMNS[used["thrust"]] if "thrust" in used else (None, None)
+    if thrust is not None:
+        thrust = thrust * thrust_factor
 
     # (topic, times, values): one message per row with a value, /pwm per 50 Hz frame
     streams: list[tuple[str, np.ndarray, np.ndarray]] = [(c.TOPIC_PWM, frames, pwm)]
@@ -300,6 +441,9 @@ def import_csv(
     index = np.concatenate([np.arange(len(s[1])) for s in streams])
     order = np.lexsort((which, times))  # message-time order, as a recorder writes it
     with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
+        whence = "" if alignment is None else f" from {Path(other_src).name}'s Duty, shifted {alignment.offset_s:+.3f} s"
+        bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({unit}{whence}) -> "
+                                f"pwm level, held on 50 Hz frames; speed: {speed_note}", float(times.min()))
         for k in order:
             topic, ts, vs = streams[which[k]]
             i = index[k]
@@ -321,10 +465,16 @@ def import_csv(
             f"/rotor/speed ({source} RPM); {hint}"
         )
     for role, topic in (("voltage", c.TOPIC_BATTERY_VOLTAGE), ("thrust", c.TOPIC_THRUST_MEASURED)):
-        if role not in used:
+        if role == "thrust" and role not in used and table.other_thrust:
+            units = ", ".join(u for u, _ in THRUST_COLUMNS.values())
+            warnings.append(f"{src}: column {table.other_thrust[0]!r}: thrust unit not one of {units}; "
+                            f"/{topic} not written")
+        elif role not in used:
             warnings.append(f"{src}: no {role} column; /{topic} not written")
     if rpm is None:
         warnings.append(f"{src}: {speed_note}")
+    warnings += _command_warnings(src, command, table, unit, alignment)
+    levels = sorted({round(float(x), 12) for x in level_cmd})
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
     skipped_total = int(sum(table.skipped.values()))
     return {
@@ -339,7 +489,14 @@ def import_csv(
         "duration_s": float(t[-1] - t[0]),
         "mean_row_rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
         "columns_used": columns_used,
-        "thrust_unit_in_log": None if thrust is None else ("kgf" if used["thrust"] == COL_THRUST_KGF else "N"),
+        "thrust_unit_in_log": thrust_unit,
+        "thrust_factor_to_n": thrust_factor,
+        "command": {"column": command.column if other_info is None else other_info["column"],
+                    "file": None if other_info is None else other_info["path"],
+                    "unit": unit, "mapping": mapping_text(unit)},
+        "command_from": other_info,
+        "alignment": None if alignment is None else alignment.as_dict(),
+        "command_levels": levels[:50],
         "speed_source": source,
         "speed_assumption": speed_note,
         "pole_pairs": pole_pairs,
@@ -347,7 +504,7 @@ def import_csv(
         "pwm_frames": int(len(frames)),
         "pwm_min": float(np.min(pwm)),
         "pwm_max": float(np.max(pwm)),
-        "esc_us_levels": sorted({float(x) for x in cols["esc"]})[:50],
+        "esc_us_levels": sorted({float(x) for x in cols["esc"]})[:50] if "esc" in cols and unit == "us" else [],
         "speed_max_rad_s": None if rpm is None or not np.any(np.isfinite(rpm))
         else float(np.nanmax(rpm) * RPM_TO_RAD_S),
         "voltage_min_v": float(np.nanmin(cols["voltage"])) if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None,
@@ -367,6 +524,21 @@ def summary_text(info: dict[str, Any]) -> str:
         f"  PWM {info['pwm_min']:.4f}..{info['pwm_max']:.4f} in {info['pwm_frames']} frames at 50 Hz",
         f"  speed: {info['speed_source'] or 'none'} ({info['speed_assumption']})",
     ]
+    cmd = info.get("command")
+    if cmd:
+        where = f"{cmd['column']!r}" + (f" of {cmd['file']}" if cmd["file"] else "")
+        lines.append(f"  command: {where} in {cmd['unit']}, {cmd['mapping']}")
+    al = info.get("alignment")
+    if al:
+        share = al["speed_rms_share_of_range"]
+        lines.append(
+            f"  clocks aligned by speed: log time = {cmd['file'] if cmd else 'command file'} time "
+            f"{al['offset_s']:+.3f} s (correlation {al['correlation']:.4f} over {al['overlap_s']:.1f} s; "
+            f"speed RMS after the shift {al['speed_rms_rpm']:.0f} rpm"
+            + (f" = {100 * share:.1f} % of the range)" if share is not None else ")"))
+    if info.get("thrust_unit_in_log"):
+        lines.append(f"  thrust: {info['columns_used']['thrust']!r} in {info['thrust_unit_in_log']}, "
+                     f"x {info['thrust_factor_to_n']:.10g} -> N")
     if info.get("voltage_min_v") is not None:
         lines.append(f"  voltage {info['voltage_min_v']:.2f}..{info['voltage_max_v']:.2f} V")
     lines.append("  topics: " + ", ".join(f"{k} ({v})" for k, v in info["topics"].items()))

@@ -2,55 +2,158 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .. import __version__
 from .. import contract as c
-from ..core.features import compute_features
+from ..core.features import compute_features, with_measured_start
 from ..errors import BadInputError
 from ..model import NetworkModel
+from ..priors import AIR_DENSITY_KG_M3, INCH_M, MotorPriors
 from ..recordings import Signals
+from ..specs import split_spec
 from .lm import LMResult, train_lm
 from .network import minmax_apply, minmax_fit, nguyen_widrow, pack, unpack
 
 
 def features_of(sig: Signals, names: Sequence[str], params: dict[str, dict[str, float]] | None = None) -> np.ndarray:
-    """Model inputs of one recording on its grid, computed by the estimator's feature code."""
+    """Model inputs of one recording on its grid, computed by the estimator's feature code; a
+    physics speed among them starts from the recording's measured speed when its rotor is
+    already turning (``core.features.with_measured_start``)."""
     pwm_t, pwm = sig.pwm_events
     volt_t, volt = sig.voltage_events
-    return compute_features(sig.t, pwm_t, pwm, volt_t, volt, list(names), params or {})
+    params = with_measured_start(names, params or {}, sig.t, sig.speed, pwm_t)
+    return compute_features(sig.t, pwm_t, pwm, volt_t, volt, list(names), params)
+
+
+#: Fewest measured thrust samples b is fitted from (with fewer: a stated b, or none).
+MIN_THRUST_SAMPLES = 10
+#: A stated b further than this from the measured one (relative to it) is warned of: one of
+#: them belongs to another propeller, vehicle or air density.
+THRUST_DISAGREEMENT = 0.10
+#: "Airborne" for the hover condition: the rotor faster than this share of the training
+#: recordings' 99th-percentile speed. A multirotor idles on the ground at 10-20 % of its top
+#: speed and hovers at 40-70 %, so this keeps the flight and drops the ground and the spool-up.
+AIRBORNE_SPEED_FRACTION = 0.3
+MEASURED_SOURCE = "least squares on /thrust/measured"
+NO_THRUST_SOURCE = "none: no thrust measured or stated"
+#: What b from hover takes for granted (the model's provenance and ``train --help`` say it).
+HOVER_ASSUMPTION = (
+    "the vehicle's mean total thrust while airborne equals its weight m g, shared equally by its "
+    "motors: b = m g / (N mean(w^2)) over the training recordings' airborne samples (rotor faster "
+    f"than {AIRBORNE_SPEED_FRACTION:.0%} of their 99th-percentile speed); long climbs, descents or "
+    "an unequal load between motors make it wrong")
 
 
 @dataclass
 class ThrustFit:
-    """Least-squares b in thrust = b w^2, and how well it fits."""
+    """b in thrust = b w^2 (N s^2/rad^2), where it came from and how well it fits.
 
-    coefficient: float
-    residual_rms_n: float | None
-    samples: int
-    source: str
+    ``coefficient`` None: nothing measured or stated, so the model holds no b and predicts speed
+    only (a b of another propeller would be a thrust number that is silently wrong)."""
+
+    coefficient: float | None
+    residual_rms_n: float | None  #: of a least-squares fit; None for a stated b
+    samples: int  #: samples b was computed from (0: stated outright)
+    source: str  #: MEASURED_SOURCE, "stated --thrust-coefficient", "hover: ...", "CT ..., ... in" or NO_THRUST_SOURCE
+    assumption: str | None = None  #: what a b derived from stated numbers takes for granted
+    warnings: list[str] = field(default_factory=list)
+
+    def as_metadata(self) -> dict[str, Any]:
+        """The model's provenance of b (its metadata's ``thrust_fit``)."""
+        out: dict[str, Any] = {"source": self.source, "residual_rms_n": self.residual_rms_n,
+                               "samples": self.samples}
+        if self.assumption:
+            out["assumption"] = self.assumption
+        if self.warnings:
+            out["warnings"] = list(self.warnings)
+        return out
 
 
-def fit_thrust_coefficient(signals: Sequence[Signals], default: float) -> ThrustFit:
-    """b = sum(T w^2) / sum(w^4) over samples with measured thrust; else the configured b."""
+def fit_thrust_coefficient(signals: Sequence[Signals], stated: ThrustFit | float | None = None) -> ThrustFit:
+    """b = sum(T w^2) / sum(w^4) over the samples with measured thrust (least squares); without
+    enough of them the ``stated`` b (``stated_thrust``; a float: a b given outright), else no b.
+    The measurement wins over a stated b; one that differs from it by more than
+    ``THRUST_DISAGREEMENT`` is named in the fit's warnings."""
+    if stated is not None and not isinstance(stated, ThrustFit):
+        stated = ThrustFit(float(stated), None, 0, "given b")
     w2 = [s.speed**2 for s in signals if s.thrust is not None]
     thrust = [s.thrust for s in signals if s.thrust is not None]
-    if not w2:
-        return ThrustFit(default, None, 0, "configured (no /thrust/measured recorded)")
-    x = np.concatenate(w2)
-    y = np.concatenate(thrust)
+    x = np.concatenate(w2) if w2 else np.zeros(0)
+    y = np.concatenate(thrust) if thrust else np.zeros(0)
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
-    if len(x) < 10 or float(np.dot(x, x)) <= 0.0:
-        return ThrustFit(default, None, 0, "configured (too little thrust data to fit)")
-    b = float(np.dot(x, y) / np.dot(x, x))
-    rms = float(np.sqrt(np.mean((y - b * x) ** 2)))
-    return ThrustFit(b, rms, int(len(x)), "least squares on /thrust/measured")
+    if len(x) >= MIN_THRUST_SAMPLES and float(np.dot(x, x)) > 0.0:
+        b = float(np.dot(x, y) / np.dot(x, x))
+        if not b > 0.0:
+            raise BadInputError(f"/thrust/measured: the thrust does not rise with the rotor speed (least-squares "
+                                f"b = {b:.4g} N s^2/rad^2 over {len(x)} samples): is the load cell's sign reversed?")
+        rms = float(np.sqrt(np.mean((y - b * x) ** 2)))
+        fit = ThrustFit(b, rms, int(len(x)), MEASURED_SOURCE)
+        if stated is not None and stated.coefficient is not None \
+                and abs(stated.coefficient - b) > THRUST_DISAGREEMENT * b:
+            fit.warnings.append(
+                f"the measured thrust gives b = {b:.4g} N s^2/rad^2; the {stated.source} b = "
+                f"{stated.coefficient:.4g} differs by {100.0 * (stated.coefficient / b - 1.0):+.0f} % "
+                "(the measured b is used: is the stated one of this propeller and vehicle?)")
+        return fit
+    few = [f"{len(x)} samples of /thrust/measured are too few to fit b (at least {MIN_THRUST_SAMPLES})"] \
+        if w2 else []
+    if stated is not None:
+        return dataclasses.replace(stated, warnings=[*few, *stated.warnings])
+    return ThrustFit(None, None, 0, NO_THRUST_SOURCE, warnings=few)
+
+
+def hover_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit:
+    """b from the hover condition (``HOVER_ASSUMPTION``): each motor's mean thrust while airborne
+    is m g / N = b mean(w^2)."""
+    per_motor_n = priors.hover_thrust_n()
+    if per_motor_n is None:
+        raise ValueError("hover_thrust needs the vehicle's mass and motor count")
+    w = np.concatenate([s.speed for s in signals]) if signals else np.zeros(0)
+    w = w[np.isfinite(w)]
+    top = float(np.percentile(w, 99)) if len(w) else 0.0
+    airborne = w[w > AIRBORNE_SPEED_FRACTION * top] if top > 0.0 else w[:0]
+    if len(airborne) < MIN_THRUST_SAMPLES:
+        raise BadInputError(
+            f"--vehicle-mass-kg: b from hover needs the rotor turning in the training recordings "
+            f"({len(airborne)} samples faster than {AIRBORNE_SPEED_FRACTION:.0%} of their top speed)")
+    b = per_motor_n / float(np.mean(airborne**2))
+    return ThrustFit(b, None, int(len(airborne)),
+                     f"hover: {priors.vehicle_mass_kg:g} kg, {priors.motor_count} motors", HOVER_ASSUMPTION)
+
+
+def stated_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit | None:
+    """b from what the user stated, the first of: ``--thrust-coefficient``; ``--vehicle-mass-kg``
+    with ``--motor-count`` (``hover_thrust`` on ``signals``, the training recordings);
+    ``--propeller-ct`` with ``--prop-diameter-in`` (b = CT rho D^4 / (4 pi^2)). None: nothing
+    stated. Any later one stated too is not used, and the warnings say what it would give."""
+    candidates: list[ThrustFit] = []
+    if priors.thrust_coefficient is not None:
+        candidates.append(ThrustFit(priors.thrust_coefficient, None, 0, "stated --thrust-coefficient"))
+    if priors.hover_thrust_n() is not None:
+        candidates.append(hover_thrust(priors, signals))
+    b_ct = priors.thrust_coefficient_from_ct()
+    if b_ct is not None:
+        inches = priors.propeller_diameter_m / INCH_M  # type: ignore[operator]
+        candidates.append(ThrustFit(
+            b_ct, None, 0, f"CT {priors.propeller_ct:g}, {inches:g} in",
+            f"static thrust T = CT rho n^2 D^4 at rho = {AIR_DENSITY_KG_M3} kg/m^3 (ISA sea level), "
+            "so b = CT rho D^4 / (4 pi^2)"))
+    if not candidates:
+        return None
+    used, *others = candidates
+    for o in others:
+        used.warnings.append(
+            f"{o.source} would give b = {o.coefficient:.4g} N s^2/rad^2 "
+            f"({100.0 * (o.coefficient / used.coefficient - 1.0):+.0f} %): not used, {used.source} comes first")
+    return used
 
 
 @dataclass
@@ -80,7 +183,7 @@ def train_model(
     seed: int = 0,
     pwm_tau_s: float = c.PAPER_PWM_TAU_S,
     feature_params: dict[str, dict[str, float]] | None = None,
-    thrust_coefficient: float,
+    thrust_coefficient: ThrustFit | float | None = None,
     max_epochs: int = 1000,
     patience: int = 6,
     progress: Callable[[int, float, float, float], None] | None = None,
@@ -99,6 +202,8 @@ def train_model(
     decides how the network extrapolates between the recordings' operating points; on the
     bundled bags the validation RMSE of single 3-25-1 runs spans 16-30 rad/s over seeds, and the
     validation cost is the unbiased way to choose among them (what trainlm users do by hand).
+    ``thrust_coefficient``: the stated b (``stated_thrust``), the model's when ``train`` has no
+    measured thrust (``fit_thrust_coefficient``); None: the model has no b then.
     """
     if not train or not validation:
         raise BadInputError("training needs at least one training and one validation recording")
@@ -161,7 +266,7 @@ def train_model(
                       "validation_cost": float(r.val_cost)} for sd, r in runs],
         "hidden": int(hidden),
         "samples": {"train": int(len(y)), "validation": int(len(yv))},
-        "thrust_fit": {"source": fit.source, "residual_rms_n": fit.residual_rms_n, "samples": fit.samples},
+        "thrust_fit": fit.as_metadata(),
         "feature_params": params,
     }
     model = NetworkModel(
@@ -175,7 +280,7 @@ def train_model(
         W2=W2,
         b2=float(b2),
         pwm_tau_s=float(pwm_tau_s),
-        thrust_coefficient=float(fit.coefficient),
+        thrust_coefficient=fit.coefficient,
         metadata=metadata,
     )
     rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
@@ -191,4 +296,6 @@ def _zero_output(n_in: int, hidden: int, seed: int, b2: float) -> np.ndarray:
 
 def _source(sig: Signals) -> dict[str, str]:
     """Provenance of one recording: the path as given, where it was, and its content hash."""
-    return {"path": sig.path, "abs_path": os.path.abspath(sig.path.split("#", 1)[0]), "sha256": sig.sha256}
+    path, namespace = split_spec(sig.path.split("#", 1)[0], sig.namespace)
+    return {"path": sig.path, "abs_path": os.path.abspath(path), "sha256": sig.sha256,
+            "namespace": namespace}
