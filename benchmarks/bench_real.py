@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/bench_real.py [--real-dir ../shared/real] [--splits 3] [--kinds network,physics,hybrid]
-                                    [--no-priors] [--keep DIR] [--jobs 3]
+                                    [--no-priors] [--keep DIR] [--jobs 3] [--thrust-law-only]
 
 The log is ``esc_test/Log_2019-11-09_181347.csv`` (T-Motor F80 Pro 1900 kv, three-blade DALPROP
 T7056 7x5.6 in, bench supply at 16 V that sags under load, ESC PWM steps 1050-1950 us; see
@@ -164,6 +164,38 @@ def run_split(d: Path, parts: list[dict[str, Path]], k: int, kind: str, priors: 
             "b_direct": direct_b(parts[k]["test"]), "seconds": seconds, "warnings": tr.get("warnings", [])}
 
 
+#: The esc_test logs: six ESC + motor pairs on the one DALPROP T7056 propeller (../shared/real/README.md).
+THRUST_LAW_LOGS = ("Log_2019-11-05_171350.csv", "Log_2019-11-07_174807.csv", "Log_2019-11-07_175456.csv",
+                   "Log_2019-11-07_184325.csv", "Log_2019-11-07_211050.csv", "Log_2019-11-09_181347.csv")
+PROPELLER_DIAMETER_M = 7 * 0.0254
+
+
+def thrust_law(real_dir: Path) -> None:
+    """b of T = b w^2 per esc_test log (least squares on every row with speed and thrust, whatever
+    commanded it), side by side: one propeller, so one b, if the law holds. Also b below and above
+    each log's median speed: a b that grows with speed is what a single b cannot carry."""
+    sys.path.insert(0, str(ROOT))
+    from bldc_propulsion.training.import_csv import thrust_law_samples
+
+    print("thrust law T = b w^2 on the six esc_test logs (one propeller, six ESC + motor pairs)")
+    print(f"{'log':>26s} {'rows':>5s} {'b N s^2/rad^2':>14s} {'CT':>6s} {'resid N':>8s} {'b low w':>9s} {'b high w':>9s}")
+    bs = []
+    for name in THRUST_LAW_LOGS:
+        w, thrust = thrust_law_samples(real_dir / "esc_test" / name)
+        b = float(np.dot(w**2, thrust) / np.dot(w**2, w**2))
+        lo, hi = w <= np.median(w[w > 0]), w > np.median(w[w > 0])
+        b_lo = float(np.dot(w[lo] ** 2, thrust[lo]) / np.dot(w[lo] ** 2, w[lo] ** 2))
+        b_hi = float(np.dot(w[hi] ** 2, thrust[hi]) / np.dot(w[hi] ** 2, w[hi] ** 2))
+        ct = b * 4 * np.pi**2 / (1.225 * PROPELLER_DIAMETER_M**4)
+        resid = float(np.sqrt(np.mean((thrust - b * w**2) ** 2)))
+        bs.append(b)
+        print(f"{name:>26s} {len(w):5d} {b:14.4g} {ct:6.3f} {resid:8.3f} {b_lo:9.3g} {b_hi:9.3g}")
+    med = float(np.median(bs))
+    print(f"b median {med:.4g}, range {min(bs):.4g}-{max(bs):.4g} ({100 * (min(bs) / med - 1):+.1f} % to "
+          f"{100 * (max(bs) / med - 1):+.1f} % of the median)")
+    print()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--real-dir", default=str(ROOT.parent / "shared" / "real"))
@@ -172,7 +204,11 @@ def main() -> int:
     ap.add_argument("--no-priors", action="store_true", help="train without the motor's priors")
     ap.add_argument("--keep", metavar="DIR", help="keep the pieces and models in DIR")
     ap.add_argument("--jobs", type=int, default=3, help="trainings run at once")
+    ap.add_argument("--thrust-law-only", action="store_true", help="print the six logs' b and stop")
     args = ap.parse_args()
+    thrust_law(Path(args.real_dir))
+    if args.thrust_law_only:
+        return 0
     kinds = [k for k in args.kinds.split(",") if k]
     log = Path(args.real_dir) / LOG
     tmp = None if args.keep else tempfile.TemporaryDirectory()

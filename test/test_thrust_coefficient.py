@@ -263,6 +263,8 @@ def test_replay_and_evaluate_have_no_thrust_for_a_model_without_b(capsys, bags, 
     (["--thrust-coefficient", "inf"], "--thrust-coefficient"),
     (["--vehicle-mass-kg", "0", "--motor-count", "4"], "--vehicle-mass-kg"),
     (["--motor-count", "2.5", "--vehicle-mass-kg", "1"], "--motor-count"),
+    (["--motor-kv", "1900"], "--motor-kv: a prior of the physics fit, so it goes with --kind physics or hybrid"),
+    (["--prop-pitch-in", "4.5"], "--prop-pitch-in: a prior of the physics fit"),
 ])
 def test_options_that_go_together_or_out_of_range_are_one_line_errors(capsys, tmp_path, options, words):
     """Checked before any recording is read (the recordings named here do not exist)."""
@@ -365,3 +367,34 @@ def test_node_without_b_publishes_speed_never_thrust_and_says_why(tmp_path):
         helper.destroy_node()
     finally:
         rclpy.try_shutdown(context=ctx)
+
+
+def test_discrepancy_writes_a_physics_model_without_the_configs_b(capsys, bags, tmp_path):
+    """``discrepancy --physics -o M.npz`` on recordings without thrust never writes the CONFIG's
+    (the 12 in bench's) CT as b: no b, and a warning."""
+    out = tmp_path / "found.npz"
+    code, stdout, err = run_cli(capsys, "discrepancy", "--physics", "--measured", bags["train"], bags["val"],
+                                "--max-effects", "1", "-o", out, "--json")
+    assert code == 0, err
+    data = json.loads(stdout)
+    assert data["named"], "every effect is on in the simulator and off in the base: one is named"
+    assert load_model(out).thrust_coefficient is None
+    assert any("no thrust coefficient" in w for w in data["warnings"])
+
+
+def test_discrepancys_b_is_measured_else_the_models_else_none(bags):
+    """What ``discrepancy`` writes as b: the measured thrust's least squares, else the b of the
+    model file it started from, else none."""
+    from bldc_propulsion.commands.discrepancy import _thrust_of
+
+    with_thrust = [load_signals(bags["train_thrust"]), load_signals(bags["val_thrust"])]
+    w2 = np.concatenate([s.speed**2 for s in with_thrust])
+    t = np.concatenate([s.thrust for s in with_thrust])
+    ok = np.isfinite(w2) & np.isfinite(t)
+    expected = float(np.dot(w2[ok], t[ok]) / np.dot(w2[ok], w2[ok]))
+    assert _thrust_of(None, with_thrust).coefficient == pytest.approx(expected, rel=1e-9)
+    without = [load_signals(bags["train"])]
+    assert _thrust_of(None, without).coefficient is None
+    model = SimpleNamespace(thrust_coefficient=3.1e-6)
+    kept = _thrust_of(model, without)
+    assert kept.coefficient == 3.1e-6 and "model file" in kept.source

@@ -234,13 +234,31 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
                       "measured": [str(p) for p in args.measured]}
         if _is_npz(args.output):
             m = result.model
-            save_model(PlantModel(m.params, m.effects, m.supply_v, metadata={"discrepancy": provenance},
+            thrust = _thrust_of(loaded, [*reference, *measured])
+            provenance["thrust_fit"] = thrust.as_metadata()
+            warnings.extend(thrust.warnings)
+            if thrust.coefficient is None:
+                warnings.append(f"-o {args.output}: no thrust coefficient: no /thrust/measured in the recordings "
+                                "and no model's b to keep, so the model predicts speed only")
+            save_model(PlantModel(m.params, m.effects, m.supply_v, thrust.coefficient,
+                                  metadata={"discrepancy": provenance},
                                   supply_tau_s=supply_tau_s(measured[0])), args.output, force=args.force)
         else:
             save_config(result.model, args.output, args.force, provenance)
 
     return _finish(args, result, save, "the physics model" if _is_npz(args.output) else "the physics config",
                    warnings)
+
+
+def _thrust_of(loaded: Any, signals: list[Any]) -> Any:
+    """b of a physics model that ``discrepancy`` writes: measured thrust in the recordings, else
+    the b of the model it started from, else none. Never the CT of the CONFIG or of the
+    simulator's 12 in bench: that is a number nobody measured or stated for this propeller."""
+    from ..training.train import ThrustFit, fit_thrust_coefficient
+
+    kept = getattr(loaded, "thrust_coefficient", None) if loaded is not None else None
+    stated = None if kept is None else ThrustFit(float(kept), None, 0, "kept from the model file")
+    return fit_thrust_coefficient(signals, stated)
 
 
 def _stated_options(priors: MotorPriors) -> list[str]:

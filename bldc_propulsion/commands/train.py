@@ -117,6 +117,15 @@ def _network_options(args: argparse.Namespace) -> None:
     if args.kind == "network" and getattr(args, "physics_config", None):
         raise BadInputError(f"--physics-config {args.physics_config}: the physics fit's start, so it goes with "
                             "--kind physics or hybrid")
+    if args.kind == "network":  # a network has no Kv or pitch: given, they would be silently ignored
+        for name in PHYSICS_PRIORS:
+            if getattr(args, name, None) is not None:
+                raise BadInputError(f"--{name.replace('_', '-')}: a prior of the physics fit, so it goes with "
+                                    "--kind physics or hybrid (a network has no motor constants)")
+
+
+#: Prior options only the physics fit uses (--prop-diameter-in also gives b with --propeller-ct).
+PHYSICS_PRIORS = ("motor_kv", "pole_count", "cells", "prop_pitch_in")
 
 
 def run(args: argparse.Namespace) -> CommandResult:
@@ -152,7 +161,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     if hybrid:  # the physics first; the network learns what it gets wrong
         from ..training.fit_physics import train_hybrid, train_physics
 
-        physics = train_physics(train, validation, thrust_coefficient=stated, priors=priors_from_args(args),
+        physics = train_physics(train, validation, thrust_coefficient=stated, priors=priors,
                                 config=args.physics_config, progress=progress)
         progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
                  f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")

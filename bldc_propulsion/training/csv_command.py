@@ -29,6 +29,7 @@ import re
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import signal
@@ -146,18 +147,25 @@ def _parse_time(text: str) -> datetime | None:
     return None
 
 
-def read_autoquad(path: Path, text: str) -> OtherLog:
-    """Rows of an AutoQuad ESC32 utility CSV (``Timestamp``, ``RPM``, ``Duty`` in percent);
-    BadInputError (one line naming ``path``) on anything else."""
+def csv_header(path: Path, text: str, option: str = "") -> tuple[Any, list[str]]:
+    """(the csv reader after the header, the header: the first non-blank row); BadInputError
+    naming ``path`` (and the option that gave it) when there is none or the CSV is broken."""
     reader = csv.reader(io.StringIO(text, newline=""))
     try:
         header = next(reader)
         while not any(cell.strip() for cell in header):
             header = next(reader)
     except StopIteration:
-        raise BadInputError(f"{path}: no header row (--command-from)") from None
+        raise BadInputError(f"{path}: no header row{f' ({option})' if option else ''}") from None
     except csv.Error as exc:
         raise BadInputError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
+    return reader, header
+
+
+def read_autoquad(path: Path, text: str) -> OtherLog:
+    """Rows of an AutoQuad ESC32 utility CSV (``Timestamp``, ``RPM``, ``Duty`` in percent);
+    BadInputError (one line naming ``path``) on anything else."""
+    reader, header = csv_header(path, text, "--command-from")
     index = {cell.strip(): k for k, cell in reversed(list(enumerate(header))) if cell.strip()}
     missing = [n for n in (AQ_TIME, AQ_RPM, AQ_DUTY) if n not in index]
     if missing:

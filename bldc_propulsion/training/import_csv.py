@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import io
 import math
 import os
 from dataclasses import dataclass, field
@@ -47,8 +46,8 @@ from .. import contract as c
 from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
 from ..errors import BadInputError
-from .csv_command import (UNIT_RANGE, Alignment, OtherLog, align_by_speed, hold, mapping_text, out_of_range,
-                          read_autoquad, resolve_unit, to_level)
+from .csv_command import (UNIT_RANGE, Alignment, OtherLog, align_by_speed, csv_header, hold, mapping_text,
+                          out_of_range, read_autoquad, resolve_unit, to_level)
 
 #: Added topic (not in the contract's tables): supply current in amperes.
 TOPIC_BATTERY_CURRENT = "battery/current"
@@ -163,15 +162,7 @@ def _header_index(path: Path, header: list[str], command: _Command) -> dict[str,
 def _parse(path: Path, text: str, command: _Command = _Command()) -> tuple[_Table, dict[str, str]]:
     """Numeric table of the usable rows (a time and, unless it comes from another file, a
     command); BadInputError on the first bad cell."""
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        header = next(reader)
-        while not any(cell.strip() for cell in header):
-            header = next(reader)
-    except StopIteration:
-        raise BadInputError(f"{path}: no header row") from None
-    except csv.Error as exc:
-        raise BadInputError(f"{path}: line {reader.line_num}: not valid CSV ({exc})") from None
+    reader, header = csv_header(path, text)
     index = _header_index(path, header, command)
 
     used = {"time": COL_TIME}
