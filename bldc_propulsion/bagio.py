@@ -861,6 +861,24 @@ class BagWriter:
         the log's units became the contract's, written once at its first time ``t``."""
         self.write_string(TOPIC_IMPORT_SOURCE, t, text)
 
+    def write_merged(self, streams: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> None:
+        """Scalar streams (topic, times s, values) in message-time order, as a recorder writes them
+        (at equal times in the order of ``streams``): ``battery/voltage`` as BatteryState, the rest
+        as Float64. What the importers write from a log's columns."""
+        streams = [s for s in streams if len(s[1])]
+        if not streams:
+            return
+        times = np.concatenate([s[1] for s in streams])
+        which = np.concatenate([np.full(len(s[1]), k) for k, s in enumerate(streams)])
+        index = np.concatenate([np.arange(len(s[1])) for s in streams])
+        for k in np.lexsort((which, times)):
+            topic, ts, vs = streams[which[k]]
+            i = index[k]
+            if c.bare(topic) == c.TOPIC_BATTERY_VOLTAGE:
+                self.write_battery_state(topic, float(ts[i]), float(vs[i]))
+            else:
+                self.write_float64(topic, float(ts[i]), float(vs[i]))
+
 
 _MCAP_MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log/publish time
 _MCAP_FLOAT64 = struct.Struct("<BQHIQQ4sd")  # the same, then a std_msgs/Float64's 12 bytes of CDR

@@ -40,6 +40,13 @@ class MotorPriors:
     vehicle_mass_kg: float | None = None  #: with motor_count: b from the hover condition
     motor_count: int | None = None
 
+    def motor_options(self) -> list[str]:
+        """The options of the motor and propeller (not of b) the user gave, as spelled on the
+        command line: what a command that has no motor to size names when it refuses them."""
+        names = {"motor_kv_rpm_per_v": "--motor-kv", "pole_count": "--pole-count", "cells": "--cells",
+                 "propeller_diameter_m": "--prop-diameter-in", "propeller_pitch_m": "--prop-pitch-in"}
+        return [opt for name, opt in names.items() if getattr(self, name) is not None]
+
     @property
     def stated(self) -> bool:
         """Anything was stated."""

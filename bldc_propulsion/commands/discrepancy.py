@@ -144,14 +144,14 @@ def run(args: argparse.Namespace) -> CommandResult:
     physics = model is None or model.kind != NETWORK
     priors = priors_from_args(args)
     if not physics and priors.stated:
-        raise BadInputError(f"{_stated_options(priors)[0]}: states the motor a physics fit starts from, so it goes "
+        raise BadInputError(f"{priors.motor_options()[0]}: states the motor a physics fit starts from, so it goes "
                             f"with --physics or a physics/hybrid --model, not the network {args.model}")
     check_outputs([(args.output, CONFIG if physics and not _is_npz(args.output) else MODEL, "-o"),
                    (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.measured, *(args.reference or []), *(args.holdout or []),
                           args.model, args.physics])
     if physics:
-        return run_physics(args, model)
+        return run_physics(args, priors, model)
     warnings: list[str] = []
     if args.reference:
         ref_paths = list(args.reference)
@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     return _finish(args, result, save, "the model", warnings)
 
 
-def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
+def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = None) -> CommandResult:
     """``--physics [CONFIG]``, or ``--model`` of kind physics or hybrid (``loaded``): the bench
     physics as the model (see discrepancy/physics_kind.py). A hybrid's physics part is checked:
     the workflow fits physical effects, and a network correction on top would hide the very
@@ -198,7 +198,6 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
         if value is not None:
             raise BadInputError(f"{flag}: retrains a network, so it goes with a network --model, not {where}")
     warnings: list[str] = []
-    priors = priors_from_args(args)
     if loaded is None:
         base, model = args.physics or None, _physics_input(args.physics)  # a bad CONFIG fails before any work
     else:
@@ -213,9 +212,9 @@ def run_physics(args: argparse.Namespace, loaded: Any = None) -> CommandResult:
     if loaded is None and not _is_npz(args.physics):
         # the start: the stated motor under the CONFIG (which wins where both give a constant), sized
         # at the measured recordings' voltage; neither given: the nominal bench
-        from ..discrepancy.physics import NOMINAL_START_WARNING, start_model
+        from ..discrepancy.physics import NOMINAL_START_WARNING, median_voltage, start_model
 
-        model, notes, start_warnings = start_model(args.physics or None, priors, _median_voltage(measured))
+        model, notes, start_warnings = start_model(args.physics or None, priors, median_voltage(measured))
         # (from the nominal bench, every fit flag says so: "nominal (no CONFIG given)")
         warnings += [w for w in start_warnings if w != NOMINAL_START_WARNING]
         for line in notes:
@@ -261,21 +260,6 @@ def _thrust_of(loaded: Any, signals: list[Any]) -> Any:
     return fit_thrust_coefficient(signals, stated)
 
 
-def _stated_options(priors: MotorPriors) -> list[str]:
-    """The prior options the user gave, as they are spelled on the command line."""
-    names = {"motor_kv_rpm_per_v": "--motor-kv", "pole_count": "--pole-count", "cells": "--cells",
-             "propeller_diameter_m": "--prop-diameter-in", "propeller_pitch_m": "--prop-pitch-in"}
-    return [opt for name, opt in names.items() if getattr(priors, name) is not None]
-
-
-def _median_voltage(signals: list[Any]) -> float | None:
-    """The recordings' median battery voltage (V), None without one (sizes the stated motor)."""
-    import numpy as np
-
-    v = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in signals]) if signals else np.zeros(0)
-    return float(np.median(v)) if len(v) else None
-
-
 def _model_vs_priors(model: Any, priors: MotorPriors, where: str) -> list[str]:
     """A model file's constants win over stated priors (it was fitted); one warning per stated
     Kv or CP the model's value is outside the prior's range of (``priors.physics_start``)."""
@@ -284,7 +268,7 @@ def _model_vs_priors(model: Any, priors: MotorPriors, where: str) -> list[str]:
     start = physics_start(priors) if priors.stated else None
     if start is None:
         return []
-    out = [f"{', '.join(_stated_options(priors))}: {where} gives every constant; the stated motor is not its start"]
+    out = [f"{', '.join(priors.motor_options())}: {where} gives every constant; the stated motor is not its start"]
     for name, (lo, hi) in start.ranges.items():
         value = float(getattr(model.params, name))
         if not lo <= value <= hi:

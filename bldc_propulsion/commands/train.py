@@ -14,7 +14,7 @@ from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
 from ..model import save_model
-from ..priors import add_prior_arguments, priors_from_args
+from ..priors import MotorPriors, add_prior_arguments, priors_from_args
 from ..recordings import Signals, load_all
 from ..training.evaluate import predict_speed
 from ..training.train import ThrustFit, stated_thrust, train_model
@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     stated = stated_thrust(priors, train)  # b the user stated (hover: from the training recordings)
 
     if args.kind == "physics":
-        return _run_physics(args, out, train, validation, stated)
+        return _run_physics(args, out, train, validation, stated, priors)
     run = [0]
 
     def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
@@ -187,7 +187,6 @@ def run(args: argparse.Namespace) -> CommandResult:
     warnings += physics.warnings if hybrid else []  # the physics part's start and fit flags
     thrust_line, thrust_warnings = _thrust_summary(outcome.thrust)
     warnings += thrust_warnings
-    meta["thrust_fit"] = outcome.thrust.as_metadata()  # a hybrid's: its physics part's b
     save_model(outcome.model, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),
@@ -234,15 +233,14 @@ def _thrust_summary(fit: ThrustFit) -> tuple[str, list[str]]:
 
 
 def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], validation: list[Signals],
-                 stated: ThrustFit | None) -> CommandResult:
+                 stated: ThrustFit | None, priors: MotorPriors) -> CommandResult:
     """``--kind physics``: training/fit_physics.py; ``stated``: the b the user stated."""
     from ..training.fit_physics import train_physics
 
-    outcome = train_physics(train, validation, thrust_coefficient=stated, priors=priors_from_args(args),
+    outcome = train_physics(train, validation, thrust_coefficient=stated, priors=priors,
                             config=args.physics_config, progress=progress)
     m, fit = outcome.model, outcome.thrust
     thrust_line, thrust_warnings = _thrust_summary(fit)
-    m.metadata["thrust_fit"] = fit.as_metadata()  # with the assumption of a b derived from stated numbers
     save_model(m, out, force=args.force)
     data: dict[str, Any] = {
         "model": str(out),

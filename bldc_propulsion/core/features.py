@@ -305,7 +305,7 @@ class PhysicsSpeed(Feature):
             raise ModelError(f"model input '{self.name}': {why}")
 
     def reset(self) -> None:
-        self._stream = PlantStream(*split_params(self.params), initial_speed=self.params[INITIAL_SPEED])
+        self._stream = PlantStream.of(self.params, initial_speed=self.params[INITIAL_SPEED])
 
     def set_initial_speed(self, w: float) -> None:
         """Start the rotor at ``w`` (rad/s) at the first command, which must not have arrived

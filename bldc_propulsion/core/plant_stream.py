@@ -93,9 +93,9 @@ class PlantStream:
     """
 
     @classmethod
-    def of(cls, d: Mapping[str, float]) -> "PlantStream":
-        """From flat, checked parameters (``stream_params``)."""
-        return cls(*split_params(d))
+    def of(cls, d: Mapping[str, float], initial_speed: float = 0.0) -> "PlantStream":
+        """From flat, checked parameters (``stream_params``), the rotor at ``initial_speed``."""
+        return cls(*split_params(d), initial_speed=initial_speed)
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], v_ref: float,
                  supply_tau_s: float, initial_speed: float = 0.0) -> None:

@@ -119,6 +119,13 @@ def supply_tau_s(s: Signals) -> float:
     return BatteryFilterConfig().tau_s if s.voltage_source.startswith(c.bare(c.TOPIC_BATTERY_ADC)) else 0.0
 
 
+def median_voltage(signals: Sequence[Signals]) -> float | None:
+    """The recordings' median battery voltage (V), None without a valid one: the stiff supply of
+    a physics model (``PhysicsModel.with_supply``) and the pack a stated motor is sized at."""
+    v = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in signals]) if signals else np.zeros(0)
+    return float(np.median(v)) if len(v) else None
+
+
 @dataclass(frozen=True)
 class PhysicsModel:
     """Bench constants and effect strengths: what ``--physics CONFIG`` describes."""
@@ -158,10 +165,10 @@ class PhysicsModel:
         knew each recording's own voltage would already hold most of the battery_voltage effect."""
         if self.supply_v is not None:
             return self
-        v = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in signals])
-        if not len(v):
+        v = median_voltage(signals)
+        if v is None:
             raise BadInputError(f"{signals[0].path}: no valid battery voltage for the physics model")
-        return dataclasses.replace(self, supply_v=float(np.median(v)))
+        return dataclasses.replace(self, supply_v=v)
 
     def with_effect(self, name: str, strength: float) -> "PhysicsModel":
         return dataclasses.replace(self, effects={**self.effects, name: float(strength)})

@@ -212,19 +212,9 @@ def write_recording(log: FlightLog, out_path: str | os.PathLike[str], *, force: 
         streams.append((TOPIC_BATTERY_CURRENT, log.current.t - t0, log.current.values))
     streams = [s for s in streams if len(s[1])]
 
-    times = np.concatenate([s[1] for s in streams])
-    which = np.concatenate([np.full(len(s[1]), k) for k, s in enumerate(streams)])
-    index = np.concatenate([np.arange(len(s[1])) for s in streams])
-    order = np.lexsort((which, times))  # message-time order, as a recorder writes it
     with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
         bag.write_import_source(log.command_mapping, 0.0)
-        for k in order:
-            topic, ts, vs = streams[which[k]]
-            i = index[k]
-            if topic == c.TOPIC_BATTERY_VOLTAGE:
-                bag.write_battery_state(topic, float(ts[i]), float(vs[i]))
-            else:
-                bag.write_float64(topic, float(ts[i]), float(vs[i]))
+        bag.write_merged(streams)
         written = bag.messages_written
 
     def span(s: Series | None) -> dict[str, float] | None:
@@ -240,7 +230,7 @@ def write_recording(log: FlightLog, out_path: str | os.PathLike[str], *, force: 
         "format": log.kind,
         "rows": int(log.rows),
         "motors": sorted(log.commands),
-        "duration_s": float(times.max()),
+        "duration_s": max(float(s[1].max()) for s in streams),
         "command_mapping": log.command_mapping,
         "speed_source": log.speed_source,
         "motors_with_speed": sorted(log.speeds),

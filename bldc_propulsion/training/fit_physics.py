@@ -102,9 +102,7 @@ def train_physics(
         raise BadInputError(f"{train[0].path}: the recordings' battery voltages come from different sources "
                             "(filtered from battery/adc and recorded): a physics model takes one kind")
     tau = taus.pop()
-    volts = np.concatenate([s.voltage[np.isfinite(s.voltage)] for s in train])
-    base, notes, warnings = ph.start_model(config, priors, float(np.median(volts)) if len(volts) else None,
-                                              option="--physics-config")
+    base, notes, warnings = ph.start_model(config, priors, ph.median_voltage(train), option="--physics-config")
     for line in notes:
         say(f"start: {line}")
     data = ph.Data.of(train, "training")
@@ -149,7 +147,7 @@ def train_physics(
         "warnings": list(warnings),
         "candidates": [{k: v for k, v in d.items() if k not in ("model", "flags")} for d in candidates],
         "training_seconds": time.perf_counter() - t0,
-        "thrust_fit": {"source": thrust.source, "residual_rms_n": thrust.residual_rms_n, "samples": thrust.samples},
+        "thrust_fit": thrust.as_metadata(),  # with the assumption of a b derived from stated numbers
     })
     return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
                           best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k not in ("model", "flags")}

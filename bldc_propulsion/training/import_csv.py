@@ -427,21 +427,12 @@ def import_csv(
     streams = [(topic, ts[np.isfinite(v)], v[np.isfinite(v)]) for topic, ts, v in streams]
     streams = [s for s in streams if len(s[1])]
 
-    times = np.concatenate([s[1] for s in streams])
-    which = np.concatenate([np.full(len(s[1]), k) for k, s in enumerate(streams)])
-    index = np.concatenate([np.arange(len(s[1])) for s in streams])
-    order = np.lexsort((which, times))  # message-time order, as a recorder writes it
+    first_t = min(float(s[1].min()) for s in streams)
     with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
         whence = "" if alignment is None else f" from {Path(other_src).name}'s Duty, shifted {alignment.offset_s:+.3f} s"
         bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({unit}{whence}) -> "
-                                f"pwm level, held on 50 Hz frames; speed: {speed_note}", float(times.min()))
-        for k in order:
-            topic, ts, vs = streams[which[k]]
-            i = index[k]
-            if topic == c.TOPIC_BATTERY_VOLTAGE:
-                bag.write_battery_state(topic, float(ts[i]), float(vs[i]))
-            else:
-                bag.write_float64(topic, float(ts[i]), float(vs[i]))
+                                f"pwm level, held on 50 Hz frames; speed: {speed_note}", first_t)
+        bag.write_merged(streams)
         written = bag.messages_written
 
     columns_used = {role: name for role, name in used.items()
