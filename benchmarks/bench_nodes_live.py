@@ -9,7 +9,15 @@ subscribes to each motor's predicted/thrust and rotor/speed, as a flight control
 counts what it gets; outputs nobody reads are not serialized by the nodes. Prints figures; not
 a test.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--repeat 5] [--pin-nodes 0]
+The floor: right after each quadrotor mode, the same recording is played into
+``benchmarks/floor_relay.py`` (a minimal rclpy relay with the same subscriptions, QoS, message
+counts and EventsExecutor, one Float64 out per message in) as one process or as nine, and the
+quadrotor's CPU per input message is printed as a ratio to it (absolute figures differ by up
+to 3x between machines of this class; the ratio does not). ``--consume all`` / ``none``
+subscribes to every output of every motor / to none, so that two runs give what publishing
+costs.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--runs 5] [--pin-nodes 0] [--consume flight|all|none]
 """
 
 from __future__ import annotations
@@ -33,6 +41,8 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
@@ -43,6 +53,10 @@ from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
 
 MOTORS = [f"motor{i}" for i in range(4)]
+#: Issue 32's goals: CPU per input message at most this many times the floor's.
+GOAL_RATIO = {"floor, one process": 1.5, "floor, 9 processes": 2.0}
+#: The battery filter's battery/voltage: one per this many battery/adc samples (1 kHz / 20 Hz).
+PUBLISH_EVERY = 50
 NODE = [sys.executable, "-m"]
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -70,8 +84,34 @@ def start(args: list[str]) -> subprocess.Popen:
                             text=True, cwd=ROOT, preexec_fn=_node_preexec)
 
 
+FLOOR = [sys.executable, str(ROOT / "benchmarks" / "floor_relay.py")]
+
+
+def start_floor(roles: list[str]) -> subprocess.Popen:
+    """A floor_relay process with these roles; it prints "received N" when stopped."""
+    return subprocess.Popen(FLOOR + roles, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, preexec_fn=_node_preexec)
+
+
+def floor_roles() -> list[list[str]]:
+    """The quadrotor's nine nodes as floor roles, one list per process."""
+    roles = [["battery_filter"]]
+    for ns in MOTORS:
+        roles += [[f"{ns}/tachometer"], [f"{ns}/thrust_estimator"]]
+    return roles
+
+
+def floor_of(mode: str) -> str:
+    """The floor a quadrotor mode is compared with: as many processes, the same executor."""
+    return "floor, one process" if mode.startswith("one process") else "floor, 9 processes"
+
+
 def processes(mode: str) -> list[subprocess.Popen]:
-    """The quadrotor's nodes: one process (propulsion_all) or nine."""
+    """The quadrotor's nodes: one process (propulsion_all) or nine; or their floor."""
+    if mode == "floor, one process":
+        return [start_floor([r for roles in floor_roles() for r in roles])]
+    if mode == "floor, 9 processes":
+        return [start_floor(roles) for roles in floor_roles()]
     if mode.startswith("one process"):
         executor = mode.split("(")[1].rstrip(")")
         return [start(["bldc_propulsion.nodes.all_in_one", "--motors", "4",
@@ -93,23 +133,31 @@ def one_motor() -> list[subprocess.Popen]:
 #: What a flight controller reads of each motor (the bench subscribes to these, so that the
 #: nodes publish them; outputs nobody reads are not serialized, see nodes.common.ScalarOutput).
 CONSUMED = (c.TOPIC_PREDICTED_THRUST, c.TOPIC_ROTOR_SPEED)
+#: Every output of a motor and its type (``--consume all``).
+MOTOR_OUTPUTS = {
+    c.TOPIC_ROTOR_SPEED: Float64, c.TOPIC_ROTOR_RPM: Float64, c.TOPIC_PREDICTED_SPEED: Float64,
+    c.TOPIC_PREDICTED_THRUST: Float64, c.TOPIC_ROTOR_STATE: JointState,
+    c.TOPIC_PREDICTED_STATE: JointState, c.TOPIC_PREDICTED_WRENCH: WrenchStamped}
+CONSUME = {"flight": CONSUMED, "all": tuple(MOTOR_OUTPUTS), "none": ()}
 
 
 class Diagnostics:
     """The latest status values of every node, by status name; counts the consumed outputs."""
 
-    def __init__(self, namespaces: list[str]) -> None:
+    def __init__(self, namespaces: list[str], consumed: tuple[str, ...] = CONSUMED) -> None:
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("bench_diagnostics", context=self.context)
         self.latest: dict[str, dict[str, str]] = {}
-        self.consumed = {out: 0 for out in CONSUMED}
-        for ns in namespaces:
-            topic = f"/{ns}/diagnostics" if ns else "/diagnostics"
+        self.consumed = {out: 0 for out in consumed}
+        # every node publishes on the absolute /diagnostics (status names carry the namespace);
+        # /<ns>/diagnostics too, for nodes from before that (the names differ: no double count)
+        for topic in {"/diagnostics", *(f"/{ns}/diagnostics" for ns in namespaces if ns)}:
             self.node.create_subscription(DiagnosticArray, topic, self.on_diag, 100)
-            for out in CONSUMED:
+        for ns in namespaces:
+            for out in consumed:
                 self.node.create_subscription(
-                    Float64, f"/{ns}/{out}" if ns else f"/{out}",
+                    MOTOR_OUTPUTS[out], f"/{ns}/{out}" if ns else f"/{out}",
                     lambda _msg, out=out: self.consumed.__setitem__(out, self.consumed[out] + 1),
                     100)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -139,9 +187,10 @@ class Diagnostics:
 
 
 def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float,
-        counts: dict[str, int], tmp: Path) -> dict[str, float]:
-    """Play ``bag`` into ``procs``; CPU and messages lost."""
-    diag = Diagnostics(["", *[m for m in motors if m]])
+        counts: dict[str, int], tmp: Path, consumed: tuple[str, ...] = CONSUMED,
+        floor: bool = False) -> dict[str, float]:
+    """Play ``bag`` into ``procs`` (the nodes, or their ``floor``); CPU and messages lost."""
+    diag = Diagnostics(["", *[m for m in motors if m]], consumed)
     spec = tmp / "spec.json"
     spec.write_text(json.dumps({"bag": str(bag), "motors": motors, "rate": rate, "delay": 2.0}))
     player = subprocess.Popen(NODE + ["bldc_propulsion.nodes.player", str(spec)], cwd=ROOT,
@@ -160,11 +209,15 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
     diag.close()
     for p in procs:
         p.send_signal(signal.SIGINT)
+    floor_received = 0
     for p in procs:
         try:
-            p.wait(timeout=10)
+            out, _ = p.communicate(timeout=10)
+            if floor:
+                floor_received += int(out.split()[-1])
         except subprocess.TimeoutExpired:
             p.kill()
+            p.communicate()
     n = len(motors)
     received = {
         "battery/adc": diag.total("battery_filter: battery filter", "accepted")
@@ -179,10 +232,19 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
         ("tachometer/adc", "tachometer: input", "lost_in_transport"),
         ("pwm", "thrust_estimator: input", "pwm_lost"))}
     handled = sum(received.values()) + n * counts["battery/voltage"]
+    if floor:  # its inputs: the player's, battery/voltage and rotor/speed (one per batch) for
+        # each estimator; lost = what it should have taken minus what it took
+        expected = (counts["battery/adc"] + n * (counts["pwm"] + 2 * counts["tachometer/adc"])
+                    + n * counts["battery/adc"] // PUBLISH_EVERY)
+        lost = {"any": expected - floor_received}
+        in_transport = {}
+        handled = sum(counts[k] * (1 if k == "battery/adc" else n)
+                      for k in ("battery/adc", "pwm", "tachometer/adc")) + n * counts[
+                          "battery/voltage"]
     cpu = sum(b - a for a, b in zip(cpu0, cpu1))
     by_node: dict[str, float] = {}  # % of one core by node kind, summed over the motors
     for p, a, b in zip(procs, cpu0, cpu1):
-        kind = p.args[2].rsplit(".", 1)[1]
+        kind = p.args[2].rsplit(".", 1)[-1].rsplit("/", 1)[-1]
         by_node[kind] = by_node.get(kind, 0.0) + 100.0 * (b - a) / wall
     return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),
             "cpu_by_node_pct": by_node,
@@ -196,8 +258,15 @@ def main() -> int:
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--modes", nargs="*", default=[
         "one process (events)", "one process (single)", "separate processes"])
-    parser.add_argument("--repeat", type=int, default=1, metavar="N",
-                        help="play each quadrotor mode N times; prints the median [min, max]")
+    parser.add_argument("--runs", "--repeat", type=int, default=1, metavar="N", dest="repeat",
+                        help="play each quadrotor mode and its floor N times, in turn; prints "
+                             "the median [min, max] and the ratio to the floor of every run")
+    parser.add_argument("--consume", choices=sorted(CONSUME), default="flight",
+                        help="outputs the bench subscribes to on each motor: flight (default: "
+                             "predicted/thrust, rotor/speed), all, none")
+    parser.add_argument("--no-floor", action="store_true", help="skip the floor")
+    parser.add_argument("--no-extras", action="store_true",
+                        help="skip the one-motor 5x run and the replay timing")
     parser.add_argument("--pin-nodes", type=int, metavar="CPU",
                         help="run the node processes on this CPU, everything else on the others")
     args = parser.parse_args()
@@ -219,13 +288,14 @@ def main() -> int:
         print(f"recording: {duration:.1f} s, per motor {counts['tachometer/adc']} tachometer "
               f"batches, {counts['pwm']} pwm; {counts['battery/adc']} battery samples; "
               f"{os.cpu_count()} cores")
-        print("rclpy floor on this machine class: ~150 us/message single-threaded executor, "
-              "~60 us EventsExecutor")
+        consumed = CONSUME[args.consume]
+        print(f"consumer subscribed to {list(consumed) or 'nothing'} of each motor")
         for mode in args.modes:
-            cpus = []
+            cpus, ratios, lost_any = [], [], 0
             for _ in range(args.repeat):
-                r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp)
+                r = run(bag, processes(mode), MOTORS, 1.0, counts, tmp, consumed)
                 cpus.append(r["cpu_core_pct"])
+                lost_any += sum(r["lost"].values())
                 print(f"quadrotor, {mode:<22} {r['processes']} process(es): CPU "
                       f"{r['cpu_core_pct']:5.1f} % of one core, {r['us_per_input_message']:5.0f} us "
                       f"per input message, lost {r['lost']} (sequence jumps "
@@ -233,9 +303,27 @@ def main() -> int:
                 if len(r["cpu_by_node_pct"]) > 1:
                     print("    by node: " + ", ".join(
                         f"{k} {v:.1f} %" for k, v in r["cpu_by_node_pct"].items()), flush=True)
+                if args.no_floor:
+                    continue
+                f = run(bag, processes(floor_of(mode)), MOTORS, 1.0, counts, tmp, consumed,
+                        floor=True)
+                ratios.append(r["us_per_input_message"] / f["us_per_input_message"])
+                print(f"  {floor_of(mode):<29} {f['processes']} process(es): CPU "
+                      f"{f['cpu_core_pct']:5.1f} % of one core, {f['us_per_input_message']:5.0f} us "
+                      f"per input message, lost {f['lost']}; quadrotor / floor = "
+                      f"{ratios[-1]:.2f}", flush=True)
             if len(cpus) > 1:
                 print(f"quadrotor, {mode:<22} CPU over {len(cpus)} runs: median "
                       f"{statistics.median(cpus):.1f} % [{min(cpus):.1f}, {max(cpus):.1f}]")
+            if ratios:
+                goal = GOAL_RATIO[floor_of(mode)]
+                met = max(ratios) <= goal and lost_any == 0
+                print(f"quadrotor, {mode:<22} CPU per input message / floor over {len(ratios)} "
+                      f"runs: median {statistics.median(ratios):.2f} [{min(ratios):.2f}, "
+                      f"{max(ratios):.2f}], inputs lost {lost_any} (goal <= {goal}x and 0 lost "
+                      f"in every run: {'met' if met else 'NOT met'})", flush=True)
+        if args.no_extras:
+            return 0
         r = run(bag, one_motor(), [""], 5.0, counts, tmp)
         print(f"one motor at 5x: CPU {r['cpu_core_pct']:.1f} % of one core, lost {r['lost']}")
         t = time.perf_counter()

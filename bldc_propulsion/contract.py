@@ -23,7 +23,10 @@ TOPIC_ROTOR_SPEED = "rotor/speed"
 TOPIC_ROTOR_RPM = "rotor/rpm"
 TOPIC_PREDICTED_SPEED = "predicted/speed"
 TOPIC_PREDICTED_THRUST = "predicted/thrust"
-TOPIC_DIAGNOSTICS = "diagnostics"
+TOPIC_DIAGNOSTICS = "diagnostics"  #: in a recording, beside the outputs (``replay`` writes it)
+#: What the nodes publish diagnostics on, whatever their namespace: the absolute name the
+#: diagnostic aggregator and rqt_robot_monitor listen to (status names carry the namespace).
+TOPIC_DIAGNOSTICS_ABSOLUTE = "/diagnostics"
 
 # --- Simulator ground truth (never read by train, evaluate, replay or discrepancy) ---
 TOPIC_TRUTH_SPEED = "truth/speed"
@@ -35,6 +38,18 @@ FLOAT64 = "std_msgs/msg/Float64"
 FLOAT32_ARRAY = "std_msgs/msg/Float32MultiArray"
 BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+
+# --- Stamped outputs (beside the Float64 ones): header.stamp = the instant the value describes
+TOPIC_ROTOR_STATE = "rotor/state"  #: JointState, velocity[0] = measured speed (rad/s)
+TOPIC_PREDICTED_STATE = "predicted/state"  #: JointState, velocity[0] = predicted speed (rad/s)
+#: WrenchStamped, force.z = predicted thrust (N), torque.z = reaction torque on the body (N m)
+TOPIC_PREDICTED_WRENCH = "predicted/wrench"
+DEFAULT_JOINT_NAME = "rotor"  #: JointState name[0] (parameter joint_name)
+DEFAULT_FRAME_ID = "rotor"  #: WrenchStamped header.frame_id (parameter frame_id)
+#: +1: the rotor turns counter-clockwise seen from above (parameter spin_direction), -1 clockwise
+DEFAULT_SPIN_DIRECTION = 1
 
 INPUT_TOPICS: dict[str, str] = {
     TOPIC_PWM: FLOAT64,
@@ -48,6 +63,9 @@ OUTPUT_TOPICS: dict[str, str] = {
     TOPIC_ROTOR_RPM: FLOAT64,
     TOPIC_PREDICTED_SPEED: FLOAT64,
     TOPIC_PREDICTED_THRUST: FLOAT64,
+    TOPIC_ROTOR_STATE: JOINT_STATE,
+    TOPIC_PREDICTED_STATE: JOINT_STATE,
+    TOPIC_PREDICTED_WRENCH: WRENCH_STAMPED,
     TOPIC_DIAGNOSTICS: DIAGNOSTIC_ARRAY,
 }
 TRUTH_TOPICS: dict[str, str] = {TOPIC_TRUTH_SPEED: FLOAT64, TOPIC_TRUTH_THRUST: FLOAT64}

@@ -23,6 +23,7 @@ from . import contract as c
 from .bagio import Recording, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.features import zero_order_hold
+from .core.tach_output import revolution_middle
 from .core.tachometer import STARTING, TachometerConfig, TachometerDecoder
 from .errors import BadInputError, BagError
 from .specs import spec_path
@@ -52,6 +53,8 @@ class Signals:
     #: raw event streams, for features that need them (e.g. PWM command times)
     pwm_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
     voltage_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
+    #: the measured speed as measured (times, rad/s), before the grid interpolated it: its noise
+    speed_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
 
     @property
     def key(self) -> tuple[str, str | None]:
@@ -102,7 +105,7 @@ def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tupl
     for t_batch, samples in rec.tachometer():
         out = dec.process_batch(t_batch, samples)
         if len(out.speed):
-            # speed k spans one revolution ending at its edge: centre = end - pi/speed
+            # speed k spans one revolution ending at its edge: placed at its middle
             revolution = 2.0 * np.pi / np.maximum(out.speed, 1e-9)
             end = out.edge_t[-len(out.speed):]
             if zeros:  # the first revolution after rest: no 0 from shortly before it
@@ -112,7 +115,7 @@ def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tupl
                 times.append(np.asarray(zeros))
                 values.append(np.zeros(len(zeros)))
                 zeros = []
-            times.append(end - 0.5 * revolution)
+            times.append(revolution_middle(end, out.speed))
             values.append(np.asarray(out.speed, dtype=float))
         elif out.speed_now == 0.0 and not out.signal_ok and not len(out.all_edge_t) \
                 and out.state != STARTING:
@@ -236,6 +239,7 @@ def load_signals(
         namespace=rec.namespace,
         pwm_events=(pwm_t, pwm),
         voltage_events=(volt_t, volt),
+        speed_events=(speed_t, speed) if speed_t is not None else (np.zeros(0), np.zeros(0)),
     )
 
 

@@ -9,6 +9,9 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
 - ``predicted/speed`` and ``predicted/thrust`` on the estimator's 100 Hz grid from the first
   PWM message, fed with the published filtered voltage as the node is through ``battery/voltage``
   (no ``predicted/thrust`` for a model without a thrust coefficient, as the node publishes none),
+- their stamped forms (``stamped_writer``): ``rotor/state`` once per new measurement, stamped
+  with the middle of its revolution; ``predicted/state`` and ``predicted/wrench`` (with a
+  thrust coefficient) stamped with the grid time,
 - ``diagnostics`` once a second with every core's status.
 A recording that already carries ``battery/voltage`` (e.g. an imported thrust-stand log) feeds
 the estimator from it instead of filtering ``battery/adc``. A recording with the measured
@@ -23,7 +26,7 @@ from __future__ import annotations
 import bisect
 import os
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -35,7 +38,9 @@ from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator, fallback_model
 from .core.tach_output import SpeedOutput
 from .core.tachometer import TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
+from .core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
 from .model import RangeReport, load_model
+from .stamped_writer import StampedWriter
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
 VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
@@ -48,6 +53,14 @@ class _StreamingOnly(Exception):
     """The recording can only be read exactly message by message (see Recording.bulk)."""
 
 
+class _Stamped(NamedTuple):
+    """The stamped outputs' parameters (the nodes' joint_name, frame_id, spin_direction)."""
+
+    joint_name: str
+    frame_id: str
+    spin_direction: int
+
+
 def replay_bag(
     in_path: str | os.PathLike[str],
     out_path: str | os.PathLike[str],
@@ -58,8 +71,14 @@ def replay_bag(
     tachometer: TachometerConfig | None = None,
     namespace: str | None = None,
     reference: bool = False,
+    joint_name: str = c.DEFAULT_JOINT_NAME,
+    frame_id: str = c.DEFAULT_FRAME_ID,
+    spin_direction: int = c.DEFAULT_SPIN_DIRECTION,
 ) -> dict[str, Any]:
     """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
+
+    ``joint_name``, ``frame_id`` and ``spin_direction`` are the nodes' parameters of the same
+    names (the stamped outputs' joint, the wrench's frame, the reaction torque's sign).
 
     With ``namespace`` (one motor of a vehicle's recording) the outputs are written as the
     quadrotor launch publishes them: under the namespace, ``battery/voltage`` at the root.
@@ -73,7 +92,8 @@ def replay_bag(
     visits only the sparse events in time order (PWM, tachometer batches, published voltages,
     timer ticks); ``test/test_replay_fast.py`` checks it against the reference message by
     message."""
-    args = (in_path, out_path, model_path, force, battery, tachometer, namespace)
+    stamped = _Stamped(joint_name, frame_id, check_spin_direction(spin_direction, "replay"))
+    args = (in_path, out_path, model_path, force, battery, tachometer, namespace, stamped)
     if not reference:
         try:
             return _replay(*args, reference=False)
@@ -90,6 +110,7 @@ def _replay(
     battery: BatteryFilterConfig | None,
     tachometer: TachometerConfig | None,
     namespace: str | None,
+    stamped: _Stamped,
     *,
     reference: bool,
 ) -> dict[str, Any]:
@@ -120,7 +141,8 @@ def _replay(
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
-            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured)
+            node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured,
+                          stamped)
             if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
@@ -134,7 +156,8 @@ def _replay(
         counts, per_topic_in = node.counts, node.per_topic_in
         tach.check_timeout(end)  # a tachometer silent until the end: its status says so
         statuses = [*([] if c.TOPIC_BATTERY_VOLTAGE in measured else filt.status()),
-                    *([] if c.TOPIC_ROTOR_SPEED in measured else tach.status()), *est.status()]
+                    *([] if c.TOPIC_ROTOR_SPEED in measured else tach.status()), *est.status(),
+                    *node.wrench_status()]
         n = max(est.predictions, 1)
         ranged = None if est.is_fallback else RangeReport(
             str(in_path), est.clipped / n, {k: v / n for k, v in est.clipped_by_input.items() if v})
@@ -165,8 +188,15 @@ class _Nodes:
 
     def __init__(self, bag: BagWriter, filt: BatteryFilter, tach: TachometerDecoder,
                  est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool,
-                 measured: Iterable[str] = ()) -> None:
+                 measured: Iterable[str] = (),
+                 stamped: _Stamped = _Stamped(c.DEFAULT_JOINT_NAME, c.DEFAULT_FRAME_ID,
+                                              c.DEFAULT_SPIN_DIRECTION)) -> None:
         self.bag, self.filt, self.tach, self.est = bag, filt, tach, est
+        topics = (c.TOPIC_ROTOR_STATE, c.TOPIC_PREDICTED_STATE, c.TOPIC_PREDICTED_WRENCH)
+        self.stamped = StampedWriter(bag, *map(topic_out, topics), joint_name=stamped.joint_name,
+                                     frame_id=stamped.frame_id)
+        self.spin_direction = stamped.spin_direction
+        self.torque_coefficient = torque_coefficient(est.model)
         self.has_voltage = has_voltage
         #: battery/voltage, rotor/speed recorded in place of the raw topics: copied to the output
         self.measured = frozenset(measured)
@@ -199,12 +229,19 @@ class _Nodes:
                 bag.write_float64(self.speed_topic, tick, p.speed_rad_s)
                 if p.thrust_n is not None:
                     bag.write_float64(self.thrust_topic, tick, p.thrust_n)
+                self.stamped.prediction(tick, p.speed_rad_s, p.thrust_n, reaction_torque_nm(
+                    self.torque_coefficient, p.speed_rad_s, self.spin_direction))
         while next_diag is not None and next_diag <= t:
             self.tach.check_timeout(next_diag)
-            statuses = [*self.filter_status(), *self.tach_status(), *est.status()]
+            statuses = [*self.filter_status(), *self.tach_status(), *est.status(),
+                        *self.wrench_status()]
             bag.write_diagnostics(self.diag_topic, next_diag, statuses)
             next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
         self.next_diag = next_diag
+
+    def wrench_status(self) -> list[Any]:
+        """The node's status on predicted/wrench's torque (core.wrench)."""
+        return wrench_status(self.torque_coefficient, self.est.thrust_coefficient is not None)
 
     # --- the inputs, as the nodes' callbacks take them ------------------------------------
     def pwm(self, t: float, value: float) -> None:
@@ -215,8 +252,8 @@ class _Nodes:
         """The battery filter publishes ``v``; the estimator takes it unless the recording
         carries its own battery/voltage."""
         self.bag.write_battery_state(self.voltage_topic, t, v)
-        if not self.has_voltage:
-            self.est.update_voltage(t, v)
+        if not self.has_voltage:  # as the node receives it: BatteryState.voltage is a float32
+            self.est.update_voltage(t, float(np.float32(v)))
 
     def voltage_recorded(self, t: float, v: float) -> None:
         """The recording's battery/voltage: the estimator's voltage; also the output's when
@@ -226,16 +263,22 @@ class _Nodes:
         self.est.update_voltage(t, v)
 
     def speed_recorded(self, t: float, w: float) -> None:
-        """The recording's rotor/speed (no tachometer/adc to decode): the output's, as recorded."""
+        """The recording's rotor/speed (no tachometer/adc to decode): the output's, as recorded;
+        its stamped form at the recorded time, the instant the log gives it (no revolution to
+        place it in)."""
         self.bag.write_float64(self.rotor_topic, t, w)
         self.bag.write_float64(self.rpm_topic, t, w * c.RAD_S_TO_RPM)
+        self.stamped.rotor_state(t, t, w)
 
     def tach_batch(self, t: float, samples: Any) -> None:
         self.tach.process_batch(t, samples, result=False)
-        speed = self.speed_out.after_batch()
+        out = self.speed_out
+        speed = out.after_batch(t)
         if speed is not None:
             self.bag.write_float64(self.rotor_topic, t, speed)
             self.bag.write_float64(self.rpm_topic, t, speed * c.RAD_S_TO_RPM)
+            if out.fresh:
+                self.stamped.rotor_state(t, out.stamp_s, speed)
             self.est.update_speed(t, speed)  # as the estimator node takes rotor/speed
 
     # --- the reference: every message in turn ----------------------------------------------

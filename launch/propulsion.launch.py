@@ -6,14 +6,21 @@
 Arguments: namespace ('' = root names), use_sim_time (false), params_file (the installed
 config/propulsion.yaml), model (a model .npz; '' = model_path of params_file, whose default
 '' is the first-principles fallback), single_process (true = one propulsion_all process).
+
+A node that exits (a crash, a refused model or parameter) shuts the launch down, and `ros2
+launch` then exits 1 and logs which node and why (``bldc_propulsion.nodes.launch_watch``);
+Ctrl-C stops every node and exits 0.
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from bldc_propulsion.nodes.launch_watch import LaunchWatch
 
 PACKAGE = 'bldc_propulsion'
 NODES = ('battery_filter', 'tachometer', 'thrust_estimator')  # executable = node name
@@ -43,7 +50,10 @@ def generate_launch_description():
 
 
 def launch_nodes(context):
-    """The nodes, with the model override only when a model is given."""
+    """The nodes, with the model override only when a model is given; each node's exit goes
+    to a LaunchWatch, which ends the launch with status 1 unless it is shutting down."""
+    watch = LaunchWatch()
+    stderr = RegisterEventHandler(OnProcessIO(on_stderr=watch.on_stderr))
     namespace = LaunchConfiguration('namespace')
     use_sim_time = ParameterValue(LaunchConfiguration('use_sim_time'), value_type=bool)
     overrides = {'use_sim_time': use_sim_time}
@@ -52,8 +62,8 @@ def launch_nodes(context):
     parameters = [LaunchConfiguration('params_file'), overrides]
 
     if LaunchConfiguration('single_process').perform(context).lower() in ('true', '1'):
-        return [Node(package=PACKAGE, executable='propulsion_all', namespace=namespace,
-                     parameters=parameters, output='screen', on_exit=Shutdown())]
-    return [Node(package=PACKAGE, executable=name, name=name, namespace=namespace,
-                 parameters=parameters, output='screen', on_exit=Shutdown())
-            for name in NODES]
+        return [stderr, Node(package=PACKAGE, executable='propulsion_all', namespace=namespace,
+                             parameters=parameters, output='screen', on_exit=watch.on_exit)]
+    return [stderr, *[Node(package=PACKAGE, executable=name, name=name, namespace=namespace,
+                           parameters=parameters, output='screen', on_exit=watch.on_exit)
+                      for name in NODES]]

@@ -7,16 +7,21 @@ One battery filter at the root (/battery/adc -> /battery/voltage), and under /mo
 tachometer and a thrust estimator for each motor; every estimator reads the shared
 /battery/voltage. single_process:=true runs the same nodes in one propulsion_all process (the
 cheapest: see benchmarks/bench_nodes_live.py). Arguments: motors (4; 1-16), use_sim_time,
-params_file, model (passed to every estimator), single_process. A node that exits shuts the
-launch down; a bad motor count is refused in one line.
+params_file, model (passed to every estimator), single_process. A node that exits (a crash, a
+refused model or parameter) shuts the launch down, and `ros2 launch` then exits 1 and logs which
+node and why (``bldc_propulsion.nodes.launch_watch``); Ctrl-C stops every node and exits 0. A
+bad motor count is refused in one line.
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction, Shutdown
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
+from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
+
+from bldc_propulsion.nodes.launch_watch import LaunchWatch
 
 PACKAGE = 'bldc_propulsion'
 MAX_MOTORS = 16
@@ -57,8 +62,11 @@ def motor_count(text):
 
 
 def launch_vehicle(context):
-    """The battery filter and each motor's nodes, or one propulsion_all process."""
+    """The battery filter and each motor's nodes, or one propulsion_all process; each node's
+    exit goes to a LaunchWatch (status 1 unless the launch is shutting down)."""
     motors = motor_count(LaunchConfiguration('motors').perform(context))
+    watch = LaunchWatch()
+    stderr = RegisterEventHandler(OnProcessIO(on_stderr=watch.on_stderr))
     overrides = {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
                                                 value_type=bool)}
     model = LaunchConfiguration('model')
@@ -67,18 +75,18 @@ def launch_vehicle(context):
     parameters = [LaunchConfiguration('params_file'), overrides]
 
     if LaunchConfiguration('single_process').perform(context).lower() in ('true', '1'):
-        return [Node(package=PACKAGE, executable='propulsion_all',
-                     arguments=['--motors', str(motors)] if motors > 1 else [],
-                     parameters=parameters, output='screen', on_exit=Shutdown())]
-    nodes = [Node(package=PACKAGE, executable='battery_filter', name='battery_filter',
-                  parameters=parameters, output='screen', on_exit=Shutdown())]
+        return [stderr, Node(package=PACKAGE, executable='propulsion_all',
+                             arguments=['--motors', str(motors)] if motors > 1 else [],
+                             parameters=parameters, output='screen', on_exit=watch.on_exit)]
+    nodes = [stderr, Node(package=PACKAGE, executable='battery_filter', name='battery_filter',
+                          parameters=parameters, output='screen', on_exit=watch.on_exit)]
     for i in range(motors):
         namespace = f'motor{i}' if motors > 1 else ''
         nodes.append(Node(package=PACKAGE, executable='tachometer', name='tachometer',
                           namespace=namespace, parameters=parameters, output='screen',
-                          on_exit=Shutdown()))
+                          on_exit=watch.on_exit))
         nodes.append(Node(package=PACKAGE, executable='thrust_estimator',
                           name='thrust_estimator', namespace=namespace,
                           parameters=parameters, remappings=SHARED_VOLTAGE, output='screen',
-                          on_exit=Shutdown()))
+                          on_exit=watch.on_exit))
     return nodes

@@ -286,15 +286,16 @@ def test_readme_demo_on_the_bundled_bags(tmp_path):
                "--json")
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
-    # the default --max-effects (3) adds nothing after battery_voltage that does not improve the
-    # holdout (issue 11: motor_heating and input_delay were added for 26.33 -> 26.28 rad/s)
-    assert data["named"] == ["battery_voltage"], data["iterations"]
-    assert data["evidence"]["battery_voltage"]["verdict"] == "new"
-    kept = data["evidence"]["battery_voltage"]["acceptance"]
-    assert kept["accepted"] and kept["rmse_after_rad_s"] == pytest.approx(data["holdout_rmse_after"])
-    assert data["holdout_rmse_after"] < 0.9 * data["holdout_rmse_before"]
+    # the model lacks the battery voltage on its own training data too (sag under load: it removes
+    # 86 % of that residual, 99.9 % of the discharged pack's): structural by the shares, whatever
+    # the discharged pack's far larger residual in (rad/s)^2; nothing else is significant
+    assert data["named"] == [], data["iterations"]
+    ev = data["evidence"]["battery_voltage"]
+    assert ev["verdict"] == "structural" and ev["p_value"] < 0.01
+    assert ev["reference"]["mse_reduction"] >= 0.5 * ev["measured"]["mse_reduction"] > 0.4
+    assert [x["effect"] for x in data["structural"]] == ["battery_voltage"]
+    assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
     assert (tmp_path / "report" / "index.html").exists()
-    assert "considered, not added" in (tmp_path / "report" / "index.html").read_text()
 
 
 # --- errors ---------------------------------------------------------------------------------------

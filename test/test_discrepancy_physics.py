@@ -228,10 +228,12 @@ def test_nominal_bench_names_the_biggest_missing_effect_first(bags_dir):
     assert data["holdout_rmse_after"] <= 0.5 * data["holdout_rmse_before"]
 
 
-@pytest.mark.parametrize("reference_has_it, verdict", [(False, "new"), (True, "structural")])
+@pytest.mark.parametrize("reference_has_it, verdict", [(False, "new"), (True, "base")])
 def test_reference_tells_new_from_structural(reference_has_it, verdict, bags_dir):
     """rotor_lag off in the CONFIG, on in the measured data; the reference recordings (other
-    seeds, same commands) without it: new; with it (the model lacks it everywhere): structural."""
+    seeds, same commands) without it: new; with it: part of the base physics (a rotor always has
+    inertia: fitted on the reference whatever the CONFIG says), its strength there the truth's,
+    and the measured data need no other: nothing named."""
     paths = recordings(bags_dir, "rotor_lag")
     sub = bags_dir / "rotor_lag"
     ref = [load_signals(_bag(sub, f"reference{k}_{reference_has_it}", "steps", 900 + k,
@@ -240,9 +242,14 @@ def test_reference_tells_new_from_structural(reference_has_it, verdict, bags_dir
     data = run_physics_workflow(model, [load_signals(p) for p in paths["measured"]], ref,
                                 [load_signals(p) for p in paths["holdout"]], Options(max_effects=1),
                                 lambda m: None).data
-    assert data["evidence"]["rotor_lag"]["verdict"] == verdict, data["evidence"]["rotor_lag"]
-    assert data["named"] == (["rotor_lag"] if verdict == "new" else [])
-    assert [x["effect"] for x in data["structural"]] == ([] if verdict == "new" else ["rotor_lag"])
+    assert data["no_verdict"] is None
+    if verdict == "new":
+        assert data["evidence"]["rotor_lag"]["verdict"] == "new", data["evidence"]["rotor_lag"]
+        assert data["named"] == ["rotor_lag"]
+    else:
+        assert data["reference_fit"]["strengths"]["rotor_lag"] == pytest.approx(1.0, abs=0.1)
+        assert data["evidence"]["rotor_lag"]["verdict"] != "new" and data["named"] == []
+    assert data["structural"] == []
 
 
 # --- config files and the command line -------------------------------------------------------------

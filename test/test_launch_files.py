@@ -200,7 +200,7 @@ def test_stamp_round_trip():
 
 
 def test_plain_helpers():
-    assert P.diagnostic_name("/motor0/tachometer", "signal") == "/motor0/tachometer: signal"
+    assert P.diagnostic_name("/motor0/tachometer", "signal") == "motor0/tachometer: signal"
     assert P.key_values({"rejected": "3", "n": 4}) == [("rejected", "3"), ("n", "4")]
     assert math.isnan(P.finite_or_nan(float("inf")))
     assert P.finite_or_nan(2) == 2.0
@@ -219,3 +219,141 @@ def test_node_package_imports_without_rclpy():
 def test_node_sources_compile():
     for path in sorted(NODES.glob("*.py")):
         compile(path.read_text(), str(path), "exec")
+
+
+# --- the launch files built with a stand-in for launch/launch_ros (not on PyPI) ---------------
+
+class _Recorded:
+    """A stand-in launch class: keeps its positional and keyword arguments."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+def _stub_modules() -> dict:
+    """launch, launch.actions, ... with every name the launch files import as a _Recorded."""
+    import types
+
+    names = {
+        "launch": ["LaunchDescription"],
+        "launch.actions": ["DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler",
+                           "Shutdown", "EmitEvent"],
+        "launch.event_handlers": ["OnProcessIO", "OnProcessExit"],
+        "launch.substitutions": ["LaunchConfiguration", "PathJoinSubstitution"],
+        "launch_ros.actions": ["Node"],
+        "launch_ros.parameter_descriptions": ["ParameterValue"],
+        "launch_ros.substitutions": ["FindPackageShare"],
+    }
+    modules = {"launch_ros": types.ModuleType("launch_ros")}
+    for module, classes in names.items():
+        m = modules.setdefault(module, types.ModuleType(module))
+        for cls in classes:
+            setattr(m, cls, type(cls, (_Recorded,), {}))
+    return modules
+
+
+def _build(path: Path, monkeypatch, configuration: dict[str, str]) -> list:
+    """The entities the launch file's OpaqueFunction returns for these argument values."""
+    for name, module in _stub_modules().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    LaunchConfiguration = sys.modules["launch.substitutions"].LaunchConfiguration
+    LaunchConfiguration.perform = lambda self, context: context[self.args[0]]
+    scope = {"__name__": "launch_file", "__file__": str(path)}
+    exec(compile(path.read_text(), str(path), "exec"), scope)
+    description = scope["generate_launch_description"]()
+    entities = description.args[0]
+    declared = {e.args[0]: e.kwargs.get("default_value") for e in entities
+                if type(e).__name__ == "DeclareLaunchArgument"}
+    values = {k: v if isinstance(v, str) else "" for k, v in declared.items()}
+    values.update(configuration)
+    (opaque,) = [e for e in entities if type(e).__name__ == "OpaqueFunction"]
+    return opaque.kwargs["function"](values)
+
+
+@pytest.mark.parametrize("path,configuration,executables", [
+    (LAUNCH / "propulsion.launch.py", {}, ["battery_filter", "tachometer", "thrust_estimator"]),
+    (LAUNCH / "propulsion.launch.py", {"single_process": "true", "model": "/m.npz"},
+     ["propulsion_all"]),
+    (LAUNCH / "quadrotor.launch.py", {},
+     ["battery_filter"] + ["tachometer", "thrust_estimator"] * 4),
+    (LAUNCH / "quadrotor.launch.py", {"motors": "2"},
+     ["battery_filter"] + ["tachometer", "thrust_estimator"] * 2),
+    (LAUNCH / "quadrotor.launch.py", {"single_process": "true"}, ["propulsion_all"]),
+])
+def test_every_node_reports_its_exit_to_one_watch_that_reads_stderr(
+        monkeypatch, path, configuration, executables):
+    """Every Node's on_exit is the LaunchWatch whose on_stderr an OnProcessIO handler feeds,
+    registered before the nodes start (a node's last stderr line says why it exited)."""
+    from bldc_propulsion.nodes.launch_watch import LaunchWatch
+
+    entities = _build(path, monkeypatch, configuration)
+    register = entities[0]
+    assert type(register).__name__ == "RegisterEventHandler"
+    (io_handler,) = register.args
+    assert type(io_handler).__name__ == "OnProcessIO"
+    watch = io_handler.kwargs["on_stderr"].__self__
+    assert isinstance(watch, LaunchWatch)
+    nodes = entities[1:]
+    assert [n.kwargs["executable"] for n in nodes] == executables
+    for node in nodes:
+        assert type(node).__name__ == "Node"
+        on_exit = node.kwargs["on_exit"]
+        assert on_exit.__self__ is watch and on_exit.__func__ is LaunchWatch.on_exit
+    if configuration.get("motors") == "2":
+        assert [n.kwargs.get("namespace") for n in nodes[1:]] == ["motor0"] * 2 + ["motor1"] * 2
+
+
+def _exited(returncode: int, name: str = "thrust_estimator-3", pid: int = 4242,
+            node_name: str | None = "/motor1/thrust_estimator"):
+    import types
+
+    action = types.SimpleNamespace(node_name=node_name,
+                                   is_node_name_fully_specified=lambda: node_name is not None)
+    return types.SimpleNamespace(returncode=returncode, process_name=name, pid=pid,
+                                 action=action)
+
+
+def _stderr(text: bytes, name: str = "thrust_estimator-3"):
+    import types
+
+    return types.SimpleNamespace(text=text, process_name=name)
+
+
+def _context(shutting_down: bool):
+    import types
+
+    return types.SimpleNamespace(is_shutdown=shutting_down)
+
+
+def test_a_node_that_refuses_its_model_ends_the_launch_naming_it_and_why():
+    from bldc_propulsion.nodes.launch_watch import LaunchWatch, NodeLost
+
+    watch = LaunchWatch()
+    watch.on_stderr(_stderr(b"[INFO] [thrust_estimator]: starting\n"))
+    watch.on_stderr(_stderr(b"thrust_estimator: model /m.npz: not a model file (no 'kind')\n\n"))
+    watch.on_stderr(_stderr(b"battery ok\n", name="battery_filter-1"))  # another process
+    with pytest.raises(NodeLost) as e:
+        watch.on_exit(_exited(2), _context(shutting_down=False))
+    message = str(e.value)
+    assert message == ("node thrust_estimator-3 /motor1/thrust_estimator (pid 4242) exited with "
+                       "status 2 while the launch was running: thrust_estimator: model /m.npz: "
+                       "not a model file (no 'kind'); shutting the launch down, exit status 1")
+    assert "\n" not in message
+
+
+def test_a_crash_during_shutdown_still_fails_the_launch_and_a_clean_stop_does_not():
+    from bldc_propulsion.nodes.launch_watch import LaunchWatch, NodeLost
+
+    watch = LaunchWatch()
+    assert watch.on_exit(_exited(0), _context(shutting_down=True)) is None  # Ctrl-C: stopped
+    with pytest.raises(NodeLost, match=r"killed by SIGSEGV \(nothing on stderr\)"):
+        watch.on_exit(_exited(-11), _context(shutting_down=True))
+    with pytest.raises(NodeLost, match="killed by SIGKILL"):  # launch's escalation
+        watch.on_exit(_exited(-9, node_name=None, name="propulsion_all-1"), _context(True))
+    with pytest.raises(NodeLost, match=r"^node propulsion_all-1 \(pid 4242\) exited with status 0 "
+                                       "while the launch was running"):
+        watch.on_exit(_exited(0, node_name=None, name="propulsion_all-1"), _context(False))
+    with pytest.raises(NodeLost, match="status 1 while the launch was running: "
+                                       "RuntimeError: boom"):
+        watch.on_stderr(_stderr(b"Traceback (most recent call last):\n  File x\nRuntimeError: boom\n"))
+        watch.on_exit(_exited(1), _context(False))

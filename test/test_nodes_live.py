@@ -107,7 +107,7 @@ class Recorder:
         (discovery takes seconds on a loaded machine; outputs before it would be missed), then
         the nodes' periodic check that someone listens to their outputs (ScalarOutput)."""
         deadline = time.monotonic() + timeout_s
-        while not set(f"/{n}" for n in nodes) <= {s.name.split(":")[0] for s in self.statuses()}:
+        while not set(nodes) <= {s.name.split(":")[0] for s in self.statuses()}:
             assert time.monotonic() < deadline, f"no diagnostics from {nodes}: {self.statuses()}"
             time.sleep(0.05)
         time.sleep(3 * TACH_TIMEOUT_CHECK_PERIOD_S)

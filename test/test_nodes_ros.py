@@ -154,8 +154,8 @@ def test_tachometer_measures_a_known_speed_and_reports_loss(context):
         last = statuses(h)[-2:]
         assert any(s.level == DiagnosticStatus.ERROR and "no tachometer/adc batch" in s.message
                    for s in last), last
-        assert all(s.name.startswith("/tachometer") for s in statuses(h))
-        assert all(s.hardware_id == "bldc_propulsion" for s in statuses(h))
+        assert all(s.name.startswith("tachometer: ") for s in statuses(h))
+        assert all(s.hardware_id == "motor" for s in statuses(h))
     finally:
         h.close()
 
@@ -200,7 +200,7 @@ def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context)
         h.spin_until(lambda: len(diagnostics) > n_diag)
         status = diagnostics[-1].status[0]
         assert status.level == DiagnosticStatus.WARN, status
-        assert status.name.startswith("/battery_filter")
+        assert status.name.startswith("battery_filter: ")
         rejected = {kv.key: kv.value for kv in status.values if "reject" in kv.key}
         assert any(v not in ("0", "") for v in rejected.values()), status
     finally:

@@ -12,8 +12,8 @@ ADC reads under 10 V), so this module keeps the two apart:
 
 With ``divider_ratio = 1.999`` (the default) and 1 kHz samples the output is exactly the
 paper's H(z); a bench with a 1:3 divider sets ``divider_ratio = 3.0``. At any other rate the
-same continuous filter is rediscretised (scipy.signal.bilinear); the 1 kHz coefficients are
-never reused with another period.
+same continuous filter is rediscretised (Tustin, as scipy.signal.bilinear computes it); the
+1 kHz coefficients are never reused with another period.
 
 Sample handling (one code path for ``update`` and ``process``):
 - The first valid sample starts the filter in steady state at that value (no 2 s climb from 0 V).
@@ -33,7 +33,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
 
 from ..errors import BadInputError
 from .status import OK, WARN, CoreStatus, counters
@@ -62,9 +61,18 @@ PAPER_DC_GAIN, PAPER_TAU_S = paper_prototype()
 
 
 def discretise(tau_s: float, sample_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """(b, a) of the unit-gain low-pass 1/(tau s + 1) discretised by Tustin at sample_rate_hz."""
-    b, a = signal.bilinear([1.0], [tau_s, 1.0], fs=sample_rate_hz)
-    return np.asarray(b, dtype=float), np.asarray(a, dtype=float)
+    """(b, a) of the unit-gain low-pass 1/(tau s + 1) discretised by Tustin at sample_rate_hz.
+
+    The arithmetic of scipy.signal.bilinear (scipy 1.17: the factor 2 fs split as sqrt(2 fs)
+    between (z + 1) and (z - 1)) written out for the first order, bit-identical to it
+    (test/test_node_start.py), without importing scipy.signal: that import was most of a
+    node's start (0.6 s of 0.9 s on a quiet machine; benchmarks/bench_node_start.py).
+    """
+    fac = math.sqrt(sample_rate_hz * 2.0)
+    p = 1.0 / fac
+    q = tau_s * fac
+    d0, d1 = p + q, p - q
+    return np.array([p / d0, p / d0]), np.array([d0 / d0, d1 / d0])
 
 
 def _tustin_step(tau_s: float, dt: float) -> tuple[float, float, float]:
@@ -242,6 +250,8 @@ class BatteryFilter:
         y = np.empty(m)
         pos = 0
         tau = cfg.tau_s
+        from scipy import signal  # here: a node (update only) starts without scipy.signal
+
         for brk in np.flatnonzero(kind).tolist() + [m]:
             if brk > pos:  # run of nominal steps: lfilter, state carried in zi
                 zi = np.array([self._b1 * self._x - self._a1 * self._y])

@@ -6,11 +6,29 @@ before the break. A consumer cannot tell, so it is not published again until a f
 after the break gives a new one. A speed of 0 is published only when it is known: edges stopped
 while batches kept coming and the signal sits at the clear-beam level (``stopped``). With no
 batches, or a signal stuck low or between the levels, nothing is published and diagnostics say why.
+
+Each value also has the instant it describes (``rotor/state``'s stamp): a speed the middle of
+its revolution (:func:`revolution_middle`), a 0 the batch's last sample.
 """
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from .tachometer import STOPPED, TachometerDecoder
+
+
+def revolution_middle(end_t: float | np.ndarray, speed_rad_s: float | np.ndarray) -> float | np.ndarray:
+    """The instant a tachometer speed describes (s): the middle of the revolution it is the
+    mean over, which ends at ``end_t``, i.e. ``end_t - pi / speed``.
+
+    The one rule for where a measured speed sits in time (the offline loader, the node's
+    rotor/state stamp, replay): at the end of its revolution it lags the rotor by half a
+    revolution (60 ms at 50 rad/s), a phase error a consumer comparing by time would pay.
+    """
+    return end_t - math.pi / np.maximum(speed_rad_s, 1e-9)
 
 
 def _breaks(d: TachometerDecoder) -> int:
@@ -27,11 +45,17 @@ class SpeedOutput:
         self.decoder = decoder
         self.valid = False
         self.withheld = 0  #: batches after which nothing was published
+        #: the instant (s) the value after_batch returned describes (revolution_middle, or the
+        #: batch's time for a 0), and whether that value is a measurement not returned before:
+        #: a stamped output publishes each measurement once (a repeat would count as new evidence)
+        self.stamp_s = math.nan
+        self.fresh = False
         self._speeds = decoder.speeds
         self._breaks = _breaks(decoder)
 
-    def after_batch(self) -> float | None:
-        """The speed (rad/s) to publish after the batch just decoded, or None."""
+    def after_batch(self, t_last: float) -> float | None:
+        """The speed (rad/s) to publish after the batch just decoded, whose last sample is at
+        ``t_last`` (s), or None; sets :attr:`stamp_s` and :attr:`fresh` for it."""
         d = self.decoder
         breaks = _breaks(d)
         speeds = d.counts.speeds
@@ -41,9 +65,15 @@ class SpeedOutput:
             self.valid = False
         self._speeds, self._breaks = speeds, breaks
         if self.valid and d.signal_ok:
-            return d.speed_now
+            w = d.speed_now
+            stamp = float(revolution_middle(d.speed_edge_t, w))
+            self.fresh = stamp != self.stamp_s
+            self.stamp_s = stamp
+            return w
         self.valid = False
         if d.state == STOPPED and not d.rate_mismatch:
+            self.stamp_s, self.fresh = float(t_last), True  # known to stand still up to now
             return 0.0
+        self.fresh = False
         self.withheld += 1
         return None

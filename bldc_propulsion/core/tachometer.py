@@ -387,6 +387,12 @@ class TachometerDecoder:
         return self._gate.speed_now
 
     @property
+    def speed_edge_t(self) -> float | None:
+        """Time (s) of the edge that completed the revolution ``speed_now`` was measured over
+        (None before the first speed): where that revolution, and so the value, ends."""
+        return self._gate.t_speed
+
+    @property
     def signal_ok(self) -> bool:
         return self._gate.have_speed and not self._gate.lost
 

@@ -121,6 +121,9 @@ class ModelKind(Protocol):
     def warnings(self) -> list[str]:
         """What the kind found doubtful so far (fits at a bound, implausible constants)."""
 
+    def no_verdict(self) -> str | None:
+        """Why no effect may be named at all after step 1 (the reference is not explained), or None."""
+
     def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
         """The effects the current model can still add."""
 

@@ -122,14 +122,16 @@ def slice_signals(s: Signals, t0: float, t1: float, tag: str) -> Signals:
     sel = (s.t >= t0) & (s.t <= t1)
     pt, pv = s.pwm_events
     vt, vv = s.voltage_events
+    st, sv = s.speed_events
     kp = pt <= t1
     kv = vt <= t1
+    ks = (st >= t0) & (st <= t1)
     return dataclasses.replace(
         s, path=f"{s.path}#{tag}", sha256=f"{s.sha256}#{tag}", t=s.t[sel], pwm=s.pwm[sel],
         voltage=s.voltage[sel], speed=s.speed[sel],
         thrust=s.thrust[sel] if s.thrust is not None else None,
         current=s.current[sel] if s.current is not None else None,
-        pwm_events=(pt[kp], pv[kp]), voltage_events=(vt[kv], vv[kv]),
+        pwm_events=(pt[kp], pv[kp]), voltage_events=(vt[kv], vv[kv]), speed_events=(st[ks], sv[ks]),
     )
 
 
@@ -258,6 +260,9 @@ class NetworkKind:
         self.cur_meas = run_model(self._model, measured)
         self.cur_ref = run_model(self._model, reference) if reference else None
         return self.cur_meas, self.cur_ref, run_model(self._model, hold)
+
+    def no_verdict(self) -> str | None:
+        return None
 
     def warnings(self) -> list[str]:
         return []

@@ -3,15 +3,21 @@
 Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``) talks to; the
 model, its CONFIG, calibration and scores are ``physics.py``:
 
-- step 1, reference first (with --reference): Kv, CP, the throttle exponent and the strengths of
-  the CONFIG's effects fitted on the reference recordings (``physics.fit_reference``); then Kv and
+- step 1, reference first (with --reference): the base physics is complete before anything is
+  named: Kv, CP, the throttle exponent and the strength of every effect (``physics.BASE_EFFECTS``,
+  whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
+  (``physics.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
+  speed's own noise or NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and
+  ``physics.LOADED_SPEED_RANGE``), else no effect is named and the verdict says why. Then Kv and
   CP calibrated on the measured recordings (and, separately, on the reference), the exponent held
   (``physics.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
-- step 3: every effect that is off in the model switched on (strength grid, constants
-  recalibrated) and scored on held-out time blocks of the measured data and, separately
-  calibrated, of the reference data. The score is on the measured data alone (the fit is), so
-  ``measured_alone`` is the same score; the strength fit is the identification, so the loop's
-  identification rules do not apply;
+- step 3: every effect scored on held-out time blocks of the measured data and, separately
+  calibrated, of the reference data: one that is off switched on, one in the base freed (its
+  strength refitted from a grid, constants recalibrated). The score is on the measured data
+  alone (the fit is), so ``measured_alone`` is the same score; the strength fit is the
+  identification, so the loop's identification rules do not apply. A freed base effect whose
+  strength on the measured data is within ``physics.BASE_SAME_FACTOR`` of the reference's is
+  the same bench recalibrated, not added;
 - step 4: the effect at the strength fitted on all measured data (constants with it, earlier
   effects' strengths refitted along); a fit with a quantity at a bound, or implausibly far from
   a CONFIG the user gave (``physics.fit_flags``, ``PLAUSIBLE_FACTOR``), is not a basis for a verdict;
@@ -21,6 +27,7 @@ model, its CONFIG, calibration and scores are ``physics.py``:
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -30,6 +37,7 @@ from .. import contract as c
 from ..recordings import Signals
 from . import acceptance as acc
 from . import physics as ph
+from . import residuals as rs
 from .base import DataSet, Progress, Scores, Trial, rmse
 from .identify import identify_heating
 
@@ -40,6 +48,21 @@ def constants_text(model: ph.PhysicsModel) -> str:
 
 def predictions(model: ph.PhysicsModel, signals: Sequence[Signals]) -> DataSet:
     return DataSet(list(signals), [model.predict(s) for s in signals])
+
+
+#: The base physics fitted on the reference explains it when its residual RMSE is at most this
+#: multiple of the measured speed's own noise (``residuals.speed_noise``), or at most
+#: NOT_EXPLAINED_SHARE of the reference's speed range: a tachometer's speed can be far less noisy
+#: than any model of a bench is exact (0.15 rad/s on the simulator's, where the 5 ms physics model
+#: alone is 0.5 rad/s off), and a model within a few % of the range is what the estimator is for.
+NOT_EXPLAINED_FACTOR = 4.0
+NOT_EXPLAINED_SHARE = 0.05
+
+
+def speed_range(signals: Sequence[Signals]) -> float:
+    """The 1st-99th percentile span of the recordings' measured speed (rad/s)."""
+    y = np.concatenate([s.speed[np.isfinite(s.speed)] for s in signals])
+    return float(np.percentile(y, 99) - np.percentile(y, 1)) if len(y) else float("nan")
 
 
 class PhysicsKind:
@@ -55,6 +78,9 @@ class PhysicsKind:
         self.flags: list[ph.FitFlag] = []
         self.reference_fit: dict[str, Any] | None = None
         self._fits: dict[str, list[ph.Fit]] = {}
+        self._trial_strength: dict[str, float] = {}
+        #: the base effects' strengths the reference fit found (empty without a reference)
+        self.base_strengths: dict[str, float] = {}
         self._named: list[str] = []
 
     @property
@@ -67,16 +93,23 @@ class PhysicsKind:
         self.meas_data = ph.Data.of(measured, "measured")
         self.ref_data = ph.Data.of(reference, "reference") if reference else None
         self.uncal_rmse = rmse(predictions(model, hold).residuals)
+        self.unexplained: str | None = None
         if self.ref_data is not None:
             # reference first: what the model needs to agree with its own data is structural; only
-            # what the measured data need beyond it can be new
+            # what the measured data need beyond it can be new. What every bench has is in the base
+            # (physics.BASE_EFFECTS), whatever the CONFIG switches on.
+            model, switched = ph.with_base_effects(model)
             on = [n for n in c.EFFECTS if model.effects[n] > 0.0]
             progress(f"step 1: reference first: {', '.join([*ph.CALIBRATED, *on])} fitted on "
                      f"{len(reference)} reference recording(s)")
-            rf = ph.fit_reference(model, self.ref_data)
+            rf = ph.fit_reference(model, self.ref_data, switched=switched)
             model = rf.model
+            self.base_strengths = {n: model.effects[n] for n in ph.BASE_EFFECTS}
             flags = ph.fit_flags(rf, self.config, "reference fit")
+            in_base = {n: ph.value_text(ph.fitted_value(n, model.effects[n], model.params, model.supply_v))
+                       for n in ph.BASE_EFFECTS if model.effects[n] > ph.BASE_SAME_ZERO}
             self.reference_fit = {"constants": rf.model.constants(), "strengths": {n: rf.model.effects[n] for n in on},
+                                  "in_base": in_base,
                                   "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))),
                                   "at_bound": [f.text() for f in flags if f.at_bound],
                                   "implausible": [f.text() for f in flags if not f.at_bound]}
@@ -85,6 +118,7 @@ class PhysicsKind:
                      + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
                      + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
             self.flags += flags
+            self.unexplained = self._not_explained(rf, flags, reference, progress)
         progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
         held = ph.HELD_AFTER_REFERENCE if self.ref_data else ()
         self.cur = ph.calibrate_base(model, self.meas_data, held)
@@ -100,11 +134,42 @@ class PhysicsKind:
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,
                 predictions(self.base, hold))
 
+    def _not_explained(self, rf: ph.Fit, flags: Sequence[ph.FitFlag], reference: Sequence[Signals],
+                       progress: Progress) -> str | None:
+        """Why the base fitted on the reference is no basis for naming anything, or None: a
+        quantity of it not physical or at a bound (``physics.fit_flags``), or its residual far
+        above the speed's own noise (``NOT_EXPLAINED_FACTOR``; a model that cannot follow its own
+        reference would take any effect that bends it towards the data for what changed)."""
+        noise = rs.speed_noise([s.speed_events for s in reference])
+        rmse_ref = float(np.sqrt(rf.sse / max(len(rf.r), 1)))
+        self.reference_fit["speed_noise_rad_s"] = noise
+        span = speed_range(reference)
+        progress(f"  the measured speed's own noise: {noise:.2f} rad/s (reference residual {rmse_ref / noise:.1f}x "
+                 f"it, {100 * rmse_ref / span:.1f} % of the speed range)")
+        if rmse_ref > NOT_EXPLAINED_FACTOR * noise and rmse_ref > NOT_EXPLAINED_SHARE * span:
+            return (f"the reference is not explained: the base physics fits it to {rmse_ref:.2f} rad/s RMS, "
+                    f"{rmse_ref / noise:.1f}x the measured speed's own noise ({noise:.2f} rad/s) and "
+                    f"{100 * rmse_ref / span:.1f} % of its speed range (explained: within {NOT_EXPLAINED_FACTOR:g}x "
+                    f"the noise or {100 * NOT_EXPLAINED_SHARE:g} % of the range)")
+        # the motor and propeller (Kv, CP, and the physical check on them), not the ESC's map, the
+        # pack's resistance or an effect's strength
+        blocking = [f.text() for f in flags if f.blocks and (f.quantity in ph.MOTOR_AND_PROPELLER or f.reason is not None)]
+        if blocking:
+            return f"the base physics fitted on the reference is not physical ({'; '.join(blocking)})"
+        return None
+
+    def no_verdict(self) -> str | None:
+        """Why no effect may be named at all (the reference is not explained), or None."""
+        return self.unexplained
+
     def warnings(self) -> list[str]:
         return [f"{f.text()}: {f.consequence()}" for f in self.flags]
 
     def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
-        return [n for n in restrict if self.cur.model.effects[n] == 0.0]
+        # a base effect (held at the reference's strength) is a candidate until it is freed
+        freeable = ph.BASE_EFFECTS if self.ref_data is not None else ()
+        return [n for n in restrict if self.cur.model.effects[n] == 0.0
+                or (n in freeable and n not in self.cur.free)]
 
     def residual_rmse(self) -> tuple[float, float]:
         r = float(np.sqrt(self.cur.sse / max(len(self.cur.r), 1)))
@@ -138,6 +203,7 @@ class PhysicsKind:
                  + "".join(f"; {n} refitted to strength {fit.model.effects[n]:.3g}" for n in self.cur.free))
         flags = ph.fit_flags(fit, self.config, f"{name} fit")
         self.flags += flags
+        self._trial_strength[name] = strength
         params = {"strength": strength, **fit.model.constants(), **fit.companions()}
         return Trial(fit, predictions(fit.model, hold), params,
                      ph.describe(name, strength, fit.model), ph.fitted_value(name, strength, fit.model.params, fit.model.supply_v),
@@ -152,7 +218,15 @@ class PhysicsKind:
         drift the model lacks (a second battery RC branch, a drifting sensor) is fitted by a
         thermal state as well, and held-out data of the same drift confirm it. The network
         path's rule (``identify_heating``), which compares the response on both sets."""
-        if name != "motor_heating" or self.ref_data is None:
+        if self.ref_data is None:
+            return None
+        if name in self.base_strengths:  # a base effect freed: does the measured data's differ?
+            ref, now = self.base_strengths[name], self._trial_strength[name]
+            if ref > ph.BASE_SAME_ZERO and abs(math.log(max(now, 1e-9) / ref)) < math.log(ph.BASE_SAME_FACTOR):
+                value = ph.fitted_value(name, now, self.cur.model.params)
+                return (f"the measured data's {value['quantity']} is within {100 * (ph.BASE_SAME_FACTOR - 1):.0f} % "
+                        f"of the reference's (strength {now:.3g} vs {ref:.3g}): the same bench, recalibrated")
+        if name != "motor_heating":
             return None
         heat = identify_heating(self.meas_data.signals, self.ref_data.signals)
         return None if heat.changed else f"the speed's response to the thermal state is the reference's ({heat.describe()})"
@@ -174,6 +248,9 @@ class PhysicsKind:
                   "fit_flags": [f.as_json() for f in self.flags]}
         head = [f"physics model calibrated on the measured data: {constants_text(self.base)}"
                 f" (holdout RMSE {self.uncal_rmse:.2f} rad/s before calibration)"]
+        if self.reference_fit is not None and self.reference_fit["in_base"]:
+            head.append("in the base physics, fitted on the reference (structural): "
+                        + "; ".join(f"{n} ({v})" for n, v in self.reference_fit["in_base"].items()))
         tail = []
         if named:
             tail.append(f"with {', '.join(named)}: {constants_text(self.cur.model)}; strengths "

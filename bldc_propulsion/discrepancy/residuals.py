@@ -42,6 +42,40 @@ def robust_sigma(x: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
 
 
+def speed_noise(events: Sequence[tuple[np.ndarray, np.ndarray]]) -> float:
+    """The measured speed's own noise (rad/s, one sigma), whatever any model says, from each
+    recording's speed as measured (``Signals.speed_events``, not the grid it was interpolated
+    onto): the second differences of samples at least a revolution apart (a tachometer's
+    estimates over the last revolution overlap, and overlapping ones share their noise) cancel a
+    locally linear speed and leave 6 sigma^2 of white noise; robust (command steps are outliers).
+    Only where the rotor turns (above a tenth of its top speed): a stopped rotor reads exactly 0."""
+    d2 = []
+    for t, y in events:
+        t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
+        ok = np.isfinite(t) & np.isfinite(y)
+        t, y = t[ok], y[ok]
+        if len(y) < 3 or not np.max(y) > 0:
+            continue
+        keep, next_t = [], -np.inf
+        turning = y > 0.1 * np.max(y)
+        # (a loop: which sample comes next depends on the speed of the one kept before it)
+        for k in range(len(y)):
+            if not turning[k]:
+                keep.append(-1)
+                next_t = -np.inf
+            elif t[k] >= next_t:
+                keep.append(k)
+                next_t = t[k] + 2.0 * np.pi / y[k]
+        runs = np.split(np.array(keep, dtype=int), np.flatnonzero(np.array(keep) < 0))
+        for run in runs:
+            run = run[run >= 0]
+            if len(run) >= 3:
+                v = y[run]
+                d2.append(v[:-2] - 2.0 * v[1:-1] + v[2:])
+    x = np.concatenate(d2) if d2 else np.zeros(0)
+    return float(1.4826 * np.median(np.abs(x)) / np.sqrt(6.0)) if len(x) else float("nan")
+
+
 def moving_average(x: np.ndarray, n: int) -> np.ndarray:
     if n <= 1:
         return np.asarray(x, dtype=float)

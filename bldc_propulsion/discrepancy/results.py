@@ -19,23 +19,15 @@ from . import scoring as sc
 from .base import DataSet
 from .physics import value_text
 
-#: The reference must lose less than this fraction of the measured data's mean squared residual
-#: for an effect to be new (else structural).
+#: An effect is new only if the share of the residual it removes on the reference is less than
+#: this fraction of the share it removes on the measured data (else structural).
 STRUCTURAL_RATIO = 0.5
-
-
-def explained_mse(score: sc.Score | None) -> float:
-    """Held-out mean squared residual (rad/s)^2 that the effect removes beyond the null."""
-    if score is None or not np.isfinite(score.rmse_null):
-        return 0.0
-    return max(score.fraction, 0.0) * score.rmse_null**2
 
 
 def sentence(effect: str, feature: str, meas: sc.Score, ref: sc.Score | None, verdict: str, noun: str) -> str:
     """A candidate's step-3 finding in words (``noun``: the model as the kind names it)."""
     ref_txt = (f"{100 * max(ref.fraction, 0):.0f} % on the reference data (p = {ref.p_value:.2g}), "
-               f"{explained_mse(ref) / max(explained_mse(meas), 1e-12):.2g} times the mean squared residual "
-               f"(rad/s)^2 it removes on the measured data"
+               f"{max(ref.fraction, 0) / max(meas.fraction, 1e-12):.2g} times the share it removes on the measured data"
                if ref is not None else "the reference data were not available")
     core = (f"{effect}: {feature} removes {100 * meas.fraction:.0f} % of {noun}'s remaining residual on "
             f"held-out time blocks of the measured data ({meas.blocks_improved} of {meas.blocks} blocks "
@@ -151,12 +143,15 @@ class Result:
     decision: dict[str, Any]
     warnings: list[str]
     kind_fields: dict[str, Any] = field(default_factory=dict)
+    #: why nothing was scored or named (the reference is not explained), None when the loop ran
+    no_verdict: str | None = None
 
     def as_json(self) -> dict[str, Any]:
         evidence = {k: v.as_json() for k, v in self.evidence.items()}
         found = self.found
         return {
             "named": list(self.named),
+            "no_verdict": self.no_verdict,
             "structural": [x for x in self.structural if x["effect"] not in self.named],
             "considered_not_added": acc.considered(evidence, self.named),
             **self.gap,
@@ -213,6 +208,11 @@ def summary_lines(data: dict[str, Any]) -> list[str]:
                              f"{ev['fitted_value']['strength']:.3g})")
             if ev.get("acceptance"):
                 lines.append("    added because " + kept_text(ev["acceptance"]))
+    elif data.get("no_verdict"):
+        lines.append(f"no effect is named: {data['no_verdict']}")
+    elif data["structural"]:
+        lines.append("nothing new in the measured data: what the model lacks, it lacks on its own reference "
+                     "data too (structural, below)")
     else:
         lines.append("no effect improves data it was not fitted on: nothing named")
     for s in data["structural"]:

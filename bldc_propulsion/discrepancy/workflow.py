@@ -11,9 +11,8 @@ bench physics, ``physics_kind.py``):
 3. Name: every effect the model can still add is scored by the kind on held-out time blocks of
    the measured data (and of the measured data alone) and of the reference. NEW (``classify``):
    significant (p < alpha, >= min_effect) on the measured data and on the measured data alone,
-   and the mean squared residual (rad/s)^2 it removes on the reference is less than
-   STRUCTURAL_RATIO of what it removes on the measured data; STRUCTURAL otherwise if it helps the
-   reference. The best new effect (measured score) is proposed; for a kind whose scores are
+   and the share of the residual it removes on the reference is less than STRUCTURAL_RATIO of
+   the share it removes on the measured data; STRUCTURAL otherwise if it helps the reference. The best new effect (measured score) is proposed; for a kind whose scores are
    residual corrections, the identification rules (``identify.refine``) decide the dynamic
    family and heating from the response itself.
 4. Add: the kind fits the effect into a trial model.
@@ -46,7 +45,7 @@ from . import scoring as sc
 from .base import ALPHA, MIN_EFFECT, DataSet, ModelKind, Options, Progress, rmse
 from .network import NetworkKind
 from .physics_kind import PhysicsKind
-from .results import (STRUCTURAL_RATIO, Disagreement, Evidence, Result, Round, explained_mse, gap_fields,
+from .results import (STRUCTURAL_RATIO, Disagreement, Evidence, Result, Round, gap_fields,
                       sentence, summary_lines, write_report)
 
 __all__ = ["ALPHA", "MIN_EFFECT", "Options", "WorkflowResult", "check_effect_names", "check_holdout",
@@ -64,18 +63,18 @@ class WorkflowResult:
 def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: float) -> str:
     """'new', 'structural' or 'not significant'.
 
-    New: significant with a clear effect size on the measured data, and the mean squared residual
-    it removes on the reference is less than STRUCTURAL_RATIO of what it removes on the measured
-    (significant or not: a reference too short or noisy to reach significance must not turn a
-    structural effect into a new one).
+    The rule: an effect is structural when the share of the residual it removes on the reference
+    is at least STRUCTURAL_RATIO of the share it removes on the measured data (significant or not
+    there: a reference too short or noisy to reach significance must not turn a structural effect
+    into a new one), and new when it is significant with a clear effect size on the measured data
+    and not structural. Shares, not (rad/s)^2: a measured fit calibrated worse than the reference
+    fit leaves more for any effect to remove, and an effect the reference needs as much is
+    present there, whatever its absolute size on the measured data.
     """
     sig_meas = meas.p_value < alpha and meas.fraction >= min_effect
     sig_ref = ref is not None and ref.p_value < alpha and ref.fraction >= min_effect
     if sig_meas:
-        # compared in absolute terms (rad/s)^2: an effect that removes a 35 rad/s offset on the
-        # measured data and 3 rad/s of scatter on the reference is what changed, even though both
-        # are a similar fraction of their own residual
-        if ref is not None and explained_mse(ref) >= STRUCTURAL_RATIO * explained_mse(meas):
+        if ref is not None and max(ref.fraction, 0.0) >= STRUCTURAL_RATIO * meas.fraction:
             return "structural"
         return "new"
     if sig_ref:
@@ -166,7 +165,10 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
     evidence: dict[str, Evidence] = {}
     rounds: list[Round] = []
     cache: dict[str, Any] = {}  # the identified dynamics, once per run
-    while len(named) < opts.max_effects:
+    no_verdict = kind.no_verdict()
+    if no_verdict:
+        progress(f"  no effect is named: {no_verdict}")
+    while len(named) < opts.max_effects and not no_verdict:
         names = kind.candidates(restrict, named)
         if not names:
             progress("  every effect considered is already in the model")
@@ -248,7 +250,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         {"alpha": opts.alpha, "holdout_alpha": opts.replication_alpha if holdout else None,
          "min_mse_reduction": opts.min_effect, "structural_ratio": STRUCTURAL_RATIO,
          "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
-        [*warnings, *kind.warnings()], kind_fields)
+        [*warnings, *kind.warnings()], kind_fields, no_verdict)
     data = result.as_json()
     if opts.report_dir:
         data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_cur, hold_windows, data,

@@ -29,13 +29,13 @@ import sys
 from typing import Any
 
 from rclpy.node import Node
-from rclpy.utilities import remove_ros_args
 
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
 from bldc_propulsion.nodes.common import (
     Plan, events_executor, on_events, run_node, single_threaded)
 from bldc_propulsion.nodes.lean_executor import LeanExecutor
-from bldc_propulsion.nodes.params import namespaces
+from bldc_propulsion.nodes.params import (
+    NODE_PARAMS, namespaces, own_arguments, parameters_help)
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
@@ -58,7 +58,12 @@ def build_nodes(motors: int, **kwargs: Any) -> list[Node]:
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog='propulsion_all', description=__doc__.split('\n')[0])
+    parser = argparse.ArgumentParser(
+        prog='propulsion_all', description=__doc__.split('\n')[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog='Parameters of each node (after --ros-args; -p and params files reach\n'
+               'every node of the process):\n' + '\n'.join(
+                   f'{node}:\n{parameters_help(table)}' for node, table in NODE_PARAMS.items()))
     parser.add_argument('--motors', type=int, default=1,
                         help=f'motors to run (1-{MAX_MOTORS}): 1 = process namespace, '
                              'N > 1 = motor0..motorN-1 with one battery filter')
@@ -81,7 +86,7 @@ def plan_for(executor: str) -> Plan:
 
 def main(args: list[str] | None = None) -> int:
     argv = sys.argv if args is None else args
-    options = parse_args(remove_ros_args(args=argv)[1:])
+    options = parse_args(own_arguments(argv[1:]))
     return run_node(
         'propulsion_all',
         lambda: build_nodes(options.motors), argv, plan_for(options.executor))

@@ -47,7 +47,7 @@ class BatteryFilterNode(Node):
 
         self.voltage_pub = self.create_publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE, 10)
         self.diagnostics_pub = self.create_publisher(
-            DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
+            DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         self.adc_sub = self.create_subscription(
             Float64, contract.TOPIC_BATTERY_ADC, WithInfo(self.on_adc),
             input_qos(params['queue_depth']))

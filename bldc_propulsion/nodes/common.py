@@ -22,6 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.clock import JumpThreshold
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
 from rclpy.signals import SignalHandlerOptions
@@ -30,15 +31,21 @@ from std_msgs.msg import Float64
 
 from bldc_propulsion.core.status import CoreStatus
 from bldc_propulsion.errors import BadInputError, one_line
+from bldc_propulsion.nodes import leave
 from bldc_propulsion.nodes.lean_executor import LeanExecutor
 from bldc_propulsion.nodes.params import (
-    HARDWARE_ID,
+    NODE_PARAMS,
     Param,
     diagnostic_name,
+    hardware_id,
     key_values,
     level_byte,
+    node_help,
+    rcl_error_line,
     seconds_to_stamp,
     stamp_to_seconds,
+    unknown_parameters,
+    wants_help,
 )
 
 
@@ -46,7 +53,9 @@ def declare_parameters(node: Node, table: Sequence[Param]) -> dict[str, Any]:
     """Declare every parameter of ``table`` on ``node``; return {name: effective value}.
 
     The value is the override (parameter file, ``-p``) if any, else the table's default. A value
-    of the wrong type or out of range makes rclpy raise here, naming the parameter.
+    of the wrong type or out of range makes rclpy raise here, naming the parameter. An override
+    that no node of this package declares gets one WARN line (``params.unknown_parameters``)
+    and is otherwise ignored, as rclpy ignores it.
     """
     values: dict[str, Any] = {}
     for p in table:
@@ -62,7 +71,23 @@ def declare_parameters(node: Node, table: Sequence[Param]) -> dict[str, Any]:
         except ParameterException as e:  # wrong type, out of range: name it, one line
             raise BadInputError(
                 f"{node.get_fully_qualified_name()}: parameter {p.name}: {_why(e, p)}") from e
+    for warning in unknown_parameters(parameter_overrides(node), table, NODE_PARAMS.values()):
+        node.get_logger().warning(warning)
     return values
+
+
+def parameter_overrides(node: Node) -> list[str]:
+    """Names of the parameter overrides rcl resolved for ``node`` (``-p``, params files with
+    their ``/**`` and node-name matching, ``parameter_overrides=``), declared or not.
+
+    rclpy 7 has no public accessor for them (Node, rclpy.parameter and Context expose none;
+    ``automatically_declare_parameters_from_overrides`` would declare typos as parameters), so
+    this reads ``Node._parameter_overrides``, the dict rclpy's own ``declare_parameter`` takes
+    values from; re-parsing the arguments would have to copy rcl's node matching.
+    test_nodes_cli.py fails if an rclpy update drops it; here the check is then skipped rather
+    than the node stopped.
+    """
+    return [str(name) for name in getattr(node, "_parameter_overrides", {})]
 
 
 def _why(e: ParameterException, p: Param) -> str:
@@ -190,17 +215,33 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
     """The one ``main`` of every node executable: init, build, spin, one-line errors.
 
     Exit status 0 on Ctrl-C or shutdown, 2 on a bad parameter or model (one line on stderr,
-    no traceback), as the command line does.
+    no traceback), as the command line does. ``-h``/``--help`` (before ``--ros-args``) prints
+    the node's parameters from its table (``params.NODE_PARAMS[name]``) and returns 0 without
+    starting ROS; executables with options of their own (propulsion_all) parse them first.
     """
+    table = NODE_PARAMS.get(name)
+    if table is not None and wants_help((sys.argv if args is None else args)[1:]):
+        module = sys.modules.get(getattr(build, "__module__", ""))
+        summary = ((module.__doc__ if module else None) or name).strip().split("\n")[0]
+        print(node_help(name, summary, table), end="")
+        return 0
     with contextlib.suppress(ValueError, OSError):  # no file descriptor (a captured stderr)
         faulthandler.enable(sys.__stderr__)  # a crash in rclpy's C++ prints the Python stack
     with stop_on_signals() as stop:
-        return _run(name, build, args, plan, stop)
+        status = _run(name, build, args, plan, stop)
+    return leave(status)  # a node executable ends here, without the interpreter's finalization
 
 
 def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] | None,
          plan: Plan, stop: threading.Event) -> int:
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # stop_on_signals
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # stop_on_signals
+    except _rclpy.UnknownROSArgsError as e:  # a misspelt flag after --ros-args
+        print(f"{name}: unknown ROS arguments {e} (see --help)", file=sys.stderr)
+        return 2
+    except _rclpy.RCLError as e:  # -p without :=, a params file that is missing or not YAML
+        print(f"{name}: {rcl_error_line(str(e))}", file=sys.stderr)
+        return 2
     nodes: list[Node] = []
     executors: list[Any] = []
     threads: list[threading.Thread] = []
@@ -256,6 +297,71 @@ class ScalarOutput:
             self.publisher.publish(self.msg)
 
 
+class StampedOutput:
+    """A stamped output (the contract's "Stamped outputs") serialized only while someone
+    subscribes, as :class:`ScalarOutput`: ``refresh`` from a timer the node has, one reused
+    message whose constant fields (joint name, frame) are set once.
+
+    header.stamp is the instant the value describes, given by the caller on the node clock
+    (s), not the time of publishing: a consumer fuses and compares by it.
+    """
+
+    def __init__(self, node: Node, msg_type: Any, topic: str, msg: Any, depth: int = 10) -> None:
+        self.publisher = node.create_publisher(msg_type, topic, depth)
+        self.msg = msg
+        self.listened = True  #: until the first refresh: publish
+
+    def refresh(self) -> None:
+        self.listened = self.publisher.get_subscription_count() > 0
+
+    def _send(self, t_s: float) -> None:
+        stamp = self.msg.header.stamp
+        stamp.sec, stamp.nanosec = seconds_to_stamp(t_s)
+        self.publisher.publish(self.msg)
+
+
+class JointStateOutput(StampedOutput):
+    """sensor_msgs/JointState with one joint: ``name[0]`` = joint_name, ``velocity[0]`` (rad/s);
+    position and effort empty (unknown, as the message allows)."""
+
+    def __init__(self, node: Node, topic: str, joint_name: str, depth: int = 10) -> None:
+        from sensor_msgs.msg import JointState  # only the nodes that publish one pay the import
+
+        super().__init__(node, JointState, topic, JointState(name=[joint_name]), depth)
+
+    def publish(self, t_s: float, velocity_rad_s: float) -> None:
+        if self.listened:
+            self.msg.velocity = [velocity_rad_s]
+            self._send(t_s)
+
+
+class WrenchOutput(StampedOutput):
+    """geometry_msgs/WrenchStamped in the rotor's frame: force.z (N), torque.z (N m); the
+    other components 0 (an axial rotor's model gives none)."""
+
+    def __init__(self, node: Node, topic: str, frame_id: str, depth: int = 10) -> None:
+        from geometry_msgs.msg import WrenchStamped  # only the estimator pays the import
+
+        msg = WrenchStamped()
+        msg.header.frame_id = frame_id
+        super().__init__(node, WrenchStamped, topic, msg, depth)
+
+    def publish(self, t_s: float, force_z_n: float, torque_z_nm: float) -> None:
+        if self.listened:
+            wrench = self.msg.wrench
+            wrench.force.z = force_z_n
+            wrench.torque.z = torque_z_nm
+            self._send(t_s)
+
+
+def stamped_name(node: Node, param: str, value: str) -> str:
+    """A joint name or frame id parameter, refused when blank (a consumer matches by it)."""
+    if not value.strip():
+        raise BadInputError(f"{node.get_fully_qualified_name()}: parameter {param}: must not be "
+                            "empty (the name consumers match the rotor by)")
+    return value
+
+
 class NodeClock:
     """The node clock in seconds (call it): wall time, or /clock under use_sim_time (bag --clock).
 
@@ -291,21 +397,24 @@ def to_stamp(t_s: float) -> TimeMsg:
     return TimeMsg(sec=sec, nanosec=nanosec)
 
 
-def diagnostic_status(node_fqn: str, status: CoreStatus) -> DiagnosticStatus:
-    """One core status as a DiagnosticStatus named after the node."""
+def diagnostic_status(node_fqn: str, status: CoreStatus, hardware: str) -> DiagnosticStatus:
+    """One core status as a DiagnosticStatus named after the node (with its namespace) and
+    the hardware it watches (``params.hardware_id``)."""
     return DiagnosticStatus(
         level=level_byte(status.level),
         name=diagnostic_name(node_fqn, status.name),
         message=status.message,
-        hardware_id=HARDWARE_ID,
+        hardware_id=hardware,
         values=[KeyValue(key=k, value=v) for k, v in key_values(status.values)],
     )
 
 
 def diagnostic_array(node: Node, statuses: Iterable[CoreStatus]) -> DiagnosticArray:
-    """Every status of a node, stamped with the node clock."""
+    """Every status of a node, stamped with the node clock, for the absolute /diagnostics
+    (``contract.TOPIC_DIAGNOSTICS_ABSOLUTE``) that every node shares."""
     msg = DiagnosticArray()
     msg.header.stamp = node.get_clock().now().to_msg()
     fqn = node.get_fully_qualified_name()
-    msg.status = [diagnostic_status(fqn, s) for s in statuses]
+    hardware = hardware_id(node.get_namespace(), node.get_name())
+    msg.status = [diagnostic_status(fqn, s, hardware) for s in statuses]
     return msg

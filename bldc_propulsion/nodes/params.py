@@ -8,9 +8,14 @@ flag is set are passed by name to the core's config dataclass; the others belong
 
 from __future__ import annotations
 
+import difflib
 import math
+import re
+import textwrap
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence, Union
+from typing import Any, Iterable, Mapping, Sequence, Union
+
+from bldc_propulsion import contract
 
 Value = Union[bool, int, float, str]
 
@@ -20,7 +25,6 @@ TACHOMETER = "tachometer"
 THRUST_ESTIMATOR = "thrust_estimator"
 NODE_NAMES = (BATTERY_FILTER, TACHOMETER, THRUST_ESTIMATOR)
 
-HARDWARE_ID = "bldc_propulsion"  #: DiagnosticStatus.hardware_id of every status we publish
 DIAGNOSTICS_PERIOD_S = 1.0  #: diagnostics are published once a second (node clock)
 TACH_TIMEOUT_CHECK_PERIOD_S = 0.1  #: how often the tachometer looks for a silent input
 
@@ -71,6 +75,11 @@ BATTERY_FILTER_PARAMS: tuple[Param, ...] = (
     *stream_params(500, 0.5),
 )
 
+#: name[0] of rotor/state and predicted/state (both nodes: one rotor, one name)
+JOINT_NAME = Param("joint_name", contract.DEFAULT_JOINT_NAME, "name[0] of the JointState "
+                   "outputs (rotor/state, predicted/state): the rotor's joint, e.g. "
+                   "motor0_rotor on a vehicle.", core=False)
+
 TACHOMETER_PARAMS: tuple[Param, ...] = (
     Param("sample_rate_hz", 20000.0, "Sample rate of the phototransistor ADC inside each "
           "tachometer/adc batch (Hz).", 1.0, 1.0e7),
@@ -83,6 +92,7 @@ TACHOMETER_PARAMS: tuple[Param, ...] = (
           "for this long (node clock): nothing is published, diagnostics say the input is "
           "lost.", 0.001, 60.0),
     *stream_params(50, 0.005),
+    JOINT_NAME,
 )
 
 THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
@@ -109,6 +119,13 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
     Param("use_source_timestamps", True, "Time pwm by the publisher's clock (message info) "
           "mapped onto the node clock, so a stall does not bunch commands; false = receipt "
           "time.", core=False),
+    JOINT_NAME,
+    Param("frame_id", contract.DEFAULT_FRAME_ID, "header.frame_id of predicted/wrench: the "
+          "rotor's frame (z along the rotor axis, up: the thrust's direction).", core=False),
+    Param("spin_direction", contract.DEFAULT_SPIN_DIRECTION, "1: the rotor turns "
+          "counter-clockwise seen from above, -1: clockwise. Sets the sign of "
+          "predicted/wrench torque.z, the reaction torque on the body (opposite the spin).",
+          -1, 1, core=False),
 )
 
 NODE_PARAMS: dict[str, tuple[Param, ...]] = {
@@ -136,6 +153,112 @@ def check_table(table: Sequence[Param]) -> None:
             raise ValueError(f"{p.name}: an integer parameter needs an integer range")
 
 
+# --- Command line: --help, and parameters no node declares ---
+
+#: Parameters rclpy itself declares on every node (or on demand): never a typo of ours.
+ROS_OWN_PARAMETERS = ("use_sim_time", "start_type_description_service")
+ROS_OWN_PREFIXES = ("qos_overrides.",)
+#: How alike a misspelt name and a parameter must be to be offered as "did you mean"
+#: (difflib ratio): 'tachomter_rate' -> 'sample_rate_hz' is 0.57, 'foo' -> anything < 0.25.
+NEAREST_CUTOFF = 0.5
+
+
+def type_name(default: Value) -> str:
+    """A parameter's type as ROS names it (``ros2 param describe``)."""
+    if isinstance(default, bool):
+        return "boolean"
+    if isinstance(default, int):
+        return "integer"
+    if isinstance(default, float):
+        return "double"
+    return "string"
+
+
+def as_typed(value: Value) -> str:
+    """A value as written after ``-p NAME:=`` or in a params file (true, 2, 2.0, '')."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value) if isinstance(value, str) else str(value)
+
+
+def parameters_help(table: Sequence[Param], width: int = 79) -> str:
+    """The parameters of a table as --help lists them: name, type, default, range, meaning."""
+    lines: list[str] = []
+    for p in table:
+        facts = [type_name(p.default), f"default {as_typed(p.default)}"]
+        if p.min is not None:
+            facts.append(f"range [{p.min}, {p.max}]")
+        if not p.read_only:
+            facts.append("settable at run time")
+        lines.append(f"  {p.name} ({', '.join(facts)})")
+        lines.extend(textwrap.wrap(p.description, width, initial_indent=" " * 6,
+                                   subsequent_indent=" " * 6))
+    return "\n".join(lines)
+
+
+def node_help(prog: str, summary: str, table: Sequence[Param]) -> str:
+    """The whole --help of a node executable."""
+    intro = textwrap.fill(
+        "Parameters (after --ros-args: -p NAME:=VALUE, or --params-file FILE as "
+        "config/propulsion.yaml; a wrong type or a value out of range stops the node with one "
+        "line, exit status 2; an unknown name is a warning):", 79)
+    return (f"usage: {prog} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE]]\n\n"
+            f"{textwrap.fill(summary, 79)}\n\n{intro}\n{parameters_help(table)}\n")
+
+
+def own_arguments(argv: Sequence[str]) -> list[str]:
+    """The program's own words of ``argv``: those outside ``--ros-args ... [--]`` sections,
+    where every word is ROS's (rcl's grammar). Unlike rclpy's ``remove_ros_args`` this does not
+    judge the ROS words, so ``--help`` works whatever they are and ``rclpy.init`` reports a
+    bad one in one line (``common.run_node``)."""
+    own: list[str] = []
+    ros = False
+    for word in argv:
+        if word == "--ros-args":
+            ros = True
+        elif word == "--" and ros:
+            ros = False
+        elif not ros:
+            own.append(word)
+    return own
+
+
+def wants_help(argv: Sequence[str]) -> bool:
+    """True if ``-h`` or ``--help`` is among the program's own arguments (argv without the
+    program name)."""
+    return any(word in ("-h", "--help") for word in own_arguments(argv))
+
+
+def rcl_error_line(text: str) -> str:
+    """rcl's refusal of the ROS arguments as one line: without its preamble and the C source
+    locations it appends (", at /project/src/rcl/arguments.c:415")."""
+    text = re.sub(r",? at \S+\.c:\d+", "", text.replace("failed to initialize rcl: ", ""))
+    return " ".join(text.split())
+
+
+def unknown_parameters(given: Iterable[str], table: Sequence[Param],
+                       siblings: Iterable[Sequence[Param]] = ()) -> list[str]:
+    """One warning per parameter given to a node that neither it nor any node of ``siblings``
+    declares (rclpy ignores it silently: a typo in a vehicle's YAML would go unnoticed), with
+    the node's nearest parameter name.
+
+    A name a sibling declares is not warned about: a launch file's parameter dict, and every
+    ``-p`` of a propulsion_all process, reach every node of the process (e.g. model_path
+    reaches the tachometer), so it is meant for the sibling. ROS's own parameters are skipped.
+    """
+    own = [p.name for p in table]
+    known = set(own).union(p.name for t in siblings for p in t)
+    warnings = []
+    for name in sorted(set(given)):
+        if name in known or name in ROS_OWN_PARAMETERS or name.startswith(ROS_OWN_PREFIXES):
+            continue
+        nearest = difflib.get_close_matches(name, own, n=1, cutoff=NEAREST_CUTOFF)
+        hint = (f"did you mean '{nearest[0]}'?" if nearest
+                else f"no parameter of this node is close; it has {', '.join(own)}")
+        warnings.append(f"unknown parameter '{name}' ignored: {hint}")
+    return warnings
+
+
 # --- Plain conversions (no message classes) ---
 
 def level_byte(level: int) -> bytes:
@@ -148,8 +271,28 @@ def level_byte(level: int) -> bytes:
 
 
 def diagnostic_name(node_fqn: str, core_name: str) -> str:
-    """Status name: the node's fully qualified name, then the core's ("/motor0/tachometer: x")."""
-    return f"{node_fqn}: {core_name}"
+    """Status name: the node's name with its namespace, then the core's ("motor0/tachometer: x").
+
+    Every node publishes on the one absolute /diagnostics, so the name must tell the motors
+    apart; without a leading slash, as diagnostic_updater writes names ("tachometer: x" at
+    the root) and the aggregator's analyzers match them by prefix.
+    """
+    return f"{node_fqn.lstrip('/')}: {core_name}"
+
+
+def hardware_id(node_namespace: str, node_name: str) -> str:
+    """DiagnosticStatus.hardware_id: the hardware a node watches, so monitors group by it.
+
+    A motor's nodes name their motor, which is their namespace ("motor0", "vehicle/motor0"),
+    or "motor" at the root (the one motor of a bench or a single-motor launch). The battery
+    filter (recognised by its node name, ``BATTERY_FILTER``) watches the pack: "battery" at the
+    root (a vehicle's one pack, shared by every motor), "motor0/battery" when a single-motor
+    launch puts it in a motor's namespace.
+    """
+    namespace = node_namespace.strip("/")
+    if node_name == BATTERY_FILTER:
+        return f"{namespace}/battery" if namespace else "battery"
+    return namespace or "motor"
 
 
 def key_values(values: Mapping[str, Any]) -> list[tuple[str, str]]:

@@ -9,6 +9,12 @@ published was measured on contiguous samples. rotor/speed and rotor/rpm are publ
 batch when there is such a speed (0 only when the rotor is known to stand still). A timer
 watches for batches that stop coming altogether: diagnostics then say the input is lost, and
 nothing is published (there is nothing to stand behind).
+
+rotor/state (JointState, name[0] = joint_name) carries the same speeds stamped with the instant
+each describes: the middle of the revolution it is the mean over (``tach_output``), which is
+half a revolution before the batch that completed it; a 0 at the batch's last sample. Each
+measurement is published once there (a speed repeated on rotor/speed until the next edge is
+not new evidence for a consumer that fuses by time).
 """
 
 from __future__ import annotations
@@ -25,7 +31,8 @@ from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
-    NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node)
+    JointStateOutput, NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array,
+    input_qos, run_node, stamped_name)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
@@ -47,8 +54,10 @@ class TachometerNode(Node):
 
         self.speed_out = ScalarOutput(self, contract.TOPIC_ROTOR_SPEED)
         self.rpm_out = ScalarOutput(self, contract.TOPIC_ROTOR_RPM)
+        self.state_out = JointStateOutput(
+            self, contract.TOPIC_ROTOR_STATE, stamped_name(self, 'joint_name', params['joint_name']))
         self.diagnostics_pub = self.create_publisher(
-            DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
+            DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         self.adc_sub = self.create_subscription(
             Float32MultiArray, contract.TOPIC_TACH_ADC, WithInfo(self.on_batch),
             input_qos(params['queue_depth']))
@@ -67,10 +76,12 @@ class TachometerNode(Node):
             if place.event == NEW_STREAM and self.stream.streams > 1:
                 self.core.reset()  # a restarted publisher: its samples do not follow the old
             self.core.process_batch(place.t_last, data, result=False)  # state is enough
-            speed = self.output.after_batch()
+            speed = self.output.after_batch(place.t_last)
             if speed is not None:
                 self.speed_out.publish(float(speed))
                 self.rpm_out.publish(float(speed) * contract.RAD_S_TO_RPM)
+                if self.output.fresh:
+                    self.state_out.publish(self.output.stamp_s, float(speed))
 
     def input_lost(self) -> bool:
         """No batch for timeout_s on the node clock (publisher dead, link down)."""
@@ -80,6 +91,7 @@ class TachometerNode(Node):
     def check_signal(self) -> None:
         self.speed_out.refresh()
         self.rpm_out.refresh()
+        self.state_out.refresh()
         held = self.stream.holding
         if held is not None and self.now_s() - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
             self.decode(self.stream.release_held())  # no successor came to vouch for it

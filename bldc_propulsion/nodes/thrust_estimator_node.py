@@ -24,6 +24,12 @@ A model without a thrust coefficient (trained with no thrust measured or stated)
 predicted/thrust: the topic is not even advertised while such a model is loaded, and a
 diagnostics status (WARN) says why; the parameter thrust_coefficient > 0 states a b for it.
 
+Stamped forms (header.stamp = the grid time a prediction answers, on the node clock):
+predicted/state (JointState, name[0] = joint_name, velocity[0] = predicted speed) and, with a b,
+predicted/wrench (WrenchStamped in frame_id: force.z = thrust, torque.z = the reaction torque
+on the body, signed by spin_direction, where the model knows the propeller's torque, else 0
+and a WARN saying so: ``core.wrench``).
+
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
 time (``ros2 param set``), such a file is refused and the last good model kept.
@@ -44,11 +50,13 @@ from bldc_propulsion import contract
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
+from bldc_propulsion.core.wrench import (
+    check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status)
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node,
-    stamp_s)
+    JointStateOutput, NodeClock, ScalarOutput, WithInfo, WrenchOutput, declare_parameters,
+    diagnostic_array, input_qos, run_node, stamp_s, stamped_name)
 from bldc_propulsion.nodes.params import (
     DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
@@ -75,11 +83,17 @@ class ThrustEstimatorNode(Node):
         self.last_pwm_s: float | None = None
         self.stale_ticks = 0  #: grid times not predicted because the command was stale
 
+        self.spin_direction = check_spin_direction(
+            params['spin_direction'], f'{self.get_fully_qualified_name()}: parameter spin_direction')
+        self.frame_id = stamped_name(self, 'frame_id', params['frame_id'])
         self.speed_out = ScalarOutput(self, contract.TOPIC_PREDICTED_SPEED)
+        self.state_out = JointStateOutput(
+            self, contract.TOPIC_PREDICTED_STATE, stamped_name(self, 'joint_name', params['joint_name']))
         self.thrust_out: ScalarOutput | None = None
+        self.wrench_out: WrenchOutput | None = None
         self.match_thrust_output()
         self.diagnostics_pub = self.create_publisher(
-            DiagnosticArray, contract.TOPIC_DIAGNOSTICS, 10)
+            DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         qos = input_qos(params['queue_depth'])
         self.pwm_sub = self.create_subscription(
             Float64, contract.TOPIC_PWM, WithInfo(self.on_pwm), qos)
@@ -114,18 +128,24 @@ class ThrustEstimatorNode(Node):
         self.core.update_voltage(t, msg.voltage)
 
     def match_thrust_output(self) -> None:
-        """predicted/thrust exists while the model has a b: a subscriber then sees no publisher,
-        rather than a topic that stays silent (the diagnostics say why)."""
+        """predicted/thrust and predicted/wrench exist while the model has a b: a subscriber
+        then sees no publisher, rather than a topic that stays silent (the diagnostics say why).
+        The wrench's kQ follows the model (a reload may bring or drop it)."""
+        self.torque_coefficient = torque_coefficient(self.core.model)
         if self.core.thrust_coefficient is not None and self.thrust_out is None:
             self.thrust_out = ScalarOutput(self, contract.TOPIC_PREDICTED_THRUST)
+            self.wrench_out = WrenchOutput(self, contract.TOPIC_PREDICTED_WRENCH, self.frame_id)
         elif self.core.thrust_coefficient is None and self.thrust_out is not None:
             self.destroy_publisher(self.thrust_out.publisher)
-            self.thrust_out = None
+            self.destroy_publisher(self.wrench_out.publisher)
+            self.thrust_out = self.wrench_out = None
 
     def on_timer(self) -> None:
         self.speed_out.refresh()
+        self.state_out.refresh()
         if self.thrust_out is not None:
             self.thrust_out.refresh()
+            self.wrench_out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
 
     def command_stale(self, t: float) -> bool:
@@ -140,12 +160,17 @@ class ThrustEstimatorNode(Node):
                 continue
             p = self.core.predict(tick)
             if p.ready:
-                self.speed_out.publish(float(p.speed_rad_s))
+                w = float(p.speed_rad_s)
+                self.speed_out.publish(w)
+                self.state_out.publish(tick, w)  # stamped with the grid time it answers
                 if self.thrust_out is not None and p.thrust_n is not None:
                     self.thrust_out.publish(float(p.thrust_n))
+                    self.wrench_out.publish(tick, float(p.thrust_n), reaction_torque_nm(
+                        self.torque_coefficient, w, self.spin_direction))
 
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
+        statuses += wrench_status(self.torque_coefficient, self.wrench_out is not None)
         timing = counters(pwm_lost=self.pwm_stream.lost_messages,
                           pwm_publisher_restarts=self.pwm_stream.publisher_restarts,
                           stale_command_ticks=self.stale_ticks,

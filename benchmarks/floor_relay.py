@@ -1,0 +1,99 @@
+"""The CPU floor of bench_nodes_live.py: a minimal rclpy relay with a node's subscriptions.
+
+One process per ROLE given, each role the subscriptions of one of the package's nodes (same
+topics, types, QoS, message-info callbacks and rclpy EventsExecutor), publishing one Float64
+per input message and nothing else (no decoding, no filtering, no timing rules). So that the
+estimator's floor receives what the estimator receives, the battery role also publishes a
+BatteryState on battery/voltage at the node's publish rate, and the tachometer role publishes
+its Float64 on rotor/speed. What a node costs above this is the package's own work.
+
+    python benchmarks/floor_relay.py battery_filter motor0/tachometer motor0/thrust_estimator ...
+
+A role is ``[namespace/]node``; several roles in one process = one process's floor. On SIGINT
+it prints "received N" (input messages taken) on stdout and exits 0.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import threading
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import rclpy  # noqa: E402
+from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from sensor_msgs.msg import BatteryState  # noqa: E402
+from std_msgs.msg import Float32MultiArray, Float64  # noqa: E402
+
+from bldc_propulsion import contract as c  # noqa: E402
+from bldc_propulsion.nodes.common import WithInfo, events_executor, input_qos, spin  # noqa: E402
+from bldc_propulsion.nodes.params import NODE_PARAMS  # noqa: E402
+
+#: Each node's parameter defaults (queue depths, the battery filter's rates).
+DEFAULTS = {node: {p.name: p.default for p in table} for node, table in NODE_PARAMS.items()}
+PUBLISH_EVERY = int(round(DEFAULTS["battery_filter"]["sample_rate_hz"]
+                          / DEFAULTS["battery_filter"]["publish_rate_hz"]))
+
+
+class Relay:
+    """One role's subscriptions; one Float64 out per message in."""
+
+    def __init__(self, role: str) -> None:
+        namespace, _, kind = role.rpartition("/")
+        self.node = rclpy.create_node(f"floor_{kind}", namespace=namespace or "/")
+        self.received = 0
+        self.out = Float64()
+        if kind not in DEFAULTS:
+            raise SystemExit(f"floor_relay: unknown role {role!r}")
+        qos = input_qos(DEFAULTS[kind]["queue_depth"])
+        sub = self.node.create_subscription
+        if kind == "battery_filter":
+            self.pub = self.node.create_publisher(Float64, "floor/out", 10)
+            self.voltage = self.node.create_publisher(BatteryState, c.TOPIC_BATTERY_VOLTAGE, 10)
+            self.state = BatteryState()
+            sub(Float64, c.TOPIC_BATTERY_ADC, WithInfo(self.on_adc), qos)
+        elif kind == "tachometer":
+            self.pub = self.node.create_publisher(Float64, c.TOPIC_ROTOR_SPEED, 10)
+            sub(Float32MultiArray, c.TOPIC_TACH_ADC, WithInfo(self.relay), qos)
+        elif kind == "thrust_estimator":
+            self.pub = self.node.create_publisher(Float64, "floor/out", 10)
+            sub(Float64, c.TOPIC_PWM, WithInfo(self.relay), qos)
+            sub(BatteryState, "/" + c.TOPIC_BATTERY_VOLTAGE, lambda _m: self.relay(None, None),
+                qos)
+            sub(Float64, c.TOPIC_ROTOR_SPEED, WithInfo(self.relay), qos)
+
+    def relay(self, _msg: object, _info: dict | None) -> None:
+        self.received += 1
+        self.out.data = float(self.received)
+        self.pub.publish(self.out)
+
+    def on_adc(self, msg: Float64, info: dict | None) -> None:
+        self.relay(msg, info)
+        if self.received % PUBLISH_EVERY == 0:
+            self.state.voltage = msg.data
+            self.voltage.publish(self.state)
+
+
+def main(roles: list[str]) -> int:
+    stop = threading.Event()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda *_: stop.set())
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    relays = [Relay(role) for role in roles]
+    executor = events_executor()
+    for r in relays:
+        executor.add_node(r.node)
+    spin(executor, stop)
+    executor.shutdown(timeout_sec=2.0)
+    print(f"received {sum(r.received for r in relays)}", flush=True)
+    for r in relays:
+        r.node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
