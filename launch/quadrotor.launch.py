@@ -22,6 +22,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 from bldc_propulsion.nodes.launch_watch import LaunchWatch
+from bldc_propulsion.nodes.params import rotor_name
 
 PACKAGE = 'bldc_propulsion'
 MAX_MOTORS = 16
@@ -82,11 +83,14 @@ def launch_vehicle(context):
                           parameters=parameters, output='screen', on_exit=watch.on_exit)]
     for i in range(motors):
         namespace = f'motor{i}' if motors > 1 else ''
+        # each rotor's own joint and frame on a vehicle (interfaces.md "Stamped outputs")
+        joint = [{'joint_name': rotor_name(namespace)}] if namespace else []
+        frame = [{'frame_id': rotor_name(namespace)}] if namespace else []
         nodes.append(Node(package=PACKAGE, executable='tachometer', name='tachometer',
-                          namespace=namespace, parameters=parameters, output='screen',
+                          namespace=namespace, parameters=[*parameters, *joint], output='screen',
                           on_exit=watch.on_exit))
         nodes.append(Node(package=PACKAGE, executable='thrust_estimator',
                           name='thrust_estimator', namespace=namespace,
-                          parameters=parameters, remappings=SHARED_VOLTAGE, output='screen',
-                          on_exit=watch.on_exit))
+                          parameters=[*parameters, *joint, *frame], remappings=SHARED_VOLTAGE,
+                          output='screen', on_exit=watch.on_exit))
     return nodes

@@ -301,6 +301,13 @@ def test_every_node_reports_its_exit_to_one_watch_that_reads_stderr(
         assert on_exit.__self__ is watch and on_exit.__func__ is LaunchWatch.on_exit
     if configuration.get("motors") == "2":
         assert [n.kwargs.get("namespace") for n in nodes[1:]] == ["motor0"] * 2 + ["motor1"] * 2
+        # each rotor its own joint and frame, after the parameter file (which sets 'rotor' for all)
+        for node in nodes[1:]:
+            ns, given = node.kwargs["namespace"], node.kwargs["parameters"]
+            if node.kwargs["executable"] == "tachometer":
+                assert given[-1] == {"joint_name": f"{ns}_rotor"}
+            else:
+                assert given[-2:] == [{"joint_name": f"{ns}_rotor"}, {"frame_id": f"{ns}_rotor"}]
 
 
 def _exited(returncode: int, name: str = "thrust_estimator-3", pid: int = 4242,

@@ -358,6 +358,10 @@ def test_all_in_one_is_one_pack_and_four_motors(context):
                 assert f"{n.get_namespace()}/pwm" in topics
             if n.get_name() == "battery_filter":
                 assert "/battery/adc" in topics
+            else:  # each rotor its own joint (and frame) name
+                assert n.get_parameter("joint_name").value == f"{n.get_namespace().strip('/')}_rotor"
+            if n.get_name() == "thrust_estimator":
+                assert n.get_parameter("frame_id").value == f"{n.get_namespace().strip('/')}_rotor"
         executor = SingleThreadedExecutor(context=context)
         for n in nodes:
             executor.add_node(n)
@@ -370,6 +374,7 @@ def test_all_in_one_is_one_pack_and_four_motors(context):
     try:
         assert sorted(n.get_fully_qualified_name() for n in one) == [
             "/battery_filter", "/tachometer", "/thrust_estimator"]
+        assert {n.get_parameter("joint_name").value for n in one if n.get_name() != "battery_filter"} == {"rotor"}
     finally:
         for n in one:
             n.destroy_node()

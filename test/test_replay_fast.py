@@ -10,6 +10,7 @@ in short windows.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from bldc_propulsion.bagio import open_recording
@@ -80,3 +81,34 @@ def test_bulk_path_in_short_windows_equals_reference(corpus, name, monkeypatch):
     monkeypatch.setattr(replay, "BULK_WINDOW_S", 0.7)
     fast = replay_bag(bags[name], root / f"wfast_{name}", **kw)
     assert differences(root / f"wref_{name}", root / f"wfast_{name}", ref, fast) == []
+
+
+def test_replay_command_names_the_rotor_and_its_spin(corpus, tmp_path):
+    """`replay --joint-name --frame-id --spin-direction`: the nodes' parameters of the same names,
+    in the stamped outputs; the torque's sign follows the spin; a blank name is one line, exit 2."""
+    import subprocess
+    import sys
+
+    from bldc_propulsion import contract as c
+    from bldc_propulsion.bagio import open_recording
+
+    root, bags = corpus
+    got = {}
+    for spin in (1, -1):
+        out = tmp_path / f"out{spin}"
+        proc = subprocess.run([sys.executable, "-m", "bldc_propulsion.cli", "replay", str(bags["chirp"]), "-o",
+                               str(out), "--joint-name", "motor2_rotor", "--frame-id", "motor2_prop",
+                               "--spin-direction", str(spin)], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        with open_recording(out) as rec:
+            states = [m for _, _, m in rec.messages([c.TOPIC_PREDICTED_STATE, c.TOPIC_ROTOR_STATE])]
+            wrenches = [m for _, _, m in rec.messages([c.TOPIC_PREDICTED_WRENCH])]
+        assert states and {m.name[0] for m in states} == {"motor2_rotor"}
+        assert wrenches and {m.header.frame_id for m in wrenches} == {"motor2_prop"}
+        got[spin] = np.array([m.wrench.torque.z for m in wrenches])
+    turning = np.abs(got[1]) > 1e-9
+    assert turning.any() and np.allclose(got[-1][turning], -got[1][turning])
+    assert np.all(got[1][turning] < 0)  # counter-clockwise rotor: the body is pushed clockwise
+    proc = subprocess.run([sys.executable, "-m", "bldc_propulsion.cli", "replay", str(bags["chirp"]), "-o",
+                           str(tmp_path / "blank"), "--joint-name", " "], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and "--joint-name" in proc.stderr

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from .. import contract as c
+from ..errors import BadInputError
 from .common import CommandResult, add_namespace_argument
 
 NAME = "replay"
@@ -12,7 +14,8 @@ DESCRIPTION = (
     "Feed a recording through the same cores the rclpy nodes run (battery filter, "
     "tachometer decoder, thrust estimator) in message-time order, and write every "
     "output topic (/battery/voltage, /rotor/speed, /rotor/rpm, /predicted/speed, "
-    "/predicted/thrust, /diagnostics) to a new MCAP bag: what the nodes would publish "
+    "/predicted/thrust, /rotor/state, /predicted/state, /predicted/wrench, /diagnostics) "
+    "to a new MCAP bag: what the nodes would publish "
     "during `ros2 bag play`. A recording that holds the measured /battery/voltage or "
     "/rotor/speed instead of /battery/adc or /tachometer/adc (an imported thrust-stand log) "
     "has them used as recorded, and the stage without input is not run."
@@ -24,12 +27,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, help="recording to write (bag directory or .mcap file)")
     p.add_argument("--model", help="model .npz (default: the first-principles fallback)")
     p.add_argument("--force", action="store_true", help="replace an existing recording")
+    p.add_argument("--joint-name", default=c.DEFAULT_JOINT_NAME,
+                   help="name[0] of rotor/state and predicted/state, as the nodes' joint_name (default %(default)s)")
+    p.add_argument("--frame-id", default=c.DEFAULT_FRAME_ID,
+                   help="header.frame_id of predicted/wrench, as the estimator's frame_id (default %(default)s)")
+    p.add_argument("--spin-direction", type=int, default=c.DEFAULT_SPIN_DIRECTION, choices=(1, -1),
+                   help="1 counter-clockwise seen from above, -1 clockwise: the sign of the reaction torque")
     add_namespace_argument(p)
 
 
 def run(args: argparse.Namespace) -> CommandResult:
     from ..replay import replay_bag, summary_text
 
+    for option, value in (("--joint-name", args.joint_name), ("--frame-id", args.frame_id)):
+        if not value.strip():
+            raise BadInputError(f"{option}: must not be empty (the name consumers match the rotor by)")
     info = replay_bag(args.input, args.output, model_path=args.model, force=args.force,
-                      namespace=args.namespace)
+                      namespace=args.namespace, joint_name=args.joint_name, frame_id=args.frame_id,
+                      spin_direction=args.spin_direction)
     return CommandResult(info, summary_text(info), warnings=info["warnings"])

@@ -29,13 +29,14 @@ import sys
 from typing import Any
 
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
 from bldc_propulsion.nodes.common import (
     Plan, events_executor, on_events, run_node, single_threaded)
 from bldc_propulsion.nodes.lean_executor import LeanExecutor
 from bldc_propulsion.nodes.params import (
-    NODE_PARAMS, namespaces, own_arguments, parameters_help)
+    NODE_PARAMS, namespaces, own_arguments, parameters_help, rotor_name)
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
@@ -50,9 +51,13 @@ def build_nodes(motors: int, **kwargs: Any) -> list[Node]:
     nodes: list[Node] = [BatteryFilterNode(**kwargs)]
     for namespace in namespaces(motors):
         ns: dict[str, Any] = {'namespace': namespace} if namespace else {}
+        if namespace:  # each rotor's own joint and frame (interfaces.md "Stamped outputs")
+            name = Parameter('joint_name', value=rotor_name(namespace))
+            ns['parameter_overrides'] = [name]
         nodes.append(TachometerNode(**ns, **kwargs))
         if namespace:
             ns['cli_args'] = SHARED_VOLTAGE
+            ns['parameter_overrides'] = [name, Parameter('frame_id', value=rotor_name(namespace))]
         nodes.append(ThrustEstimatorNode(**ns, **kwargs))
     return nodes
 

@@ -318,6 +318,14 @@ def finite_or_nan(x: float) -> float:
     return x if math.isfinite(x) else math.nan
 
 
+def rotor_name(namespace: str) -> str:
+    """The joint name and frame id of the rotor of a motor namespace on a vehicle (``motor0`` ->
+    ``motor0_rotor``), set by the quadrotor launch and ``propulsion_all --motors N``: one name per
+    rotor, so a consumer tells them apart; ``rotor`` (the parameters' default) at the root."""
+    ns = namespace.strip('/').replace('/', '_')
+    return f'{ns}_rotor' if ns else 'rotor'
+
+
 def namespaces(motors: int) -> list[str]:
     """Namespaces of an all-in-one process: [''] for one motor, motor0..motorN-1 for N > 1.
 
