@@ -7,7 +7,8 @@ output (a model ``.npz``, a physics CONFIG ``.json``, a recording as a bag direc
 ``.mcap`` file, a report directory); it is not one of the command's inputs (nor inside one,
 nor holding one); and an existing path is replaced only with ``--force`` and only when it is
 the same kind of output (a recording by a recording, a model by a model, a report folder this
-tool made by a report). Anything else the user owns is refused, never deleted.
+tool made by a report; an empty directory takes a report, with or without --force, as there is
+nothing in it to lose). Anything else the user owns is refused, never deleted.
 """
 
 from __future__ import annotations
@@ -119,8 +120,25 @@ RECORDING = OutputKind("recording", "a recording (a bag directory or a .mcap fil
 #: A recording may also be a single .mcap file: ``name_fits`` is special-cased for it.
 MODEL = OutputKind("model", "a model file (.npz)", (".npz",), _loads(_model_loader))
 CONFIG = OutputKind("physics CONFIG", "a physics CONFIG file (.json)", (".json",), _loads(_config_loader))
+
+
+def _empty_dir(p: Path) -> bool:
+    """An empty real directory (not a link to one): nothing in it to lose."""
+    return p.is_dir() and not p.is_symlink() and not any(p.iterdir())
+
+
+#: A report replaces a report this tool made, or an empty directory (a user who made the folder
+#: first: nothing is lost, so it needs no --force either).
 REPORT = OutputKind("report", "a report directory", (),
-                    lambda p: p.is_dir() and (p / REPORT_MARKER).is_file())
+                    lambda p: p.is_dir() and ((p / REPORT_MARKER).is_file() or _empty_dir(p)))
+
+
+def _free(final: Path, kind: OutputKind | None) -> bool:
+    """Nothing is there that --force would have to allow replacing: no such path, or an empty
+    directory where a report goes."""
+    if not (final.exists() or final.is_symlink()):
+        return True
+    return kind is REPORT and _empty_dir(final)
 
 
 def _name_fits(kind: OutputKind, path: Path) -> bool:
@@ -168,7 +186,7 @@ def check_output(path: str | os.PathLike[str], kind: OutputKind, *, force: bool 
         if _same(final, s) or _inside(resolved, s.resolve()) or _inside(s.resolve(), resolved):
             raise BadInputError(f"{where}: is (or holds, or lies inside) the input {s} of this command; "
                                 "an output never replaces an input")
-    if final.exists() or final.is_symlink():
+    if not _free(final, kind):
         if not force:
             raise OutputExistsError(f"{final}: already exists (use --force to replace it)")
         _check_replaceable(final, kind, where)
@@ -218,7 +236,7 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False,
     never replaced, even if it appeared during the work).
     """
     final = Path(path)
-    if final.exists() and not force:
+    if not force and not _free(final, kind):
         raise OutputExistsError(f"{final}: already exists (use --force to replace it)")
     parent = final.parent
     if not parent.is_dir():

@@ -4,21 +4,47 @@ Exit status 0 on success, 2 on bad input (one line on stderr naming the file, to
 parameter), 1 on an internal fault. ``--json`` prints exactly one JSON object on stdout;
 progress goes to stderr. Each subcommand is also a console script of its own so that
 ``ros2 run bldc_propulsion <name>`` works on ROS.
+
+Ctrl-C (SIGINT) ends the command with status 130 and no traceback at any moment: during the
+start-up (these imports, building the parser) the process leaves at once, as nothing is written
+yet; while a command runs, KeyboardInterrupt lets its outputs remove their staging files and
+``main`` says "interrupted" in one line; once it has finished, the signal is ignored. The
+subcommand modules import numpy, scipy, rosbags and matplotlib only inside their ``run``, so
+that ``--help`` answers at once.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
+import os
+import signal
 import sys
-import traceback
-from collections.abc import Callable, Sequence
-from types import ModuleType
-from typing import Any, NoReturn
 
-from .commands import MODULES
-from .commands.common import CommandResult
-from .errors import BadInputError
+#: The console scripts that run ``main`` (setup.py): as one of them, or as ``python -m``, this
+#: process is the command line, and SIGINT during the start-up ends it quietly.
+_PROGRAMS = {"bldc-propulsion", "info", "simulate", "train", "evaluate", "replay", "discrepancy",
+             "import-csv", "import-log"}
+
+
+def _interrupted_at_start(_signum: int, _frame: object) -> None:
+    """SIGINT before the command runs: nothing to clean up, so leave now (status 130)."""
+    os._exit(130)
+
+
+_EXECUTABLE = __name__ == "__main__" or os.path.basename(sys.argv[0]) in _PROGRAMS
+# a SIGINT the parent ignores (a background job) stays ignored
+if _EXECUTABLE and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, _interrupted_at_start)
+
+import argparse  # noqa: E402 - after the handler: Ctrl-C during these imports is quiet too
+import json  # noqa: E402
+import traceback  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
+from types import ModuleType  # noqa: E402
+from typing import Any, NoReturn  # noqa: E402
+
+from .commands import MODULES  # noqa: E402
+from .commands.common import CommandResult  # noqa: E402
+from .errors import BadInputError  # noqa: E402
 
 #: name -> module of every subcommand (commands/__init__.py), in --help order.
 _SUBCOMMANDS: dict[str, ModuleType] = {m.NAME: m for m in MODULES}
@@ -27,9 +53,19 @@ _SUBCOMMANDS: dict[str, ModuleType] = {m.NAME: m for m in MODULES}
 class OneLineParser(argparse.ArgumentParser):
     """argparse with the CLI's error convention: one line on stderr (no usage block), exit 2."""
 
+    #: Called once before the help is printed: help text that needs a heavy import (a
+    #: subcommand module's optional ``help_details(parser)``), so that building the parser
+    #: does not import it.
+    help_details: Callable[[argparse.ArgumentParser], None] | None = None
+
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
 
+    def format_help(self) -> str:
+        details, self.help_details = self.help_details, None
+        if details is not None:
+            details(self)
+        return super().format_help()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,6 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module in _SUBCOMMANDS.items():
         p = sub.add_parser(name, help=module.HELP, description=module.DESCRIPTION)
         module.add_arguments(p)
+        p.help_details = getattr(module, "help_details", None)
         p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
         p.set_defaults(run=module.run)
     return parser
@@ -55,6 +92,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        if _EXECUTABLE and signal.getsignal(signal.SIGINT) is _interrupted_at_start:
+            # from here on outputs may be staged: KeyboardInterrupt lets them clean up
+            signal.signal(signal.SIGINT, signal.default_int_handler)
         result: CommandResult = args.run(args)
     except BadInputError as exc:
         print(f"bldc-propulsion {args.command}: error: {exc}", file=sys.stderr)
@@ -66,6 +106,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         traceback.print_exc()
         print(f"bldc-propulsion {args.command}: internal error (exit 1); please report it", file=sys.stderr)
         return 1
+    finally:
+        if _EXECUTABLE and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)  # done (or failed): nothing left to stop
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     if getattr(args, "json", False):
@@ -104,7 +147,15 @@ main_import_log = _entry("import-log")
 
 
 def console_main() -> None:
-    sys.exit(main())
+    status = main()
+    if status == 130:
+        # interrupted and reported: leave with the documented status. CPython records a
+        # KeyboardInterrupt raised inside some C calls as unhandled even when caught here, and
+        # then ends the process by SIGINT at exit (-2 instead of 130, one start in four at 0.5 s)
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        os._exit(130)
+    sys.exit(status)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,32 @@ from .bagio import TOPIC_IMPORT_SOURCE, open_recording
 from .errors import BadInputError, one_line
 
 
+#: A recorded speed or command sampled slower than this cannot show the rotor's transients (a
+#: spin-up time constant is tens of milliseconds): ``info`` says what the recording cannot resolve.
+SLOW_RATE_HZ = 20.0
+
+
+def _interval(t: np.ndarray) -> float | None:
+    """The typical sample interval (s): the median step, robust to a gap or a burst."""
+    dt = np.diff(np.asarray(t, dtype=float))
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    return float(np.median(dt)) if len(dt) else None
+
+
+def _resolution(speed_dt: float | None, command_dt: float | None) -> str | None:
+    """What a slowly sampled speed or command cannot resolve (None: it is fast enough). Two
+    samples per time constant or dead time is about the least that shows one."""
+    slow = [(what, dt) for what, dt in (("measured speed", speed_dt), ("command", command_dt))
+            if dt is not None and dt > 1.0 / SLOW_RATE_HZ]
+    if not slow:
+        return None
+    worst = max(dt for _, dt in slow)
+    sampled = " and ".join(f"the {what} every {dt:.3g} s ({1.0 / dt:.3g} Hz)" for what, dt in slow)
+    return (f"{sampled}: time constants and dead times shorter than about {2 * worst:.2g} s are not "
+            "resolved (rotor_lag, input_delay, the step response's shape); the static map (speed vs "
+            "command and voltage) is fine")
+
+
 def _range(values: np.ndarray) -> dict[str, float] | None:
     v = values[np.isfinite(values)]
     return {"min": float(v.min()), "max": float(v.max())} if len(v) else None
@@ -41,6 +67,7 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
             "namespaces": rec.namespaces_with(c.TOPIC_PWM),
             "pwm": None, "battery_voltage_v": None, "tachometer": None, "speed_rad_s": None,
             "import_source": [],  # how an imported log's units were mapped (import-csv, import-log)
+            "sample_interval_s": {"speed": None, "command": None},  # of recorded signals; see _resolution
         }
         problems: dict[str, str] = {}
 
@@ -51,7 +78,14 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
                 problems[key] = one_line(exc)
 
         def pwm() -> None:
-            out["pwm"] = _range(rec.scalars(c.TOPIC_PWM)[1]) if rec.has(c.TOPIC_PWM) else None
+            if not rec.has(c.TOPIC_PWM):
+                return
+            t, v = rec.scalars(c.TOPIC_PWM)
+            out["pwm"] = _range(v)
+            # a command published on change never repeats a value and is exact however rarely it
+            # comes; one sampled by a logger repeats the held value, and its timing is the interval
+            if len(v) > 2 and np.any(np.diff(v) == 0):
+                out["sample_interval_s"]["command"] = _interval(t)
 
         def voltage() -> None:
             _, v, source = read_voltage(rec)
@@ -65,8 +99,10 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
                                      "max_rad_s": float(moving.max()) if len(moving) else 0.0}
 
         def speed() -> None:
-            _, v, source = read_speed(rec)
+            t, v, source = read_speed(rec)
             out["speed_rad_s"] = {**(_range(v) or {}), "source": source}
+            if rec.has(c.TOPIC_ROTOR_SPEED):  # decoded tachometer speeds come once per revolution
+                out["sample_interval_s"]["speed"] = _interval(t)
 
         def import_notes() -> None:
             out["import_source"] = rec.texts(TOPIC_IMPORT_SOURCE)
@@ -96,6 +132,7 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     out["usable_for"] = [k for k in ("train", "evaluate", "discrepancy", "replay") if usable[k] is True]
     out["not_usable"] = {k: v for k, v in usable.items() if v is not True}
     out["problems"] = problems
+    out["resolution"] = _resolution(**{f"{k}_dt": v for k, v in out["sample_interval_s"].items()})
     return out
 
 
@@ -144,6 +181,8 @@ def summary_text(info: dict[str, Any]) -> str:
                                               if tach["decodes"] else "does NOT decode (no speed from the edges)"))
     if sp and "min" in sp:
         lines.append(f"Measured speed:   {sp['min']:.0f} .. {sp['max']:.0f} rad/s ({sp['source']})")
+    if info.get("resolution"):
+        lines.append(f"Sampling:         {info['resolution']}")
     lines.append(f"Usable for:       {', '.join(info['usable_for']) or 'nothing'}")
     by_reason: dict[str, list[str]] = {}
     for cmd, why in info["not_usable"].items():

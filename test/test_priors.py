@@ -211,7 +211,7 @@ def test_a_stated_kv_the_recordings_contradict_is_refused(nominal_bags, tmp_path
     proc = _train(nominal_bags, out, "--motor-kv", "2000")
     assert proc.returncode == 2 and not out.exists()
     assert proc.stderr.count("\n") == 1 + proc.stderr.count("start:") + proc.stderr.count("fitting") \
-        + proc.stderr.count("  RMSE") + proc.stderr.count("reading ")  # progress, then one error line
+        + proc.stderr.count("  RMSE") + proc.stderr.count("recordings\n")  # progress, then one error line
     line = proc.stderr.splitlines()[-1]
     assert "--motor-kv 2000" in line and "motor_kv_rpm_per_v fitted 1538" in line, line
     assert f"range {2000 / KV_RANGE_FACTOR:.4g}-{2000 * KV_RANGE_FACTOR:.4g}" in line and "stated" in line

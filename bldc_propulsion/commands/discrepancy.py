@@ -13,12 +13,14 @@ from .. import contract as c
 from ..atomic import CONFIG, MODEL, REPORT, check_outputs
 from ..errors import BadInputError
 from ..priors import MotorPriors, add_prior_arguments, priors_from_args
-from ..recordings import load_all, load_signals, unique
 from ..specs import spec_path
-from ..training.evaluate import input_range
-from ..discrepancy.workflow import (
-    ALPHA, MIN_EFFECT, Options, check_effect_names, check_holdout, run_workflow)
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+
+# The workflow (scipy, rosbags) is imported inside the functions that run it, so that `--help`
+# stays quick. Its decision thresholds (discrepancy/base.py ALPHA, MIN_EFFECT) are the options'
+# defaults, repeated here for the same reason; test_cli_small checks that they agree.
+ALPHA = 0.01
+MIN_EFFECT = 0.10
 
 
 def _effects(text: str) -> list[str]:
@@ -108,6 +110,9 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
 
 def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Any], list[Any], list[Any]]:
     """The measured, reference and holdout recordings, read through the cores."""
+    from ..discrepancy.workflow import check_holdout
+    from ..recordings import load_all, load_signals, unique
+
     ns = args.namespace
     measured = load_all(args.measured, "measured", ns)
     # a model trained on the bench and measured on a vehicle: its reference recordings are read
@@ -132,7 +137,9 @@ def _has_namespace(path: str, namespace: str | None) -> bool:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
+    from ..discrepancy.workflow import Options, check_effect_names, run_workflow
     from ..model import NETWORK, load_model, save_model
+    from ..training.evaluate import input_range
 
     check_effect_names(args.effects)
     if args.max_effects < 1:
@@ -190,7 +197,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
     the workflow fits physical effects, and a network correction on top would hide the very
     disagreement it looks for; so it says so, and -o is a physics model or CONFIG."""
     from ..discrepancy.physics import save_config, supply_tau_s
-    from ..discrepancy.workflow import run_physics_workflow
+    from ..discrepancy.workflow import Options, run_physics_workflow
     from ..model import HYBRID, PlantModel, save_model
 
     where = "--physics" if loaded is None else f"the {loaded.kind} model {args.model}"

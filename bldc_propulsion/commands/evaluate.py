@@ -8,23 +8,25 @@ import argparse
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from ..atomic import REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import Model, load_model
-from ..recordings import Signals, load_signals
-from ..training.evaluate import RecordingScore, evaluate
 from .common import CommandResult, add_namespace_argument
+
+if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, scipy and rosbags
+    import numpy as np
+
+    from ..model import Model
+    from ..recordings import Signals
+    from ..training.evaluate import RecordingScore
 
 NAME = "evaluate"
 HELP = "measure a model's speed error on recordings"
 DESCRIPTION = (
     "Run a model over recordings and compare its predicted rotor speed with the "
     "measured one (/rotor/speed if recorded, else decoded from /tachometer/adc): "
-    "RMSE, RMSE as %% of the speed range, maximum error, and for chirp-like "
+    "RMSE, RMSE as % of the speed range, maximum error, and for chirp-like "
     "recordings the error per command frequency band. Several --model files are "
     "compared side by side (a table per recording and band, and with --report one "
     "figure per recording with every model's prediction)."
@@ -92,6 +94,10 @@ def _check_distinct(paths: list[str]) -> None:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
+    from ..model import load_model
+    from ..recordings import load_signals
+    from ..training.evaluate import evaluate
+
     check_outputs([(args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.model, *args.recordings])
     _check_distinct(args.model)

@@ -19,13 +19,18 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def help_details(p: argparse.ArgumentParser) -> None:
+    """The profiles and effects, listed below the options: they live in the simulator (numpy,
+    scipy), so they are imported only when this help is printed (cli.OneLineParser)."""
     from ..sim import EFFECT_DOCS, PROFILES
 
     effects = "\n".join(f"  {name}: {doc}" for name, doc in EFFECT_DOCS.items())
     p.epilog = f"profiles: {', '.join(PROFILES)}\neffects:\n{effects}"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
     p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument("--profile", required=True, help="command profile: " + ", ".join(PROFILES))
+    p.add_argument("--profile", required=True, help="command profile (listed below)")
     p.add_argument("--duration", required=True, type=float,
                    help="recording length in seconds (at most 1800: longer runs in parts)")
     p.add_argument("--seed", type=SEED, default=0, help="random seed (same seed, same bag)")

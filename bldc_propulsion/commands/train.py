@@ -6,19 +6,19 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from .. import contract as c
 from ..atomic import MODEL, REPORT, check_outputs, report_output
 from ..errors import BadInputError
-from ..model import save_model
 from ..priors import MotorPriors, add_prior_arguments, priors_from_args
-from ..recordings import Signals, load_all
-from ..training.evaluate import predict_speed
-from ..training.train import ThrustFit, stated_thrust, train_model
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+
+if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, scipy and rosbags
+    import numpy as np
+
+    from ..recordings import Signals
+    from ..training.train import ThrustFit
 
 NAME = "train"
 HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt; or the bench physics) from recordings"
@@ -129,13 +129,22 @@ PHYSICS_PRIORS = ("motor_kv", "pole_count", "cells", "prop_pitch_in")
 
 
 def run(args: argparse.Namespace) -> CommandResult:
+    from ..model import save_model
+    from ..recordings import load_all
+    from ..training.train import stated_thrust, train_model
+
     _network_options(args)
     priors = priors_from_args(args)  # options that go together, checked before any work
     out = Path(args.output)
     check_outputs([(out, MODEL, "-o"), (args.report, REPORT, "--report")], force=args.force,
                   inputs=[*args.train, *args.validation, args.physics_config])
     _check_disjoint(args.train, args.validation)
-    progress(f"reading {len(args.train)} training and {len(args.validation)} validation recordings")
+    if args.physics_config:  # a bad CONFIG is refused here, not after the first progress lines
+        from ..discrepancy.physics import load_config
+
+        load_config(args.physics_config, option="--physics-config")
+    # every check that reads the inputs comes before the first progress line, so that bad
+    # input gives one line on stderr and nothing else
     train = load_all(args.train, "training", args.namespace)
     validation = load_all(args.validation, "validation", args.namespace)
     by_key = {s.key: s.path for s in train}
@@ -143,6 +152,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         if s.key in by_key:
             raise BadInputError(f"{s.path}: same recording as training recording {by_key[s.key]}")
     stated = stated_thrust(priors, train)  # b the user stated (hover: from the training recordings)
+    progress(f"read {len(train)} training and {len(validation)} validation recordings")
 
     if args.kind == "physics":
         return _run_physics(args, out, train, validation, stated, priors)
@@ -235,6 +245,7 @@ def _thrust_summary(fit: ThrustFit) -> tuple[str, list[str]]:
 def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], validation: list[Signals],
                  stated: ThrustFit | None, priors: MotorPriors) -> CommandResult:
     """``--kind physics``: training/fit_physics.py; ``stated``: the b the user stated."""
+    from ..model import save_model
     from ..training.fit_physics import train_physics
 
     outcome = train_physics(train, validation, thrust_coefficient=stated, priors=priors,
@@ -283,6 +294,7 @@ def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
 
 def _training_report(d: Path, outcome: Any) -> None:
     from ..training import report
+    from ..training.evaluate import predict_speed
 
     figs: list[tuple[str, str]] = []
     if hasattr(outcome, "lm"):  # a network (a physics model has no epochs)
@@ -308,6 +320,8 @@ def _training_report(d: Path, outcome: Any) -> None:
 
 def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(t, raw battery V with divider undone, filtered V) for Fig. 1, when battery/adc exists."""
+    import numpy as np
+
     from ..bagio import open_recording
     from ..core.battery_filter import BatteryFilterConfig
 
