@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 
 from .. import contract as c
-from ..errors import BadInputError
 from .common import CommandResult, add_namespace_argument
 
 NAME = "replay"
@@ -39,9 +38,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> CommandResult:
     from ..replay import replay_bag, summary_text
 
+    from ..core.wrench import check_rotor_name
+
     for option, value in (("--joint-name", args.joint_name), ("--frame-id", args.frame_id)):
-        if not value.strip():
-            raise BadInputError(f"{option}: must not be empty (the name consumers match the rotor by)")
+        check_rotor_name(value, option)
     info = replay_bag(args.input, args.output, model_path=args.model, force=args.force,
                       namespace=args.namespace, joint_name=args.joint_name, frame_id=args.frame_id,
                       spin_direction=args.spin_direction)

@@ -55,6 +55,14 @@ def check_spin_direction(value: int, where: str) -> int:
     return int(value)
 
 
+def check_rotor_name(value: str, where: str) -> str:
+    """A joint name or frame id (``where``: node parameter or option) if it is not blank; else
+    BadInputError: a consumer matches the rotor by it."""
+    if not value.strip():
+        raise BadInputError(f"{where}: must not be empty (the name consumers match the rotor by)")
+    return value
+
+
 def wrench_status(kq: float | None, advertised: bool) -> list[CoreStatus]:
     """A WARN while predicted/wrench is published with a torque.z of 0 for want of kQ; nothing
     otherwise (no wrench without a thrust coefficient: that has a status of its own)."""

@@ -19,12 +19,9 @@ import numpy as np
 from ..recordings import Signals
 from . import acceptance as acc
 from . import scoring as sc
+from .defaults import ALPHA, MIN_EFFECT  # the decision thresholds (see workflow.py)
 
 Progress = Callable[[str], None]
-
-#: Decision thresholds (see workflow.py).
-ALPHA = 0.01  #: significance level of the held-out randomisation test
-MIN_EFFECT = 0.10  #: least fractional held-out MSE reduction (beyond the null correction)
 
 
 @dataclass

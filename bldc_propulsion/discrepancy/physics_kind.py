@@ -3,9 +3,9 @@
 Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``) talks to; the
 model, its CONFIG, calibration and scores are ``physics.py``:
 
-- step 1, reference first (with --reference): the base physics is complete before anything is
-  named: Kv, CP, the throttle exponent and the strength of every effect (``physics.BASE_EFFECTS``,
-  whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
+- step 1, reference first (with --reference): Kv, CP, the throttle exponent, the strengths of
+  the CONFIG's effects and of what every bench has (``physics.BASE_EFFECTS``: the rotor's
+  inertia, whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
   (``physics.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
   speed's own noise or NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and
   ``physics.LOADED_SPEED_RANGE``), else no effect is named and the verdict says why. Then Kv and
@@ -118,7 +118,7 @@ class PhysicsKind:
                      + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
                      + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
             self.flags += flags
-            self.unexplained = self._not_explained(rf, flags, reference, progress)
+            self.unexplained = self._not_explained(flags, reference, progress)
         progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
         held = ph.HELD_AFTER_REFERENCE if self.ref_data else ()
         self.cur = ph.calibrate_base(model, self.meas_data, held)
@@ -134,14 +134,14 @@ class PhysicsKind:
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,
                 predictions(self.base, hold))
 
-    def _not_explained(self, rf: ph.Fit, flags: Sequence[ph.FitFlag], reference: Sequence[Signals],
+    def _not_explained(self, flags: Sequence[ph.FitFlag], reference: Sequence[Signals],
                        progress: Progress) -> str | None:
         """Why the base fitted on the reference is no basis for naming anything, or None: a
         quantity of it not physical or at a bound (``physics.fit_flags``), or its residual far
         above the speed's own noise (``NOT_EXPLAINED_FACTOR``; a model that cannot follow its own
         reference would take any effect that bends it towards the data for what changed)."""
         noise = rs.speed_noise([s.speed_events for s in reference])
-        rmse_ref = float(np.sqrt(rf.sse / max(len(rf.r), 1)))
+        rmse_ref = self.reference_fit["rmse_rad_s"]
         self.reference_fit["speed_noise_rad_s"] = noise
         span = speed_range(reference)
         progress(f"  the measured speed's own noise: {noise:.2f} rad/s (reference residual {rmse_ref / noise:.1f}x "

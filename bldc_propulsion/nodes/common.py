@@ -30,6 +30,7 @@ from rclpy.task import Future
 from std_msgs.msg import Float64
 
 from bldc_propulsion.core.status import CoreStatus
+from bldc_propulsion.core.wrench import check_rotor_name
 from bldc_propulsion.errors import BadInputError, one_line
 from bldc_propulsion.nodes import leave
 from bldc_propulsion.nodes.lean_executor import LeanExecutor
@@ -272,38 +273,15 @@ def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] 
     return 0
 
 
-class ScalarOutput:
-    """A Float64 topic that is serialized only while someone subscribes to it.
+class ListenedOutput:
+    """A topic that is serialized only while someone subscribes to it.
 
     Publishing to no one still costs a message, its serialization and a DDS write (about a
     sixth of a quadrotor's CPU with every output unread). Matching is looked up by
     :meth:`refresh`, which the node calls from a timer it already has (a lookup per message
     would cost half a publish); a new subscriber therefore gets data within that timer's period,
-    sooner than DDS discovery matches it anyway. The message object is reused: ``publish``
-    serializes it before returning.
-    """
-
-    def __init__(self, node: Node, topic: str, depth: int = 10) -> None:
-        self.publisher = node.create_publisher(Float64, topic, depth)
-        self.msg = Float64()
-        self.listened = True  #: until the first refresh: publish
-
-    def refresh(self) -> None:
-        self.listened = self.publisher.get_subscription_count() > 0
-
-    def publish(self, value: float) -> None:
-        if self.listened:
-            self.msg.data = value
-            self.publisher.publish(self.msg)
-
-
-class StampedOutput:
-    """A stamped output (the contract's "Stamped outputs") serialized only while someone
-    subscribes, as :class:`ScalarOutput`: ``refresh`` from a timer the node has, one reused
-    message whose constant fields (joint name, frame) are set once.
-
-    header.stamp is the instant the value describes, given by the caller on the node clock
-    (s), not the time of publishing: a consumer fuses and compares by it.
+    sooner than DDS discovery matches it anyway. The message object is reused (its constant
+    fields set once): publishing serializes it before returning.
     """
 
     def __init__(self, node: Node, msg_type: Any, topic: str, msg: Any, depth: int = 10) -> None:
@@ -313,6 +291,26 @@ class StampedOutput:
 
     def refresh(self) -> None:
         self.listened = self.publisher.get_subscription_count() > 0
+
+
+class ScalarOutput(ListenedOutput):
+    """A Float64 topic (``ListenedOutput``)."""
+
+    def __init__(self, node: Node, topic: str, depth: int = 10) -> None:
+        super().__init__(node, Float64, topic, Float64(), depth)
+
+    def publish(self, value: float) -> None:
+        if self.listened:
+            self.msg.data = value
+            self.publisher.publish(self.msg)
+
+
+class StampedOutput(ListenedOutput):
+    """A stamped output (the contract's "Stamped outputs"), a ``ListenedOutput``.
+
+    header.stamp is the instant the value describes, given by the caller on the node clock
+    (s), not the time of publishing: a consumer fuses and compares by it.
+    """
 
     def _send(self, t_s: float) -> None:
         stamp = self.msg.header.stamp
@@ -355,11 +353,8 @@ class WrenchOutput(StampedOutput):
 
 
 def stamped_name(node: Node, param: str, value: str) -> str:
-    """A joint name or frame id parameter, refused when blank (a consumer matches by it)."""
-    if not value.strip():
-        raise BadInputError(f"{node.get_fully_qualified_name()}: parameter {param}: must not be "
-                            "empty (the name consumers match the rotor by)")
-    return value
+    """A joint name or frame id parameter, refused when blank (``core.wrench.check_rotor_name``)."""
+    return check_rotor_name(value, f"{node.get_fully_qualified_name()}: parameter {param}")
 
 
 class NodeClock:

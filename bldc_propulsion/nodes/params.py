@@ -323,7 +323,7 @@ def rotor_name(namespace: str) -> str:
     ``motor0_rotor``), set by the quadrotor launch and ``propulsion_all --motors N``: one name per
     rotor, so a consumer tells them apart; ``rotor`` (the parameters' default) at the root."""
     ns = namespace.strip('/').replace('/', '_')
-    return f'{ns}_rotor' if ns else 'rotor'
+    return f'{ns}_{contract.DEFAULT_JOINT_NAME}' if ns else contract.DEFAULT_JOINT_NAME
 
 
 def namespaces(motors: int) -> list[str]:
