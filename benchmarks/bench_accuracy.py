@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Sequence
@@ -44,13 +45,16 @@ from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.model import Model
 from bldc_propulsion.recordings import Signals, load_signals
-from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim import random_bench as rb
+from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.params import BenchParams
 from bldc_propulsion.sim.record import write_sim_bag
 from bldc_propulsion.training.evaluate import BANDS_HZ, band_errors, evaluate
 from bldc_propulsion.training.fit_physics import train_hybrid, train_physics
 from bldc_propulsion.training.train import train_model
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import check_record_path, write_record  # noqa: E402
 
 KINDS = ("network", "physics", "hybrid")
 #: b of the nominal bench; every recording has /thrust/measured, so b is fitted anyway.
@@ -156,8 +160,8 @@ def row_of(model: Model, tests: dict[str, Signals], truths: dict[str, np.ndarray
     """RMSE in % of the speed range per test recording and per chirp band (``evaluate``), and
     against the simulator's true speed (``truths``, per test, from ``truth_on``)."""
     _, scores, preds = evaluate(model, list(tests.values()))
-    row = {name: s.rmse_percent_of_range for name, s in zip(tests, scores)}
-    for name, s, pred in zip(tests, scores, preds):  # what a perfect tachometer would show
+    row = {name: s.rmse_percent_of_range for name, s in zip(tests, scores, strict=True)}
+    for name, s, pred in zip(tests, scores, preds, strict=True):  # what a perfect tachometer would show
         row[f"{name} vs truth"] = 100.0 * float(np.sqrt(np.nanmean((pred - truths[name]) ** 2))) / s.speed_range_rad_s
     for b in scores[0].bands:
         row[band_column(b["low_hz"], b["high_hz"])] = b["rmse_percent_of_range"]
@@ -196,7 +200,7 @@ def print_table(results: dict[str, list[tuple[str, dict[str, float]]]], cols: li
     print(f"\n{title}: median [min, max] over benches, then per bench")
     print(f"{'':24s}" + "".join(f"{c:>{width}s}" for c in cols))
     for kind, rows in results.items():
-        def cell(col: str) -> str:
+        def cell(col: str, rows: list = rows) -> str:  # bound now: called within this iteration
             v = np.array([r.get(col, np.nan) for _, r in rows])
             v = v[np.isfinite(v)]
             return f"{np.median(v):.2f} [{v.min():.2f}, {v.max():.2f}]" if len(v) else "-"
@@ -229,7 +233,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--restarts", type=int, default=5, help="LM restarts of each network (default 5, as train)")
     ap.add_argument("--hidden", type=int, default=25)
     ap.add_argument("--keep", metavar="DIR", help="keep (and reuse) the simulated bags here")
+    ap.add_argument("--json", metavar="PATH",
+                    help="also write the figures to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args(argv)
+    check_record_path(args.json)
     kinds = [k for k in args.kinds.split(",") if k]
     if unknown := set(kinds) - set(KINDS):
         ap.error(f"--kinds: unknown {', '.join(sorted(unknown))} (known: {', '.join(KINDS)})")
@@ -263,6 +270,9 @@ def main(argv: list[str] | None = None) -> None:
                 "the same predictions against the simulator's true speed (what a perfect tachometer would show)")
     print_goal(results)
     print(f"total {time.perf_counter() - t_all:.0f} s")
+    if args.json:
+        write_record(args.json, {"size": args.size, "kinds": kinds, "columns": columns(), "results": results},
+                     seconds=time.perf_counter() - t_all)
     if tmp is not None:
         tmp.cleanup()
 

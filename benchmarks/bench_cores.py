@@ -18,14 +18,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from _tachsignal import make_signal  # noqa: E402
-
+from bldc_propulsion.contract import EFFECTS, INPUT_PHYSICS_SPEED  # noqa: E402
 from bldc_propulsion.core.battery_filter import BatteryFilter  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
 from bldc_propulsion.core.plant_stream import PlantStream  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerDecoder  # noqa: E402
-from bldc_propulsion.contract import EFFECTS, INPUT_PHYSICS_SPEED  # noqa: E402
 from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel  # noqa: E402
 from bldc_propulsion.sim import BenchParams, simulate  # noqa: E402
+
+#: what was printed, for --json: a label -> (value, unit, goal or "")
+FIGURES: dict[str, tuple[float, str, str]] = {}
 
 
 def best(fn, repeat: int = 5) -> float:
@@ -42,9 +44,10 @@ def bench_tachometer() -> None:
     for speed in (300.0, 650.0, 1500.0):
         x = make_signal(speed, 5.0, seed=1).x
         for bs in (200, 1000, None):
-            s = best(lambda: TachometerDecoder().process(0.0, x, batch_size=bs))
+            s = best(lambda x=x, bs=bs: TachometerDecoder().process(0.0, x, batch_size=bs))
             label = "one array" if bs is None else f"batches of {bs}"
             print(f"tachometer  {speed:6.0f} rad/s, {label:15s}: {len(x) / s / 1e6:6.2f} M samples/s (goal >= 5)")
+            FIGURES[f"tachometer at {speed:.0f} rad/s, {label}"] = (len(x) / s / 1e6, "M samples/s", ">= 5")
 
 
 def bench_battery() -> None:
@@ -53,15 +56,17 @@ def bench_battery() -> None:
     adc = 5.6 + 0.5 * np.random.default_rng(0).normal(size=n)
     s = best(lambda: BatteryFilter().process(t, adc), repeat=3)
     print(f"battery filter, process(): {n / s / 1e6:6.2f} M samples/s")
+    FIGURES["battery filter, process() on an array"] = (n / s / 1e6, "M samples/s", "")
     tl, al = t[:50000].tolist(), adc[:50000].tolist()
 
     def stream():
         f = BatteryFilter()
-        for ti, ai in zip(tl, al):
+        for ti, ai in zip(tl, al, strict=True):
             f.update(ti, ai)
 
     s = best(stream, repeat=3)
     print(f"battery filter, update():  {len(tl) / s / 1e6:6.2f} M samples/s ({s / len(tl) * 1e6:.2f} us/sample)")
+    FIGURES["battery filter, one update()"] = (s / len(tl) * 1e6, "µs", "")
 
 
 def bench_estimator() -> None:
@@ -76,7 +81,7 @@ def bench_estimator() -> None:
                          ("hybrid: physics + 3-25-1", HybridModel(plant, residual))):
         n = 20000
 
-        def run():
+        def run(model=model, n=n):  # bound now: timed within this iteration
             est = ThrustEstimator(model)
             est.update_voltage(0.0, 11.0)
             for i in range(n):
@@ -86,6 +91,7 @@ def bench_estimator() -> None:
 
         s = best(run, repeat=3)
         print(f"estimator ({label}): update_pwm + predict {s / n * 1e6:6.2f} us (goal < 20)")
+        FIGURES[f"estimator, {label}: update_pwm + predict"] = (s / n * 1e6, "µs", "< 20")
 
 
 def bench_plant_stream() -> None:
@@ -93,8 +99,8 @@ def bench_plant_stream() -> None:
     PWM at 50 Hz, battery/voltage at 20 Hz, a prediction at 100 Hz."""
     res = simulate("random_steps", 60.0, 1)
     volt_t, volts = res.truth_t[::50].tolist(), res.truth_voltage[::50].tolist()
-    events = sorted([(t, 0, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
-                    + [(t, 1, x) for t, x in zip(volt_t, volts)]
+    events = sorted([(t, 0, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist(), strict=True)]
+                    + [(t, 1, x) for t, x in zip(volt_t, volts, strict=True)]
                     + [(k / 100.0, 2, 0.0) for k in range(6000)])
     params = BenchParams(sim_step_s=0.005)
 
@@ -113,10 +119,26 @@ def bench_plant_stream() -> None:
     print(f"physics stream (plant, 5 ms steps): {s / len(events) * 1e6:6.2f} us per update "
           f"(pwm 50 Hz, voltage 20 Hz, speed_at 100 Hz; {s / 6000 * 1e6:.1f} us per prediction "
           f"with its share of the inputs) (goal < 20)")
+    FIGURES["physics stream (5 ms steps), one update"] = (s / len(events) * 1e6, "µs", "< 20")
 
 
 if __name__ == "__main__":
+    import argparse
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from results import check_record_path, write_record
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", metavar="PATH",
+                    help="also write the figures to PATH (benchmarks/results.py renders them)")
+    args = ap.parse_args()
+    check_record_path(args.json)
+    t_all = time.perf_counter()
     bench_tachometer()
     bench_battery()
     bench_estimator()
     bench_plant_stream()
+    if args.json:
+        write_record(args.json, {"figures": [{"what": k, "value": v, "unit": u, "goal": g}
+                                             for k, (v, u, g) in FIGURES.items()]},
+                     seconds=time.perf_counter() - t_all)

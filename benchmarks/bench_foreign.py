@@ -35,6 +35,9 @@ from benchmarks.foreign_bench.scenarios import CASES, project_scenarios, write_c
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from results import check_record_path, write_record  # noqa: E402
+
 PATHS = ("physics", "network")
 #: effects whose physics-path value the bench can state in the same unit (the others: inertia
 #: is structural here, and the strength of battery_voltage is a share, 1 when present)
@@ -136,7 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--path", choices=[*PATHS, "both"], default="both")
     ap.add_argument("--effects", default=",".join(CASES), help=f"cases, comma-separated (of {', '.join(CASES)})")
+    ap.add_argument("--json", metavar="PATH", help="also write every run to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args(argv)
+    check_record_path(args.json)
     cases = [e for e in args.effects.split(",") if e]
     bad = [e for e in cases if e not in CASES]
     if bad or not cases:
@@ -164,6 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     for p in paths:
         print_table(rows, p, cases)
     print(f"wall time {time.perf_counter() - t0:.0f} s", flush=True)
+    if args.json:
+        write_record(args.json, {"paths": paths, "runs": rows}, seconds=time.perf_counter() - t0)
     return 0
 
 

@@ -249,7 +249,7 @@ def main() -> int:
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; executables: "
           f"{' '.join(command('tachometer')[1:2])} ...", flush=True)
     if "imports" in args.only:
-        for name, (module, _, _) in EXECUTABLES.items():
+        for module, _, _ in EXECUTABLES.values():
             print("  " + import_offenders(f"bldc_propulsion.nodes.{module}"), flush=True)
     rclpy.init()
     node = rclpy.create_node("bench_node_start")

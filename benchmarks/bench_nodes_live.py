@@ -17,7 +17,8 @@ to 3x between machines of this class; the ratio does not). ``--consume all`` / `
 subscribes to every output of every motor / to none, so that two runs give what publishing
 costs.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--runs 5] [--pin-nodes 0] [--consume flight|all|none]
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_nodes_live.py [--duration 40] [--modes ...] [--runs 5] \
+        [--pin-nodes 0] [--consume flight|all|none]
 """
 
 from __future__ import annotations
@@ -42,9 +43,9 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 import rclpy  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import open_recording  # noqa: E402
@@ -241,9 +242,9 @@ def run(bag: Path, procs: list[subprocess.Popen], motors: list[str], rate: float
         handled = sum(counts[k] * (1 if k == "battery/adc" else n)
                       for k in ("battery/adc", "pwm", "tachometer/adc")) + n * counts[
                           "battery/voltage"]
-    cpu = sum(b - a for a, b in zip(cpu0, cpu1))
+    cpu = sum(b - a for a, b in zip(cpu0, cpu1, strict=True))
     by_node: dict[str, float] = {}  # % of one core by node kind, summed over the motors
-    for p, a, b in zip(procs, cpu0, cpu1):
+    for p, a, b in zip(procs, cpu0, cpu1, strict=True):
         kind = p.args[2].rsplit(".", 1)[-1].rsplit("/", 1)[-1]
         by_node[kind] = by_node.get(kind, 0.0) + 100.0 * (b - a) / wall
     return {"wall_s": wall, "cpu_core_pct": 100.0 * cpu / wall, "processes": len(procs),

@@ -46,6 +46,9 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from results import check_record_path, write_record  # noqa: E402
+
 LOG = Path("esc_test") / "Log_2019-11-09_181347.csv"
 KINDS = ("network", "physics", "hybrid")
 #: The motor's rating and propeller (README of the log): the priors ``train`` is given.
@@ -90,7 +93,7 @@ def write_piece(d: Path, name: str, header: list[str], data: list[list[str]], ke
     with open(csv_path, "w", encoding="utf-8", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
-        w.writerows(r for r, k in zip(data, keep) if k)
+        w.writerows(r for r, k in zip(data, keep, strict=True) if k)
     bag = d / name
     cli_json("import-csv", str(csv_path), "-o", str(bag), "--force")
     return bag
@@ -170,16 +173,19 @@ THRUST_LAW_LOGS = ("Log_2019-11-05_171350.csv", "Log_2019-11-07_174807.csv", "Lo
 PROPELLER_DIAMETER_M = 7 * 0.0254
 
 
-def thrust_law(real_dir: Path) -> None:
+def thrust_law(real_dir: Path) -> list[dict]:
     """b of T = b w^2 per esc_test log (least squares on every row with speed and thrust, whatever
     commanded it), side by side: one propeller, so one b, if the law holds. Also b below and above
-    each log's median speed: a b that grows with speed is what a single b cannot carry."""
+    each log's median speed: a b that grows with speed is what a single b cannot carry. Returns
+    each log's figures (for ``--json``)."""
     sys.path.insert(0, str(ROOT))
     from bldc_propulsion.training.import_csv import thrust_law_samples
 
     print("thrust law T = b w^2 on the six esc_test logs (one propeller, six ESC + motor pairs)")
-    print(f"{'log':>26s} {'rows':>5s} {'b N s^2/rad^2':>14s} {'CT':>6s} {'resid N':>8s} {'b low w':>9s} {'b high w':>9s}")
+    print(f"{'log':>26s} {'rows':>5s} {'b N s^2/rad^2':>14s} {'CT':>6s} {'resid N':>8s}"
+          f" {'b low w':>9s} {'b high w':>9s}")
     bs = []
+    rows = []
     for name in THRUST_LAW_LOGS:
         w, thrust = thrust_law_samples(real_dir / "esc_test" / name)
         b = float(np.dot(w**2, thrust) / np.dot(w**2, w**2))
@@ -189,11 +195,14 @@ def thrust_law(real_dir: Path) -> None:
         ct = b * 4 * np.pi**2 / (1.225 * PROPELLER_DIAMETER_M**4)
         resid = float(np.sqrt(np.mean((thrust - b * w**2) ** 2)))
         bs.append(b)
+        rows.append({"log": name, "rows": len(w), "b": b, "ct": float(ct), "resid_n": resid, "b_low": b_lo,
+                     "b_high": b_hi})
         print(f"{name:>26s} {len(w):5d} {b:14.4g} {ct:6.3f} {resid:8.3f} {b_lo:9.3g} {b_hi:9.3g}")
     med = float(np.median(bs))
     print(f"b median {med:.4g}, range {min(bs):.4g}-{max(bs):.4g} ({100 * (min(bs) / med - 1):+.1f} % to "
           f"{100 * (max(bs) / med - 1):+.1f} % of the median)")
     print()
+    return rows
 
 
 def main() -> int:
@@ -205,9 +214,15 @@ def main() -> int:
     ap.add_argument("--keep", metavar="DIR", help="keep the pieces and models in DIR")
     ap.add_argument("--jobs", type=int, default=3, help="trainings run at once")
     ap.add_argument("--thrust-law-only", action="store_true", help="print the six logs' b and stop")
+    ap.add_argument("--json", metavar="PATH",
+                    help="also write the figures to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args()
-    thrust_law(Path(args.real_dir))
+    check_record_path(args.json)
+    t_start = time.perf_counter()
+    law = thrust_law(Path(args.real_dir))
     if args.thrust_law_only:
+        if args.json:
+            write_record(args.json, {"thrust_law": law}, seconds=time.perf_counter() - t_start)
         return 0
     kinds = [k for k in args.kinds.split(",") if k]
     log = Path(args.real_dir) / LOG
@@ -252,6 +267,9 @@ def main() -> int:
         for w in r["warnings"]:
             print(f"      warning: {w}")
     print("every goal met" if ok else "some goal missed")
+    if args.json:
+        write_record(args.json, {"thrust_law": law, "log": log.name, "log_range_rad_s": log_range,
+                                 "rated_kv": RATED_KV, "splits": rows}, seconds=time.perf_counter() - t_start)
     return 0 if ok else 1
 
 

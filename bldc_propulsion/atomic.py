@@ -6,9 +6,10 @@ The rule, for every command and every output option (``-o``, ``--report``), in o
 output (a model ``.npz``, a physics CONFIG ``.json``, a recording as a bag directory or a
 ``.mcap`` file, a report directory); it is not one of the command's inputs (nor inside one,
 nor holding one); and an existing path is replaced only with ``--force`` and only when it is
-the same kind of output (a recording by a recording, a model by a model, a report folder this
-tool made by a report; an empty directory takes a report, with or without --force, as there is
-nothing in it to lose). Anything else the user owns is refused, never deleted.
+the same kind of output written by this tool (a recording carrying this tool's mark in its
+rosbag2 metadata by a recording, a model by a model, a report folder this tool made by a report;
+an empty directory takes a report, with or without --force, as there is nothing in it to lose).
+Anything else the user owns (a bench log ``ros2 bag record`` wrote, say) is refused, never deleted.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import struct
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +27,10 @@ from .specs import spec_path
 
 #: File in every report directory the tool writes: only such a directory is replaced by a report.
 REPORT_MARKER = ".bldc-propulsion-report"
+#: Entry of rosbag2's own ``custom_data`` (metadata.yaml, and the MCAP file's ``rosbag2`` metadata
+#: record) in every recording the tool writes: only such a recording is replaced by --force, so a
+#: typo cannot wipe a bench log. ``ros2 bag info/play`` read custom_data as free key-value pairs.
+RECORDING_MARK = ("written_by", "bldc-propulsion")
 #: Name endings that say "a file of another kind": refused as a recording or report directory.
 _FILE_SUFFIXES = (".npz", ".json", ".csv", ".db3", ".yaml", ".yml", ".txt", ".html", ".png",
                   ".py", ".npy", ".zip")
@@ -91,6 +97,82 @@ def _is_recording(p: Path) -> bool:
     return False
 
 
+def _custom_data(yaml_text: str) -> dict[str, object]:
+    """``custom_data`` of rosbag2 metadata (the whole metadata.yaml, or the bare mapping an MCAP
+    file stores); {} when absent or unreadable."""
+    from ruamel.yaml import YAML  # late: only when a recording is to be replaced (rosbags' own YAML)
+    from ruamel.yaml.error import YAMLError
+
+    try:
+        meta = YAML(typ="safe", pure=True).load(yaml_text)
+    except YAMLError:
+        return {}
+    if isinstance(meta, dict) and isinstance(meta.get("rosbag2_bagfile_information"), dict):
+        meta = meta["rosbag2_bagfile_information"]
+    data = meta.get("custom_data") if isinstance(meta, dict) else None
+    return data if isinstance(data, dict) else {}
+
+
+_U32, _U64 = struct.Struct("<I"), struct.Struct("<Q")
+
+
+def _mcap_rosbag2_metadata(p: Path) -> str | None:
+    """The ``serialized_metadata`` of the ``rosbag2`` metadata record of an MCAP file (where
+    rosbag2 keeps metadata.yaml's content in a single-file recording), found through the
+    summary's metadata index; None when the file has none or is not well formed."""
+    def string(buf: bytes, at: int) -> tuple[str, int]:
+        (n,) = _U32.unpack_from(buf, at)
+        return buf[at + 4:at + 4 + n].decode("utf-8"), at + 4 + n
+
+    try:
+        with open(p, "rb") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            fh.seek(size - 37)  # footer record (opcode, length, 20 bytes) + closing magic
+            tail = fh.read(37)
+            if tail[0] != 0x02 or tail[29:] != b"\x89MCAP0\r\n":
+                return None
+            (summary_start,) = _U64.unpack_from(tail, 9)
+            if not 0 < summary_start < size - 37:
+                return None
+            fh.seek(summary_start)
+            summary = fh.read(size - 37 - summary_start)
+            at = 0
+            while at + 9 <= len(summary):  # every summary record: the metadata index among them
+                op, (n,) = summary[at], _U64.unpack_from(summary, at + 1)
+                body = summary[at + 9:at + 9 + n]
+                at += 9 + n
+                if op != 0x0D or string(body, 16)[0] != "rosbag2":
+                    continue
+                fh.seek(_U64.unpack_from(body, 0)[0])
+                record = fh.read(_U64.unpack_from(body, 8)[0])
+                if record[0] != 0x0C:
+                    return None
+                _, i = string(record, 9)
+                (end,) = _U32.unpack_from(record, i)
+                i, end = i + 4, i + 4 + end
+                while i < end:
+                    key, i = string(record, i)
+                    value, i = string(record, i)
+                    if key == "serialized_metadata":
+                        return value
+    except (OSError, IndexError, ValueError, struct.error):
+        return None
+    return None
+
+
+def recording_marked(p: Path) -> bool:
+    """The recording at ``p`` carries RECORDING_MARK in its rosbag2 metadata: this tool wrote it."""
+    key, value = RECORDING_MARK
+    if p.is_dir():
+        try:
+            text: str | None = (p / "metadata.yaml").read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            return False
+    else:
+        text = _mcap_rosbag2_metadata(p)
+    return text is not None and _custom_data(text).get(key) == value
+
+
 def _loads(loader: Callable[[Path], object]) -> Callable[[Path], bool]:
     def holds(p: Path) -> bool:
         if not p.is_file():
@@ -116,7 +198,7 @@ def _config_loader(p: Path) -> object:
 
 
 RECORDING = OutputKind("recording", "a recording (a bag directory or a .mcap file)", (),
-                       _is_recording)
+                       lambda p: _is_recording(p) and recording_marked(p))
 #: A recording may also be a single .mcap file: ``name_fits`` is special-cased for it.
 MODEL = OutputKind("model", "a model file (.npz)", (".npz",), _loads(_model_loader))
 CONFIG = OutputKind("physics CONFIG", "a physics CONFIG file (.json)", (".json",), _loads(_config_loader))
@@ -195,6 +277,10 @@ def check_output(path: str | os.PathLike[str], kind: OutputKind, *, force: bool 
 
 def _check_replaceable(final: Path, kind: OutputKind, where: str) -> None:
     if final.is_symlink() or not kind.holds(final):
+        if kind is RECORDING and not final.is_symlink() and _is_recording(final):
+            where_mark = "its metadata.yaml" if final.is_dir() else "its rosbag2 metadata record"
+            raise BadInputError(f"{where}: exists and is a recording that was not written by bldc-propulsion "
+                                f"(no mark in {where_mark}); remove it yourself if you mean it")
         found = "a symbolic link" if final.is_symlink() else describe_path(final)
         raise BadInputError(f"{where}: exists and is {found}, not {kind.what} this tool wrote; "
                             "--force only replaces the same kind of output, so it is left as it is")

@@ -31,9 +31,10 @@ import numpy as np
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.stores.ros2_jazzy import sensor_msgs__msg__BatteryState as BatteryStateMsg
 
 from . import contract as c
-from .atomic import RECORDING, atomic_output
+from .atomic import RECORDING, RECORDING_MARK, atomic_output
 from .errors import BagError, one_line
 from .specs import split_spec
 
@@ -119,7 +120,7 @@ class Recording:
         #: set when the recording could only be opened by scanning it (truncated MCAP)
         self.salvaged: str | None = None
         try:
-            self._reader = Reader(self.path)
+            self._reader: Reader | _SalvageReader = Reader(self.path)
             self._reader.open()
         except Exception as exc:  # rosbags raises many types for corrupt input
             reason = one_line(exc)
@@ -203,7 +204,7 @@ class Recording:
         return sum(conn.msgcount for conn in self._conns.get(self.resolve(topic), []))
 
     def has(self, topic: str, msgtype: str | None = None) -> bool:
-        conns = self._conns.get(self.resolve(topic))
+        conns = self._conns.get(self.resolve(topic), [])
         return bool(conns) and (msgtype is None or conns[0].msgtype == msgtype)
 
     def require(self, topic: str, msgtype: str) -> list[Any]:
@@ -286,7 +287,7 @@ class Recording:
             return None
         code, ns, payload = rows
         values: dict[str, Any] = {}
-        for k, (name, topic) in enumerate(zip(names, logical)):
+        for k, (name, topic) in enumerate(zip(names, logical, strict=True)):
             sel = np.flatnonzero(code == k)
             msgtype = self._conns[name][0].msgtype if name in self._conns else c.FLOAT64
             values[topic] = self._decode_bulk(payload, sel, msgtype, name)
@@ -331,7 +332,7 @@ class Recording:
             return vals
         if msgtype == c.BATTERY_STATE:
             return np.array([float(self._decode(payload.bytes(a, m), _Conn(msgtype), name).voltage)
-                             for a, m in zip(start.tolist(), length.tolist())])
+                             for a, m in zip(start.tolist(), length.tolist(), strict=True)])
         # Float32MultiArray without layout dims: a 16-byte head (CDR header, 0 dims,
         # data_offset, count), then the floats; anything else through the typestore
         out: list[np.ndarray] = []
@@ -342,7 +343,7 @@ class Recording:
         plain = ((head[:, :8] == np.frombuffer(_CDR_LE + bytes(4), dtype=np.uint8)).all(axis=1)
                  & (length == 16 + 4 * count))
         raw = payload.raw
-        for a, m, k, ok in zip(start.tolist(), length.tolist(), count.tolist(), plain.tolist()):
+        for a, m, k, ok in zip(start.tolist(), length.tolist(), count.tolist(), plain.tolist(), strict=True):
             if ok:
                 out.append(np.frombuffer(raw, dtype="<f4", count=k, offset=a + 16))
             else:
@@ -556,10 +557,10 @@ def _mcap_rows(storage: Any, ids: dict[int, int], start_ns: int | None, stop_ns:
     if not parts:
         none = np.zeros(0, dtype=np.int64)
         return none, none, _Payload(b"", none, none)
-    t, chunk_off, off, code, start, length = (np.concatenate(p) for p in zip(*parts))
+    t, chunk_off, off, codes, start, length = (np.concatenate(p) for p in zip(*parts, strict=True))
     # rosbags: each chunk sorted by time (stable, file order), chunks merged on (time, chunk offset)
     order = np.lexsort((off, chunk_off, t))
-    return code[order], t[order], _Payload(b"".join(bufs), start[order], length[order])
+    return codes[order], t[order], _Payload(b"".join(bufs), start[order], length[order])
 
 
 #: A pause between two messages of one topic counts as a gap when it is longer than
@@ -740,6 +741,7 @@ class BagWriter:
             self._tmp = tmp
             self._bag_dir = tmp.with_name(tmp.stem + ".bag") if self.single_file else tmp
             self._writer = Writer(self._bag_dir, version=9, storage_plugin=plugin)
+            self._writer.set_custom_data(*RECORDING_MARK)  # what lets --force replace it later
             if self.storage == "mcap":
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
@@ -808,6 +810,7 @@ class BagWriter:
         by the caller, without their checks (the connection is this writer's own)."""
         self.messages_written += 1
         w, st = self._writer, self._mcap
+        assert w is not None, "called only while the writer is open"
         w.counts[cid] += 1
         if ts < w.min_timestamp:
             w.min_timestamp = ts
@@ -850,8 +853,9 @@ class BagWriter:
         ns = self._ns(t)
         self.write_raw(topic, c.BATTERY_STATE, t, _BATTERY_TEMPLATE.bytes(ns // 10**9, ns % 10**9, voltage))
 
-    def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "") -> None:
-        self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix))
+    def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "",
+                          hardware_id: str = "") -> None:
+        self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix, hardware_id))
 
     def write_string(self, topic: str, t: float, text: str) -> None:
         self.write_msg(topic, STRING, t, TYPESTORE.types[STRING](data=str(text)))
@@ -896,7 +900,8 @@ def _fast_mcap(writer: Writer) -> Any:
                                                       "message_end_time", "close_chunk"))
             or not all(hasattr(writer, a) for a in ("counts", "min_timestamp", "max_timestamp"))):
         return None
-    storage.close_chunk = types.MethodType(_close_chunk, storage)
+    # a method replaced at run time (an assignment would be mypy method-assign)
+    setattr(storage, "close_chunk", types.MethodType(_close_chunk, storage))  # noqa: B010
     return storage
 
 
@@ -953,8 +958,7 @@ def _multiarray(samples: np.ndarray) -> Any:
 
 def battery_state(ns: int, voltage: float) -> Any:
     """BatteryState with the filtered voltage; unknown fields NaN as the message docs ask."""
-    T = TYPESTORE.types
-    BS = T["sensor_msgs/msg/BatteryState"]
+    BS = BatteryStateMsg  # TYPESTORE's own class, imported by name so that its constants are typed
     nan = math.nan
     return BS(
         header=_header(ns),
@@ -1002,8 +1006,9 @@ class _Template:
         return bytes(buf)
 
 
-def diagnostic_array(ns: int, statuses: Iterable[Any], prefix: str = "") -> Any:
-    """DiagnosticArray from CoreStatus-like objects (name, level, message, values)."""
+def diagnostic_array(ns: int, statuses: Iterable[Any], prefix: str = "", hardware_id: str = "") -> Any:
+    """DiagnosticArray from CoreStatus-like objects (name, level, message, values), each named
+    ``prefix`` + its name, for the hardware ``hardware_id`` (the motor or pack: monitors group by it)."""
     T = TYPESTORE.types
     KV = T["diagnostic_msgs/msg/KeyValue"]
     DS = T["diagnostic_msgs/msg/DiagnosticStatus"]
@@ -1012,7 +1017,7 @@ def diagnostic_array(ns: int, statuses: Iterable[Any], prefix: str = "") -> Any:
             level=int(s.level),
             name=f"{prefix}{s.name}",
             message=str(s.message),
-            hardware_id="bldc_propulsion",
+            hardware_id=hardware_id,
             values=[KV(key=str(k), value=str(v)) for k, v in s.values.items()],
         )
         for s in statuses

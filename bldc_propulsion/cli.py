@@ -19,21 +19,16 @@ import os
 import signal
 import sys
 
+from . import quiet_start
+
 #: The console scripts that run ``main`` (setup.py): as one of them, or as ``python -m``, this
-#: process is the command line, and SIGINT during the start-up ends it quietly.
+#: process is the command line, and SIGINT during the start-up ends it quietly (status 130).
 _PROGRAMS = {"bldc-propulsion", "info", "simulate", "train", "evaluate", "replay", "discrepancy",
              "import-csv", "import-log"}
 
-
-def _interrupted_at_start(_signum: int, _frame: object) -> None:
-    """SIGINT before the command runs: nothing to clean up, so leave now (status 130)."""
-    os._exit(130)
-
-
-_EXECUTABLE = __name__ == "__main__" or os.path.basename(sys.argv[0]) in _PROGRAMS
-# a SIGINT the parent ignores (a background job) stays ignored
-if _EXECUTABLE and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-    signal.signal(signal.SIGINT, _interrupted_at_start)
+_EXECUTABLE = __name__ == "__main__" or quiet_start.started_as(_PROGRAMS)
+if _EXECUTABLE:
+    quiet_start.install(130, (signal.SIGINT,))
 
 import argparse  # noqa: E402 - after the handler: Ctrl-C during these imports is quiet too
 import json  # noqa: E402
@@ -92,9 +87,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        if _EXECUTABLE and signal.getsignal(signal.SIGINT) is _interrupted_at_start:
-            # from here on outputs may be staged: KeyboardInterrupt lets them clean up
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        # from here on outputs may be staged: KeyboardInterrupt lets them clean up
+        quiet_start.end(signal.SIGINT)
         result: CommandResult = args.run(args)
     except BadInputError as exc:
         print(f"bldc-propulsion {args.command}: error: {exc}", file=sys.stderr)

@@ -18,7 +18,6 @@ from . import contract as c
 from .bagio import TOPIC_IMPORT_SOURCE, open_recording
 from .errors import BadInputError, one_line
 
-
 #: A recorded speed or command sampled slower than this cannot show the rotor's transients (a
 #: spin-up time constant is tens of milliseconds): ``info`` says what the recording cannot resolve.
 SLOW_RATE_HZ = 20.0
@@ -52,7 +51,7 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 
 def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
-    from .recordings import load_signals, read_speed, read_voltage
+    from .recordings import decode_speed, load_signals, read_speed, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()
@@ -93,7 +92,7 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
 
         def tach() -> None:
             if rec.has(c.TOPIC_TACH_ADC):
-                _, v, _ = read_speed(_TachOnly(rec))
+                _, v = decode_speed(rec)  # the tachometer's own speeds, even where rotor/speed is recorded
                 moving = v[v > 0]
                 out["tachometer"] = {"decodes": bool(len(moving)), "speeds": int(len(moving)),
                                      "max_rad_s": float(moving.max()) if len(moving) else 0.0}
@@ -134,19 +133,6 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     out["problems"] = problems
     out["resolution"] = _resolution(**{f"{k}_dt": v for k, v in out["sample_interval_s"].items()})
     return out
-
-
-class _TachOnly:
-    """A recording seen without ``rotor/speed``: read_speed then decodes the tachometer."""
-
-    def __init__(self, rec: Any) -> None:
-        self._rec = rec
-
-    def has(self, topic: str, msgtype: str | None = None) -> bool:
-        return c.bare(topic) != c.TOPIC_ROTOR_SPEED and self._rec.has(topic, msgtype)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._rec, name)
 
 
 def _num(x: float | None, fmt: str) -> str:

@@ -11,13 +11,13 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 | ``kind`` | () unicode | all | ``network``, ``physics`` or ``hybrid`` |
 | ``thrust_coefficient`` | () float64 | all | b in thrust = b w^2 (N s^2/rad^2); NaN: none (speed only) |
 | ``metadata_json`` | () unicode | all | JSON object: provenance, costs, ``feature_params`` |
-| ``input_names`` | (n,) unicode | network, hybrid | model inputs in order (core/features.py registry; a hybrid's include ``physics_speed``) |
+| ``input_names`` | (n,) unicode | network, hybrid | inputs in order (core/features.py; a hybrid: + ``physics_speed``) |
 | ``input_min``, ``input_max`` | (n,) float64 | network, hybrid | scaling of inputs to [-1, 1] |
 | ``output_min``, ``output_max`` | () float64 | network, hybrid | scaling of the output (rad/s) to [-1, 1] |
 | ``W1`` (H, n), ``b1`` (H,), ``W2`` (H,), ``b2`` () | float64 | network, hybrid | network weights |
 | ``pwm_tau_s`` | () float64 | network, hybrid | time constant of ``pwm_filtered`` (paper: 0.25 s) |
-| ``physics_names``, ``physics_values`` | (m,) unicode, (m,) float64 | physics, hybrid | every ``plant.PlantParams`` constant by name (SI) |
-| ``effect_names``, ``effect_strengths`` | (e,) unicode, (e,) float64 | physics, hybrid | every contract effect's strength (0 off, 1 nominal) |
+| ``physics_names``, ``physics_values`` | (m,) unicode, float64 | physics, hybrid | each ``PlantParams`` constant (SI) |
+| ``effect_names``, ``effect_strengths`` | (e,) unicode, float64 | physics, hybrid | strengths (0 off, 1 nominal) |
 | ``supply_v`` | () float64 | physics, hybrid | the stiff supply (V) that battery_voltage strength 0 gives |
 | ``supply_tau_s`` | () float64 | physics, hybrid | the filter the voltage input comes through (s; 0: the terminal's) |
 
@@ -37,7 +37,7 @@ import os
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, NoReturn, Union
+from typing import Any, ClassVar, NoReturn
 
 import numpy as np
 
@@ -64,6 +64,9 @@ class _FromCT(enum.Enum):
 #: ``PlantModel``'s default b: its constants' CT (``PlantParams.thrust_coefficient``), distinct
 #: from None (no b), so that ``dataclasses.replace`` of a model without b keeps it without b.
 FROM_CT = _FromCT.FROM_CT
+#: FROM_CT typed as the field it is the default of: ``__post_init__`` replaces it, so what a
+#: PlantModel holds (and the estimator's SpeedModel reads) is a float or None.
+_B_FROM_CT: Any = FROM_CT
 
 
 def _thrust_or_none(b: float | None) -> float | None:
@@ -181,7 +184,7 @@ class PlantModel:
     effects: dict[str, float]  #: every contract effect
     supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
     #: b (N s^2/rad^2); FROM_CT (default): the constants' CT gives it; None: no b (speed only)
-    thrust_coefficient: float | None | _FromCT = FROM_CT
+    thrust_coefficient: float | None = _B_FROM_CT
     metadata: dict[str, Any] = field(default_factory=dict)
     #: time constant (s) of the filter the voltage input comes through: the battery filter's
     #: (None), 0 for a supply measured directly (plant.Supply)
@@ -196,15 +199,15 @@ class PlantModel:
 
             self.supply_tau_s = BatteryFilterConfig().tau_s
         self.supply_tau_s = float(self.supply_tau_s)
-        if self.thrust_coefficient is FROM_CT:
+        if isinstance(self.thrust_coefficient, _FromCT):
             self.thrust_coefficient = self.params.thrust_coefficient
-        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)  # type: ignore[arg-type]
+        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)
         if not isinstance(self.metadata, dict):
             raise ModelError("model: metadata must be a dict")
         _check(self._arrays(), "model")
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        return {**_common_arrays(self.kind, self.thrust_coefficient, self.metadata),  # type: ignore[arg-type]
+        return {**_common_arrays(self.kind, self.thrust_coefficient, self.metadata),
                 **self._physics_arrays()}
 
     def _physics_arrays(self) -> dict[str, np.ndarray]:
@@ -219,10 +222,10 @@ class PlantModel:
 
     @classmethod
     def _of(cls, a: Mapping[str, np.ndarray], thrust_coefficient: float | None,
-            metadata: dict[str, Any]) -> "PlantModel":
+            metadata: dict[str, Any]) -> PlantModel:
         """From validated arrays."""
-        return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))),
-                   dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]))),
+        return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"]), strict=True))),
+                   dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]), strict=True)),
                    float(a["supply_v"]), thrust_coefficient, metadata, float(a["supply_tau_s"]))
 
     # --- what the estimator and evaluate run (core/estimator.SpeedModel): one input, the speed
@@ -242,7 +245,8 @@ class PlantModel:
         """The ``physics_speed`` input's parameters: this model (core/plant_stream.STREAM_DEFAULTS)."""
         from .core.plant_stream import stream_params  # late: core imports this module
 
-        return {PHYSICS_SPEED: stream_params(self.params, self.effects, self.supply_v, self.supply_tau_s)}  # type: ignore[arg-type]
+        assert self.supply_tau_s is not None, "__post_init__ resolves None"
+        return {PHYSICS_SPEED: stream_params(self.params, self.effects, self.supply_v, self.supply_tau_s)}
 
     def forward(self, X_raw: np.ndarray) -> np.ndarray:
         """Speed (rad/s): the ``physics_speed`` input itself."""
@@ -306,7 +310,7 @@ class HybridModel:
 
 
 #: A model of any kind, as ``load_model`` returns it.
-Model = Union[NetworkModel, PlantModel, HybridModel]
+Model = NetworkModel | PlantModel | HybridModel
 
 
 Fail = Callable[[str], NoReturn]
@@ -460,11 +464,11 @@ def _check_physics(a: Mapping[str, np.ndarray], fail: Fail) -> None:
         if missing:
             fail(f"{names_key}: missing {', '.join(missing)}")
         _check_floats(a, {values_key: (len(names),)}, fail)
-    params = dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"])))
+    params = dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"]), strict=True))
     bad = plant_problem(PlantParams(**params))
     if bad:
         fail(f"physics_values: {bad[0]} {bad[1]}")
-    for name, value in zip(map(str, a["effect_names"]), map(float, a["effect_strengths"])):
+    for name, value in zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]), strict=True):
         why = strength_problem(name, value)
         if why:
             fail(f"effect_strengths: {name} {why}")
@@ -512,7 +516,7 @@ def range_report(model: Model, X: np.ndarray, where: str) -> RangeReport:
     out = (X < model.input_min) | (X > model.input_max)
     per = out.mean(axis=0)
     return RangeReport(where, float(out.any(axis=1).mean()),
-                       {n: float(f) for n, f in zip(model.input_names, per) if f > 0})
+                       {n: float(f) for n, f in zip(model.input_names, per, strict=True) if f > 0})
 
 
 def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> Model:
@@ -560,8 +564,8 @@ def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> 
     thrust = _thrust_or_none(float(arrays["thrust_coefficient"]))
     try:
         plant = PlantModel._of(arrays, thrust, meta) if kind != NETWORK else None
-        if kind == PHYSICS:
-            return plant  # type: ignore[return-value]
+        if plant is not None and kind == PHYSICS:
+            return plant
         network = NetworkModel(
             input_names=tuple(str(x) for x in arrays["input_names"]),
             input_min=arrays["input_min"],
@@ -607,4 +611,4 @@ def save_model(model: Model, path: str | os.PathLike[str], force: bool = False) 
     with atomic_output(path, force=force, kind=MODEL) as tmp:
         # a file object: np.savez would append ".npz" to a bare temporary name
         with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+            np.savez(fh, allow_pickle=False, **arrays)  # plain arrays only: load_model reads without pickle

@@ -184,7 +184,7 @@ def strength_problem(name: str, value: object) -> str | None:
     if name not in EFFECTS:
         return f"unknown effect (known: {', '.join(EFFECTS)})"
     try:
-        s = float(value)  # type: ignore[arg-type]
+        s = float(value)  # type: ignore[arg-type]  # any JSON/CLI value: float() sorts it out, below
     except (TypeError, ValueError):
         return "not a number"
     if not math.isfinite(s) or s < 0.0:
@@ -370,7 +370,7 @@ class Supply:
     lowpass_gain: float  #: per step, 1 - exp(-dt / tau_s) (0 without a filter)
 
     @classmethod
-    def of(cls, p: PlantParams, eff: Mapping[str, float], v_ref: float, tau_s: float) -> "Supply":
+    def of(cls, p: PlantParams, eff: Mapping[str, float], v_ref: float, tau_s: float) -> Supply:
         s = eff["battery_voltage"]
         rs = s * p.battery_series_resistance_ohm if tau_s > 0.0 else 0.0
         gain = 1.0 - math.exp(-p.sim_step_s / tau_s) if tau_s > 0.0 else 0.0
@@ -385,7 +385,7 @@ def held(sample_t: np.ndarray, sample_v: np.ndarray, t: np.ndarray) -> np.ndarra
 def check_initial_speed(w: object) -> float:
     """``w`` as the rotor speed a run starts from (rad/s: finite, >= 0), else BadInputError."""
     try:
-        x = float(w)  # type: ignore[arg-type]
+        x = float(w)  # type: ignore[arg-type]  # any JSON/CLI value: float() sorts it out, below
     except (TypeError, ValueError):
         raise BadInputError(f"initial_speed: {w!r} is not a number") from None
     if not (math.isfinite(x) and x >= 0.0):

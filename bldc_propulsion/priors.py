@@ -198,9 +198,9 @@ def physics_start(priors: MotorPriors, voltage_v: float | None = None) -> Physic
     with its torque P / w (torque per rotor volume); the propeller's mass as D^3. V is the stated
     cells at the middle of CELL_VOLTAGE_RANGE_V, else ``voltage_v`` (the recordings' median),
     else the nominal pack's. Unstated items keep the nominal bench's values."""
+    from . import contract as c
     from .plant import full_drive_speeds
     from .sim.params import BenchParams
-    from . import contract as c
 
     if all(v is None for v in (priors.motor_kv_rpm_per_v, priors.cells, priors.propeller_diameter_m,
                                 priors.propeller_pitch_m, priors.propeller_ct)):

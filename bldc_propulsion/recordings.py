@@ -115,7 +115,7 @@ def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tupl
                 times.append(np.asarray(zeros))
                 values.append(np.zeros(len(zeros)))
                 zeros = []
-            times.append(revolution_middle(end, out.speed))
+            times.append(np.asarray(revolution_middle(end, out.speed)))
             values.append(np.asarray(out.speed, dtype=float))
         elif out.speed_now == 0.0 and not out.signal_ok and not len(out.all_edge_t) \
                 and out.state != STARTING:
@@ -204,14 +204,17 @@ def load_signals(
         volt_t, volt, voltage_source = read_voltage(rec, battery)
         if len(volt_t) < 2:
             raise BagError(f"{path}: battery voltage has fewer than 2 valid samples")
-        speed_t = speed = None
+        speed_t: np.ndarray | None = None  # the values below are read only where their times are not None
+        speed = np.zeros(0)
         speed_source = ""
         if rec.has(c.TOPIC_ROTOR_SPEED) or rec.has(c.TOPIC_TACH_ADC) or need_speed:
             speed_t, speed, speed_source = read_speed(rec, tachometer)
-        thrust_t = thrust = None
+        thrust_t: np.ndarray | None = None
+        thrust = np.zeros(0)
         if rec.has(c.TOPIC_THRUST_MEASURED):
             thrust_t, thrust = rec.scalars(c.TOPIC_THRUST_MEASURED)
-        current_t = current = None
+        current_t: np.ndarray | None = None
+        current = np.zeros(0)
         if rec.has("battery/current", c.FLOAT64):
             current_t, current = rec.scalars("battery/current")
 

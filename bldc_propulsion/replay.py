@@ -12,7 +12,9 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
 - their stamped forms (``stamped_writer``): ``rotor/state`` once per new measurement, stamped
   with the middle of its revolution; ``predicted/state`` and ``predicted/wrench`` (with a
   thrust coefficient) stamped with the grid time,
-- ``diagnostics`` once a second with every core's status.
+- ``/diagnostics`` once a second, as each node publishes it: one DiagnosticArray per node, on
+  the absolute topic whatever the namespace, status names carrying the node's namespace and
+  name (``motor0/tachometer: tachometer``), hardware_id naming the motor or the pack.
 A recording that already carries ``battery/voltage`` (e.g. an imported thrust-stand log) feeds
 the estimator from it instead of filtering ``battery/adc``. A recording with the measured
 topics and not the raw ones (``battery/voltage`` without ``battery/adc``, ``rotor/speed``
@@ -40,6 +42,7 @@ from .core.tachometer import TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
 from .core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
 from .model import RangeReport, load_model
+from .nodes.params import BATTERY_FILTER, TACHOMETER, THRUST_ESTIMATOR, diagnostic_name, hardware_id
 from .stamped_writer import StampedWriter
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
@@ -59,6 +62,10 @@ class _Stamped(NamedTuple):
     joint_name: str
     frame_id: str
     spin_direction: int
+
+
+#: The nodes' defaults (an immutable tuple, shared safely as a default argument).
+_DEFAULT_STAMPED = _Stamped(c.DEFAULT_JOINT_NAME, c.DEFAULT_FRAME_ID, c.DEFAULT_SPIN_DIRECTION)
 
 
 def replay_bag(
@@ -142,7 +149,7 @@ def _replay(
         est = ThrustEstimator(model)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
             node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured,
-                          stamped)
+                          stamped, ns)
             if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
@@ -183,17 +190,25 @@ def _replay(
         }
 
 
+def diagnostic_source(namespace: str | None, node: str) -> tuple[str, str]:
+    """(status name prefix, hardware_id) of ``node``'s diagnostics where replay puts the node: as
+    the quadrotor launch does, the battery filter at the root (the vehicle's one pack) and the
+    motor's nodes under ``namespace``; so a recording's /diagnostics reads as the live bus does."""
+    ns = "" if namespace is None or node == BATTERY_FILTER else namespace
+    return diagnostic_name(f"/{ns}/{node}" if ns else f"/{node}", ""), hardware_id(ns, node)
+
+
 class _Nodes:
     """The three nodes' cores, timers and publishers over one replay."""
 
     def __init__(self, bag: BagWriter, filt: BatteryFilter, tach: TachometerDecoder,
                  est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool,
                  measured: Iterable[str] = (),
-                 stamped: _Stamped = _Stamped(c.DEFAULT_JOINT_NAME, c.DEFAULT_FRAME_ID,
-                                              c.DEFAULT_SPIN_DIRECTION)) -> None:
+                 stamped: _Stamped = _DEFAULT_STAMPED,
+                 namespace: str | None = None) -> None:
         self.bag, self.filt, self.tach, self.est = bag, filt, tach, est
-        topics = (c.TOPIC_ROTOR_STATE, c.TOPIC_PREDICTED_STATE, c.TOPIC_PREDICTED_WRENCH)
-        self.stamped = StampedWriter(bag, *map(topic_out, topics), joint_name=stamped.joint_name,
+        self.stamped = StampedWriter(bag, topic_out(c.TOPIC_ROTOR_STATE), topic_out(c.TOPIC_PREDICTED_STATE),
+                                     topic_out(c.TOPIC_PREDICTED_WRENCH), joint_name=stamped.joint_name,
                                      frame_id=stamped.frame_id)
         self.spin_direction = stamped.spin_direction
         self.torque_coefficient = torque_coefficient(est.model)
@@ -212,9 +227,16 @@ class _Nodes:
             list if c.TOPIC_BATTERY_VOLTAGE in self.measured else filt.status)
         self.tach_status: Callable[[], list[Any]] = list if c.TOPIC_ROTOR_SPEED in self.measured else tach.status
         (self.speed_topic, self.thrust_topic, self.voltage_topic, self.rotor_topic,
-         self.rpm_topic, self.diag_topic) = map(topic_out, (
+         self.rpm_topic) = map(topic_out, (
             c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
-            c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM, c.TOPIC_DIAGNOSTICS))
+            c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM))
+        #: each node's diagnostics: (status name prefix, hardware_id, its statuses now); a stage
+        #: whose statuses are empty (not run) publishes nothing
+        self.diagnostics: tuple[tuple[str, str, Callable[[], list[Any]]], ...] = (
+            (*diagnostic_source(namespace, BATTERY_FILTER), lambda: self.filter_status()),
+            (*diagnostic_source(namespace, TACHOMETER), lambda: self.tach_status()),
+            (*diagnostic_source(namespace, THRUST_ESTIMATOR), lambda: [*est.status(), *self.wrench_status()]),
+        )
 
     def timers_until(self, t: float) -> None:
         """Outputs due up to t, emitted before an input at t is applied (as the nodes
@@ -233,9 +255,10 @@ class _Nodes:
                     self.torque_coefficient, p.speed_rad_s, self.spin_direction))
         while next_diag is not None and next_diag <= t:
             self.tach.check_timeout(next_diag)
-            statuses = [*self.filter_status(), *self.tach_status(), *est.status(),
-                        *self.wrench_status()]
-            bag.write_diagnostics(self.diag_topic, next_diag, statuses)
+            for prefix, hardware, node_statuses in self.diagnostics:
+                statuses = node_statuses()
+                if statuses:
+                    bag.write_diagnostics(c.TOPIC_DIAGNOSTICS_ABSOLUTE, next_diag, statuses, prefix, hardware)
             next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
         self.next_diag = next_diag
 
@@ -334,14 +357,14 @@ class _Nodes:
             where = np.flatnonzero(code == k).tolist()
             vals = bulk.values[topic]
             if topic == c.TOPIC_PWM:
-                events += zip(where, [0] * len(where), vals.tolist())
+                events += zip(where, [0] * len(where), vals.tolist(), strict=True)
             elif topic == c.TOPIC_TACH_ADC:
-                events += zip(where, [2] * len(where), vals)
+                events += zip(where, [2] * len(where), vals, strict=True)
                 self.tach.expect(vals)  # their level trackers are computed many at a time
             elif topic == c.TOPIC_BATTERY_VOLTAGE:
-                events += zip(where, [3] * len(where), vals.tolist())
+                events += zip(where, [3] * len(where), vals.tolist(), strict=True)
             elif topic == c.TOPIC_ROTOR_SPEED:
-                events += zip(where, [4] * len(where), vals.tolist())
+                events += zip(where, [4] * len(where), vals.tolist(), strict=True)
             elif topic == c.TOPIC_BATTERY_ADC:
                 events += self._battery(np.asarray(where), np.asarray(times)[where], vals)
         events.sort(key=lambda e: e[0])
@@ -354,7 +377,7 @@ class _Nodes:
         filt, end = self.filt, len(t)
         out = np.empty(end)
         statuses: list[list[Any]] = []
-        diag, a = self.next_diag, 0
+        diag, a = self._diag_due(), 0
         while a < end:
             b = int(np.searchsorted(t, diag, side="left"))  # samples before diagnostics at `diag`
             out[a:b] = filt.process(t[a:b], adc[a:b])
@@ -375,12 +398,17 @@ class _Nodes:
             i = bisect.bisect_left(ta, ticker.next_s, i + 1)
         return events
 
+    def _diag_due(self) -> float:
+        """The next diagnostics time, in the bulk path (which sets it from the first message)."""
+        assert self.next_diag is not None, "set before the bulk events are visited"
+        return self.next_diag
+
     def _visit(self, times: list[float], events: list[tuple[int, int, Any]]) -> None:
         n, predictions = len(times), self.predictions
         done = 0  # messages before this index have been applied
         for pos, kind, value in events:
             while True:  # timers triggered by messages up to and including this one
-                due = min(predictions.next_s, self.next_diag)
+                due = min(predictions.next_s, self._diag_due())
                 j = bisect.bisect_left(times, due, done)
                 if j > pos:
                     break
@@ -399,7 +427,7 @@ class _Nodes:
                 self.speed_recorded(t, value)
             done = pos + 1
         while True:
-            j = bisect.bisect_left(times, min(predictions.next_s, self.next_diag), done)
+            j = bisect.bisect_left(times, min(predictions.next_s, self._diag_due()), done)
             if j >= n:
                 break
             self.timers_until(times[j])

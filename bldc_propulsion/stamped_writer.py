@@ -59,7 +59,7 @@ class _Patch:
         sec, nanosec = divmod(t_ns, 10**9)
         struct.pack_into("<i", buf, self.off_sec, sec)
         struct.pack_into("<I", buf, self.off_nsec, nanosec)
-        for off, v in zip(self.off, values):
+        for off, v in zip(self.off, values, strict=True):
             struct.pack_into("<d", buf, off, v)
         return bytes(buf)
 

@@ -31,6 +31,8 @@ import numpy as np
 from bldc_propulsion import contract as c
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from results import check_record_path, write_record  # noqa: E402
 
 
 def one_run(effect: str, seed: int, bench_kind: str, hidden: int, epochs: int) -> dict:
@@ -92,7 +94,10 @@ def main(argv=None) -> int:
     ap.add_argument("--epochs", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--effects", default=",".join([*c.EFFECTS, "control"]))
+    ap.add_argument("--json", metavar="PATH", help="also write every run to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args(argv)
+    check_record_path(args.json)
+    t_all = time.perf_counter()
     effects = [e for e in args.effects.split(",") if e]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     kind = "nominal" if args.nominal_bench else "far" if args.far_bench else "random"
@@ -100,13 +105,15 @@ def main(argv=None) -> int:
     print(f"{kind} benches, seeds {seeds.start}-{seeds.stop - 1}")
     results = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        for r in pool.map(one_run, *zip(*jobs)):
+        for r in pool.map(one_run, *zip(*jobs, strict=True)):
             results.append(r)
             print(f"{r['effect']:20s} seed {r['seed']} (strength {r['strength']:.2f}): named "
                   f"{r['named'] or 'nothing'}; holdout RMSE "
                   f"{r['before']:.1f} -> {r['after']:.1f} rad/s ({r['seconds']:.0f} s)", file=sys.stderr, flush=True)
             if len(results) % len(effects) == 0:  # a seed complete: the table so far (a run cut short keeps it)
                 print_table(results, effects)
+    if args.json:
+        write_record(args.json, {"bench": kind, "runs": results}, seconds=time.perf_counter() - t_all)
     return 0
 
 

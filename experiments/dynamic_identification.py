@@ -19,8 +19,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from bldc_propulsion import contract as c
-
 ROOT = Path(__file__).resolve().parents[1]
 EFFECTS = ("rotor_lag", "input_delay", "esc_deadband", "spin_down_asymmetry", "motor_heating", "control")
 

@@ -42,15 +42,16 @@ from bldc_propulsion import contract as c
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from results import check_record_path, write_record  # noqa: E402
 
 
 def one_run(effect: str, seed: int, control: bool, bench_kind: str, tmp: str, oracle: bool = False) -> dict:
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
-    from bldc_propulsion.discrepancy.workflow import run_physics_workflow
-    from bldc_propulsion.discrepancy.workflow import Options
-    from bldc_propulsion.sim import random_bench as rb
+    from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
     from bldc_propulsion.recordings import load_signals
+    from bldc_propulsion.sim import random_bench as rb
     from bldc_propulsion.sim.params import BenchParams
 
     bench = rb.DRAWS[bench_kind](seed) if bench_kind != "nominal" else None
@@ -147,8 +148,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--effects", default=",".join(c.EFFECTS))
     ap.add_argument("--oracle", action="store_true",
-                    help="the drawn bench's constants as the CONFIG instead of the nominal ones (what a perfect CONFIG would give)")
+                    help="the drawn bench's constants as the CONFIG instead of the nominal ones "
+                         "(what a perfect CONFIG would give)")
+    ap.add_argument("--json", metavar="PATH", help="also write every run to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args(argv)
+    check_record_path(args.json)
+    t_all = time.perf_counter()
     effects = [e for e in args.effects.split(",") if e]
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     kind = "nominal" if args.nominal_bench else "far" if args.far_bench else "random"
@@ -166,6 +171,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{r['truth']:.2f}) ({r['seconds']:.0f} s)", file=sys.stderr, flush=True)
             if len(rows) % (len(effects) + 1) == 0:  # a seed complete: the table so far
                 print_table(rows, effects)
+    if args.json:
+        write_record(args.json, {"bench": kind, "oracle": args.oracle, "runs": rows},
+                     seconds=time.perf_counter() - t_all)
     return 0
 
 

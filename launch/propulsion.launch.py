@@ -12,7 +12,6 @@ launch` then exits 1 and logs which node and why (``bldc_propulsion.nodes.launch
 Ctrl-C stops every node and exits 0.
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
@@ -21,6 +20,7 @@ from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
 
 from bldc_propulsion.nodes.launch_watch import LaunchWatch
+from launch import LaunchDescription
 
 PACKAGE = 'bldc_propulsion'
 NODES = ('battery_filter', 'tachometer', 'thrust_estimator')  # executable = node name

@@ -13,7 +13,6 @@ node and why (``bldc_propulsion.nodes.launch_watch``); Ctrl-C stops every node a
 bad motor count is refused in one line.
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
@@ -23,6 +22,7 @@ from launch_ros.substitutions import FindPackageShare
 
 from bldc_propulsion.nodes.launch_watch import LaunchWatch
 from bldc_propulsion.nodes.params import rotor_name
+from launch import LaunchDescription
 
 PACKAGE = 'bldc_propulsion'
 MAX_MOTORS = 16

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The main job end to end on the bundled sample bags: train (network, physics, hybrid) -> replay ->
 # evaluate (the three kinds side by side) -> discrepancy (network and physics models).
-# Outputs go to demo/ (git-ignored); every step prints what it found; demo/index.html links
-# every report.
+# Outputs go to demo/ (git-ignored); every step prints what it found; demo/index.html shows
+# every report's main figure and headline numbers.
 source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
 BP=.venv/bin/bldc-propulsion
 OUT=demo
@@ -12,6 +12,10 @@ mkdir -p "$OUT"
 for d in "$OUT"/report_*; do
     [ -d "$d" ] && [ ! -f "$d/.bldc-propulsion-report" ] && rm -rf -- "$d"
 done
+# likewise the replayed recording of a run older than the recording mark (--force replaces only
+# recordings whose metadata.yaml carries it: atomic.RECORDING_MARK)
+[ -d "$OUT/chirp_replay" ] && ! grep -qs "written_by: bldc-propulsion" "$OUT/chirp_replay/metadata.yaml" \
+    && rm -rf -- "$OUT/chirp_replay"
 step() { printf '\n== %s\n' "$*"; }
 
 step "0. what the recordings hold (like ros2 bag info)"
@@ -49,17 +53,12 @@ $BP discrepancy --physics --measured bags/staircase bags/validation --holdout ba
     --max-effects 4 -o $OUT/physics_found.json --report $OUT/report_physics --force 2>$OUT/physics.log
 grep -E "^(step (4|5)|warning)" $OUT/physics.log | sed 's/^/  /'
 
-# one page that links every report
-{
-    printf '<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>bldc_propulsion demo</title></head><body>\n'
-    printf '<h1>bldc_propulsion demo</h1>\n<ul>\n'
-    for r in report_train:"1. training (paper Figs. 1, 5-6, 12, 13)" \
-             report_eval:"3. evaluation on unseen recordings (error per command frequency band)" \
-             report_compare:"3b. network, physics and hybrid side by side on the unseen recordings" \
-             report_discrepancy:"4. discrepancy, network model without battery voltage" \
-             report_physics:"5. discrepancy, bench physics as the model"; do
-        printf '<li><a href="%s/index.html">%s</a></li>\n' "${r%%:*}" "${r#*:}"
-    done
-    printf '</ul>\n</body></html>\n'
-} > $OUT/index.html
-step "figures: $OUT/index.html (links $OUT/report_train, report_eval, report_compare, report_discrepancy, report_physics)"
+# one page with a thumbnail of each report's main figure and its headline numbers
+# (training/report.py reads each report's report.json)
+.venv/bin/python -m bldc_propulsion.training.report demo-index "$OUT" --title "bldc_propulsion demo" \
+    report_train="1. training the paper's network (RMSE, b, learning curve, Figs. 1, 5-6, 12, 13)" \
+    report_eval="3. evaluation on unseen recordings (speed and thrust error, error per command frequency band)" \
+    report_compare="3b. network, physics and hybrid side by side on the unseen recordings" \
+    report_discrepancy="4. discrepancy: a network without battery voltage on a half-empty pack" \
+    report_physics="5. discrepancy: the nominal bench physics as the model" >/dev/null
+step "figures: $OUT/index.html (a thumbnail and the headline of report_train, report_eval, report_compare, report_discrepancy, report_physics)"

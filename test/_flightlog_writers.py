@@ -165,7 +165,7 @@ def write_ulog(path: Path, v: Vehicle, *, command_topic: str = "actuator_motors"
 
     records: list[tuple[int, int, bytes]] = []  # (timestamp, msg_id, payload)
     t = _times(v.duration_s, command_hz)
-    for k, tk in enumerate(t):
+    for tk in t:
         ts = boot_us + int(round(tk * 1e6))
         levels = [float(v.command(m, np.array([tk]))[0]) for m in range(v.motors)]
         if command_topic == "actuator_motors":
@@ -190,7 +190,7 @@ def write_ulog(path: Path, v: Vehicle, *, command_topic: str = "actuator_motors"
         ts = boot_us + int(round(tk * 1e6))
         payload = struct.pack("<QfffB", ts, float(v.voltage_at(tk)), float(v.current_at(tk)), 0.9, 1)
         records.append((ts, 2, payload))
-    for ts, msg_id, payload in sorted(records, key=lambda r: (r[0], r[1])):
+    for _ts, msg_id, payload in sorted(records, key=lambda r: (r[0], r[1])):
         out += _ulog_msg("D", struct.pack("<H", msg_id) + payload)
     path.write_bytes(bytes(out))
     return path

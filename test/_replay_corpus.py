@@ -143,7 +143,8 @@ def differences(a: Path, b: Path, info_a: dict, info_b: dict) -> list[str]:
     for topic in sorted(set(ma) & set(mb)):
         if len(ma[topic]) != len(mb[topic]):
             diffs.append(f"{topic}: {len(ma[topic])} != {len(mb[topic])} messages")
-        for k, (x, y) in enumerate(zip(ma[topic], mb[topic])):
+        # a length difference is reported above; the common prefix is compared message by message
+        for k, (x, y) in enumerate(zip(ma[topic], mb[topic], strict=False)):
             if x != y:
                 diffs.append(f"{topic}: message {k} differs ({x[0]} vs {y[0]})")
                 break

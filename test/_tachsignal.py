@@ -7,8 +7,8 @@ with a first-order lag, and the ADC samples it with Gaussian noise.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy import signal

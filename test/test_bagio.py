@@ -163,7 +163,7 @@ def test_battery_state_template_writes_the_typestore_bytes(tmp_path):
         for t, v in ((0.0, 11.1), (1.234567891, 12.6), (100.5, 0.0)):
             bag.write_battery_state(c.TOPIC_BATTERY_VOLTAGE, t, v)
     with open_recording(tmp_path / "bs") as rec:
-        for (_, ns, _, raw), v in zip(rec.raw([c.TOPIC_BATTERY_VOLTAGE]), (11.1, 12.6, 0.0)):
+        for (_, ns, _, raw), v in zip(rec.raw([c.TOPIC_BATTERY_VOLTAGE]), (11.1, 12.6, 0.0), strict=True):
             ref = bytes(TYPESTORE.serialize_cdr(battery_state(ns, v), c.BATTERY_STATE))
             assert bytes(raw) == ref
 
@@ -195,7 +195,7 @@ def test_fast_mcap_writing_makes_the_files_rosbags_makes(tmp_path):
     fast = sorted(p for p in (tmp_path / "fast").rglob("*") if p.is_file())
     slow = sorted(p for p in (tmp_path / "slow").rglob("*") if p.is_file())
     assert [p.name for p in fast] == [p.name for p in slow] and len(fast) == 3
-    for a, b in zip(fast, slow):
+    for a, b in zip(fast, slow, strict=True):
         assert a.read_bytes() == b.read_bytes(), a.name
     with open_recording(tmp_path / "fast" / "f.mcap") as rec:
         assert len(rec._reader.storage.chunks) == 2

@@ -16,8 +16,8 @@ from pathlib import Path
 import pytest
 
 from bldc_propulsion import cli
-from bldc_propulsion.discrepancy import base as discrepancy_base
 from bldc_propulsion.commands import discrepancy as discrepancy_command
+from bldc_propulsion.discrepancy import base as discrepancy_base
 
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
@@ -81,9 +81,8 @@ def test_discrepancy_defaults_are_the_workflows():
 # --- 2. an empty folder takes a report ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def model(tmp_path_factory) -> Path:
-    from bldc_propulsion.model import save_model
-
     from _models import good_model
+    from bldc_propulsion.model import save_model
 
     path = tmp_path_factory.mktemp("model") / "model.npz"
     save_model(good_model(), path)
@@ -134,14 +133,19 @@ def test_train_over_an_output_it_may_not_replace_prints_only_its_error(tmp_path)
 @pytest.mark.parametrize("delay_s", [0.2, 0.5])
 def test_ctrl_c_during_start_up_exits_130_without_a_traceback(tmp_path, delay_s):
     out = tmp_path / "m.npz"
-    proc = subprocess.Popen([*PY, "train", str(BAGS / "staircase"), "--validation", str(BAGS / "validation"),
+    # four recordings: training lasts seconds, so the signal never comes after the end on a fast machine
+    bags = [str(BAGS / name) for name in ("staircase", "triangle", "staircase_half", "triangle_half")]
+    proc = subprocess.Popen([*PY, "train", *bags, "--validation", str(BAGS / "validation"),
                              "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=_env(), cwd=ROOT, preexec_fn=_default_sigint)
     time.sleep(delay_s)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
-    assert "Traceback" not in err and len(err.splitlines()) <= 1, err
+    # under load the signal may land after start-up, once progress lines are out: the message that
+    # ends the run is still one line, with no traceback
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert not err.strip() or "interrupted" in err.splitlines()[-1], err
     assert not out.exists() and not list(tmp_path.glob(".*partial*"))
 
 

@@ -10,8 +10,14 @@ import pytest
 from scipy import signal
 
 from bldc_propulsion.core.battery_filter import (
-    PAPER_DC_GAIN, PAPER_TAU_S, BatteryFilter, BatteryFilterConfig, _tustin_step, discretise,
-    paper_prototype)
+    PAPER_DC_GAIN,
+    PAPER_TAU_S,
+    BatteryFilter,
+    BatteryFilterConfig,
+    _tustin_step,
+    discretise,
+    paper_prototype,
+)
 from bldc_propulsion.core.status import OK, WARN
 from bldc_propulsion.errors import BadInputError
 
@@ -47,7 +53,7 @@ def test_closed_form_step_equals_scipy_bilinear():
 def test_clean_1khz_equals_paper_lfilter():
     t, adc = modulated_adc(20000)
     f = BatteryFilter(BatteryFilterConfig(divider_ratio=1.999))
-    out = np.array([f.update(ti, xi) for ti, xi in zip(t, adc)])
+    out = np.array([f.update(ti, xi) for ti, xi in zip(t, adc, strict=True)])
     # paper's H(z) (DC gain 1.999 = divider 1.999 x unit-gain low-pass), started in steady state
     zi = signal.lfilter_zi(PAPER_B, PAPER_A) * adc[0]
     ref, _ = signal.lfilter(PAPER_B, PAPER_A, adc, zi=zi)
@@ -79,7 +85,7 @@ def test_process_equals_update_per_sample():
     adc[12] = -1.0
     t[4000] = t[3999]  # duplicate time
     a = BatteryFilter()
-    per_sample = np.array([np.nan if (v := a.update(ti, xi)) is None else v for ti, xi in zip(t, adc)])
+    per_sample = np.array([np.nan if (v := a.update(ti, xi)) is None else v for ti, xi in zip(t, adc, strict=True)])
     b = BatteryFilter()
     batch = np.concatenate([b.process(t[:1500], adc[:1500]), b.process(t[1500:], adc[1500:])])
     np.testing.assert_allclose(batch, per_sample, rtol=0, atol=1e-12, equal_nan=True)
@@ -178,7 +184,7 @@ def test_throughput():
     batch_rate = len(t) / (time.perf_counter() - t0)
     g = BatteryFilter()
     t0 = time.perf_counter()
-    for ti, xi in zip(t[:20000].tolist(), adc[:20000].tolist()):
+    for ti, xi in zip(t[:20000].tolist(), adc[:20000].tolist(), strict=True):
         g.update(ti, xi)
     stream_rate = 20000 / (time.perf_counter() - t0)
     print(f"battery filter: batch {batch_rate:.3g} samples/s, streaming {stream_rate:.3g} samples/s")

@@ -9,7 +9,13 @@ import pytest
 
 from bldc_propulsion.core.estimator import PhysicsModel, ThrustEstimator, fallback_model
 from bldc_propulsion.core.features import (
-    FEATURES, Feature, FeatureState, PwmLowpass, compute_features, register_feature)
+    FEATURES,
+    Feature,
+    FeatureState,
+    PwmLowpass,
+    compute_features,
+    register_feature,
+)
 from bldc_propulsion.core.status import OK, WARN
 from bldc_propulsion.errors import BadInputError, ModelError
 from bldc_propulsion.model import NetworkModel
@@ -302,7 +308,7 @@ def test_fallback_forward_one_is_forward_bit_for_bit():
     rng = np.random.default_rng(0)
     volts = np.concatenate([rng.uniform(0, 60, 20000), [0.0, -0.0, 60.0, 12.0, -0.0, 1e-300, -3.0]])
     pwm = np.concatenate([rng.uniform(0, 1, 20000), [0.1, 0.5, 1.0, 0.0, 0.1000000001, 0.5, 0.7]])
-    for v, p in zip(volts.tolist(), pwm.tolist()):
+    for v, p in zip(volts.tolist(), pwm.tolist(), strict=True):
         x = [v, p, p]
         want = float(m.forward(np.asarray(x, dtype=float)))
         assert struct.pack("<d", m.forward_one(x)) == struct.pack("<d", want), x

@@ -18,11 +18,18 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _tachsignal import first_order_steps, make_signal  # noqa: E402
-
 from bldc_propulsion.core.status import OK, WARN  # noqa: E402
-from bldc_propulsion.core.tachometer_parts import EdgeDetector  # noqa: E402
 from bldc_propulsion.core.tachometer import (  # noqa: E402
-    BLOCKED, NO_EDGES, SPINNING, STARTING, STOPPED, STUCK, TachometerConfig, TachometerDecoder)
+    BLOCKED,
+    NO_EDGES,
+    SPINNING,
+    STARTING,
+    STOPPED,
+    STUCK,
+    TachometerConfig,
+    TachometerDecoder,
+)
+from bldc_propulsion.core.tachometer_parts import EdgeDetector  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 
 FS = 20000.0

@@ -24,10 +24,10 @@ from bldc_propulsion.core import effect_features as ef
 from bldc_propulsion.discrepancy import scoring as sc
 from bldc_propulsion.discrepancy.workflow import Options, run_workflow
 from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.profiles import PROFILES
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.training.train import train_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -238,7 +238,10 @@ def test_control_names_nothing_new(bags_dir):
     s = scenario("control", bags_dir)
     data = run(s)
     assert data["named"] == [], data["evidence"]
-    assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
+    # what the holdout adds here can only be structural (the model's own lack), never new
+    assert data["added"] == data["added_structural"]
+    if not data["added"]:
+        assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
 
 
 # --- command line: the README demo (the paper's case) ----------------------------------------------
@@ -288,14 +291,22 @@ def test_readme_demo_on_the_bundled_bags(tmp_path):
     data = json.loads(proc.stdout)
     # the model lacks the battery voltage on its own training data too (sag under load: it removes
     # 86 % of that residual, 99.9 % of the discharged pack's): structural by the shares, whatever
-    # the discharged pack's far larger residual in (rad/s)^2; nothing else is significant
+    # the discharged pack's far larger residual in (rad/s)^2; and the holdout decides: it is added,
+    # as structural (the paper's point: the model needs the voltage), nothing as new
     assert data["named"] == [], data["iterations"]
+    assert data["added"] == ["battery_voltage"] == data["added_structural"], data["iterations"]
     ev = data["evidence"]["battery_voltage"]
     assert ev["verdict"] == "structural" and ev["p_value"] < 0.01
     assert ev["reference"]["mse_reduction"] >= 0.5 * ev["measured"]["mse_reduction"] > 0.4
-    assert [x["effect"] for x in data["structural"]] == ["battery_voltage"]
-    assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
-    assert (tmp_path / "report" / "index.html").exists()
+    assert ev["status"] == "added" and ev["label"].startswith("added (structural")
+    decided = ev["decided_by"]
+    assert decided["test"] == "holdout" and decided["p_value"] < 0.05 and decided["reduction_pct"] >= 5.0
+    assert data["verdicts"]["battery_voltage"]["p_value"] == decided["p_value"]
+    assert data["structural"] == []  # (structural and not added)
+    assert data["holdout_rmse_after"] < data["holdout_rmse_before"]
+    assert data["model"] == str(found) and found.exists()
+    html = (tmp_path / "report" / "index.html").read_text(encoding="utf-8")
+    assert "added (structural" in html and f"{decided['reduction_pct']:.1f} %" in html
 
 
 # --- errors ---------------------------------------------------------------------------------------
@@ -344,9 +355,11 @@ def test_effect_features_stream_as_they_batch(name, params):
             tp = pwm_t[ip] if ip < len(pwm_t) else np.inf
             tv = volt_t[iv] if iv < len(volt_t) else np.inf
             if tp <= t and tp <= tv:
-                f.update_pwm(tp, pwm[ip]); ip += 1
+                f.update_pwm(tp, pwm[ip])
+                ip += 1
             elif tv <= t:
-                f.update_voltage(tv, volt[iv]); iv += 1
+                f.update_voltage(tv, volt[iv])
+                iv += 1
             else:
                 break
         stream[k] = f.value(t)

@@ -208,7 +208,7 @@ def test_onset_errs_early_for_any_rotor_shape_and_moves_with_a_dead_time(tau):
         w = np.tanh(x / (2.0 * tau) + np.arctanh(0.3))
         return [1.0 - np.exp(-x / tau), (w - 0.3) / 0.7]
 
-    for y, y_later in zip(rises(0.03), rises(0.05)):
+    for y, y_later in zip(rises(0.03), rises(0.05), strict=True):
         onset = idf._onset(t, y)
         assert 0.03 - 0.1 * tau - 0.01 <= onset <= 0.03 + 0.001, onset
         assert idf._onset(t, y_later) - onset == pytest.approx(0.02, abs=0.001)

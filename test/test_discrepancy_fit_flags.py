@@ -138,7 +138,8 @@ def test_a_named_effect_has_one_fitted_value_everywhere(two_bags, tmp_path):
         ev = data["evidence"][name]
         value, strength = ev["fitted_value"], ev["fitted_value"]["strength"]
         assert (value["quantity"], value["unit"]) == (quantity, unit)
-        assert strength == ev["fitted_parameters"]["strength"] == data["physics"]["effects"][name] == saved.effects[name]
+        assert (strength == ev["fitted_parameters"]["strength"] == data["physics"]["effects"][name]
+                == saved.effects[name])
         assert 0.8 <= strength <= 1.3  # the recordings' nominal 1
         shown = f"{quantity} {value['value']:.4g} {unit}"
         for where in (text, ev["sentence"], ev["feature"], page):

@@ -15,8 +15,7 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import acceptance as acc
 from bldc_propulsion.discrepancy import physics as ph
-from bldc_propulsion.discrepancy.workflow import run_physics_workflow
-from bldc_propulsion.discrepancy.workflow import Options
+from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.recordings import load_signals
 
@@ -67,7 +66,7 @@ def test_effect_that_does_not_help_the_holdout_is_considered_not_added(bags):
     assert "rotor_lag" in tried
     a = tried["rotor_lag"]["acceptance"]
     assert a is not None and not a["accepted"] and a["rmse_after_rad_s"] > a["rmse_before_rad_s"]
-    assert "did not improve held-out data" in tried["rotor_lag"]["why"]
+    assert "did not improve the holdout data" in tried["rotor_lag"]["why"]
 
 
 def test_judge_needs_margin_and_significance():
@@ -116,4 +115,5 @@ def test_cli_reports_considered_not_added(bags, tmp_path):
     assert tried["rotor_lag"]["acceptance"]["accepted"] is False
     human = cli(*args)
     assert human.returncode == 0, human.stderr
-    assert "considered, not added: rotor_lag (fitted, but it did not improve held-out data" in human.stdout, human.stdout
+    expected = "considered, not added: rotor_lag (fitted, but it did not improve the holdout data"
+    assert expected in human.stdout, human.stdout

@@ -21,14 +21,13 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion import plant
 from bldc_propulsion.discrepancy import physics as ph
-from bldc_propulsion.discrepancy.workflow import run_physics_workflow
-from bldc_propulsion.discrepancy.workflow import Options
+from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
 from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import BenchParams, params_with_overrides, simulate
 from bldc_propulsion.sim import random_bench as rb
 from bldc_propulsion.sim.bench import motor_response
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import SCENARIOS, _bag, cli, command  # noqa: E402

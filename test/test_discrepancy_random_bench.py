@@ -19,10 +19,9 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.physics_kind import PhysicsKind
-from bldc_propulsion.discrepancy.workflow import run_physics_workflow
-from bldc_propulsion.discrepancy.workflow import Options
-from bldc_propulsion.sim import random_bench as rb
+from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
 from bldc_propulsion.recordings import load_signals
+from bldc_propulsion.sim import random_bench as rb
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import _bag  # noqa: E402
@@ -93,8 +92,8 @@ def test_control_on_a_drawn_bench_names_nothing(bags):
 def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
     """Seed 101's heating control of experiments/physics_confusion.py (the same recordings): no
     heating anywhere, the model without it, long loads measured. Before the throttle map was
-    calibrated (its bench bends it, x^1.15) and the dead time fitted, a thermal state fitted the misfit as a slow drift and
-    improved the holdout (3.3 -> 3.0 rad/s, accepted on its own), and only the identification kept
+    calibrated (its bench bends it, x^1.15) and the dead time fitted, a thermal state fitted the misfit as a slow
+    drift and improved the holdout (3.3 -> 3.0 rad/s, accepted on its own), and only the identification kept
     heating out. Now the held-out score rejects it outright; the identification, the safeguard
     for a drift the model lacks (a second pack RC branch, a drifting sensor), must still say the
     speed's response to the thermal state is the reference's."""

@@ -15,9 +15,9 @@ from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel, save_model
+from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.sim import BenchParams, simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -49,8 +49,8 @@ def hybrid() -> HybridModel:
 def streamed(model, sig: Signals) -> np.ndarray:
     """The estimator fed the recording's events in time order, asked at every grid time."""
     est = ThrustEstimator(model)
-    ev = sorted([(t, 0, x) for t, x in zip(*map(np.ndarray.tolist, sig.pwm_events))]
-                + [(t, 1, x) for t, x in zip(*map(np.ndarray.tolist, sig.voltage_events))]
+    ev = sorted([(t, 0, x) for t, x in zip(*map(np.ndarray.tolist, sig.pwm_events), strict=True)]
+                + [(t, 1, x) for t, x in zip(*map(np.ndarray.tolist, sig.voltage_events), strict=True)]
                 + [(t, 2, 0.0) for t in sig.t.tolist()])
     out = []
     for t, kind, x in ev:
@@ -228,7 +228,7 @@ def test_cli_evaluate_compares_kinds_side_by_side(bench_bags, bag, tmp_path):
     assert data["rmse_rad_s"] == pytest.approx(truth[0][0], rel=1e-9)  # the first model's, as before
     assert data["recordings"][1]["rmse_rad_s"] == pytest.approx(truth[0][1][1].rmse_rad_s, rel=1e-9)
     rows = {(r["recording"], r["part"]): r for r in data["comparison"]}
-    for p, (rmse, scores, _), d in zip(paths, truth, data["models"]):
+    for p, (rmse, scores, _), d in zip(paths, truth, data["models"], strict=True):
         assert d["rmse_rad_s"] == pytest.approx(rmse, rel=1e-9)
         for s in scores:
             row = rows[(s.path, "whole")]

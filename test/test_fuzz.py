@@ -22,10 +22,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from _models import good_model  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.errors import BadInputError, ModelError
 from bldc_propulsion.model import load_model, save_model
-from _models import good_model  # noqa: E402
 from bldc_propulsion.training import import_csv as ic
 
 BUDGET = settings(max_examples=int(os.environ.get("BLDC_FUZZ_EXAMPLES", "120")), deadline=None, derandomize=True,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from bldc_propulsion.bagio import open_recording
-from bldc_propulsion.errors import BadInputError, OutputExistsError
 from bldc_propulsion.commands import import_csv as import_command
+from bldc_propulsion.errors import BadInputError, OutputExistsError
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.training.csv_command import align_by_speed
 from bldc_propulsion.training.import_csv import import_csv
@@ -340,7 +340,7 @@ def test_empty_command_column_is_named_with_the_way_out(tmp_path: Path) -> None:
 def test_command_column_levels_hand_computed(tmp_path: Path, unit_col: str, option: str | None,
                                              values: list[str], levels: list[float]) -> None:
     header = f"Time (s),ESC signal (µs),{unit_col},Motor Optical Speed (RPM)"
-    rows = [f"{t},,{v},{rpm}" for t, v, rpm in zip(("0", "0.04", "0.08"), values, ("0", "3000", "6000"))]
+    rows = [f"{t},,{v},{rpm}" for t, v, rpm in zip(("0", "0.04", "0.08"), values, ("0", "3000", "6000"), strict=True)]
     src = write_csv(tmp_path / "c.csv", header, rows)
     info = import_csv(src, tmp_path / "c.bag", command_column=unit_col, command_unit=option)
     t, pwm = read(tmp_path / "c.bag", "pwm")
@@ -423,7 +423,8 @@ def _write_stand_log(path: Path, res, rng: np.random.Generator, stop_s: float) -
     rpm *= 1 + 0.003 * rng.standard_normal(len(sim_t))
     volts = np.interp(sim_t, res.truth_t, res.truth_voltage)
     thrust = np.interp(sim_t, res.truth_t, res.truth_thrust)
-    rows = [f"{t - RC_START_S:.6f},,{v:.4f},{f:.5f},{r:.0f}" for t, v, f, r in zip(sim_t, volts, thrust, rpm)]
+    rows = [f"{t - RC_START_S:.6f},,{v:.4f},{f:.5f},{r:.0f}"
+            for t, v, f, r in zip(sim_t, volts, thrust, rpm, strict=True)]
     write_csv(path, "Time (s),ESC signal (µs),Voltage (V),Thrust (N),Motor Electrical Speed (RPM)", rows)
 
 

@@ -19,14 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _models import good_model
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import BagWriter, open_recording
 from bldc_propulsion.model import save_model
+from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import _streams, write_sim_bag
-from bldc_propulsion.recordings import load_signals
-
-from _models import good_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -108,7 +107,7 @@ def test_commands_on_a_vehicle_recording(home, tmp_path):
         "bad namespace": ["info", home / "vehicle", "--namespace", "motor 1"],
     }
     with ThreadPoolExecutor(max_workers=4) as pool:
-        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values())))
+        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values()), strict=True))
     for name in ("evaluate", "replay", "info"):
         assert procs[name].returncode == 0, procs[name].stderr
     ev = json.loads(procs["evaluate"].stdout)
@@ -188,7 +187,7 @@ def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
         assert set(v.topics()) == {t if t == c.TOPIC_BATTERY_ADC else f"motor3/{t}" for t in b.topics()}
     with open_recording(vehicle, "motor3") as v, open_recording(bench) as b:
         for topic in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_THRUST_MEASURED):
-            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic))), topic
+            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic), strict=True)), topic
     proc = run("info", vehicle, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert "--namespace motor3" in proc.stdout and "Usable for:       nothing" in proc.stdout
@@ -198,13 +197,14 @@ def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
     train = ["--hidden", "3", "--restarts", "1", "--max-epochs", "5", "--json"]
     ns = ["--namespace", "motor3"]
     cases = {
-        "train vehicle": ["train", vehicle, "--validation", bags["val", "motor3"], "-o", tmp_path / "v.npz", *train, *ns],
+        "train vehicle": ["train", vehicle, "--validation", bags["val", "motor3"],
+                          "-o", tmp_path / "v.npz", *train, *ns],
         "train bench": ["train", bench, "--validation", bags["val", None], "-o", tmp_path / "b.npz", *train],
         "train vehicle, no namespace": ["train", vehicle, "--validation", bags["val", "motor3"],
                                         "-o", tmp_path / "none.npz", *train],
     }
     with ThreadPoolExecutor(max_workers=2) as pool:
-        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values())))
+        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values()), strict=True))
     fitted = {}
     for name in ("train vehicle", "train bench"):
         assert procs[name].returncode == 0, procs[name].stderr
@@ -226,7 +226,7 @@ def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
         "replay bench": ["replay", bench, "-o", tmp_path / "rb", "--model", model, "--json"],
     }
     with ThreadPoolExecutor(max_workers=2) as pool:
-        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values())))
+        procs = dict(zip(cases, pool.map(lambda a: run(*a, cwd=tmp_path), cases.values()), strict=True))
     for proc in procs.values():
         assert proc.returncode == 0, proc.stderr
     ev, eb = (json.loads(procs[f"evaluate {k}"].stdout) for k in ("vehicle", "bench"))
@@ -235,8 +235,8 @@ def test_simulate_records_one_motor_of_a_vehicle(tmp_path):
     with open_recording(tmp_path / "rv", "motor3") as v, open_recording(tmp_path / "rb") as b:
         assert "motor3/predicted/speed" in v.topics() and "battery/voltage" in v.topics()
         for topic in (c.TOPIC_ROTOR_SPEED, c.TOPIC_PREDICTED_SPEED):
-            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic))), topic
-        assert all(np.array_equal(x, y) for x, y in zip(v.battery_voltages(), b.battery_voltages()))
+            assert all(np.array_equal(x, y) for x, y in zip(v.scalars(topic), b.scalars(topic), strict=True)), topic
+        assert all(np.array_equal(x, y) for x, y in zip(v.battery_voltages(), b.battery_voltages(), strict=True))
 
 
 def test_a_namespace_per_recording_trains_on_one_motor_and_validates_on_another(home, tmp_path):

@@ -13,7 +13,17 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.errors import ModelError
 from bldc_propulsion.model import (
-    HYBRID, KINDS, NETWORK, PHYSICS, PHYSICS_SPEED, HybridModel, NetworkModel, PlantModel, load_model, save_model)
+    HYBRID,
+    KINDS,
+    NETWORK,
+    PHYSICS,
+    PHYSICS_SPEED,
+    HybridModel,
+    NetworkModel,
+    PlantModel,
+    load_model,
+    save_model,
+)
 from bldc_propulsion.plant import PLANT_FIELDS, PlantParams
 from bldc_propulsion.sim import BenchParams
 

@@ -185,6 +185,7 @@ def test_the_overrides_rclpy_resolved_are_readable(ros):
     check going quiet, if an rclpy update drops it."""
     _, context = ros
     from rclpy.parameter import Parameter
+
     from bldc_propulsion.nodes.common import parameter_overrides
     from bldc_propulsion.nodes.tachometer_node import TachometerNode
     node = TachometerNode(context=context, cli_args=["--ros-args", "-p", "blads:=3"],

@@ -3,13 +3,13 @@
 Every test drives time through /clock (use_sim_time), as ``ros2 bag play --clock`` does, and
 times stamp-less inputs on receipt (use_source_timestamps false: the helper publishes whenever
 the node has answered, not at the data's rate), so the nodes see exactly the synthetic times and
-nothing depends on the machine's speed. test_nodes_live.py runs them as processes in real time.
+nothing depends on the machine's speed (the ``start_node`` fixture: conftest.py, _ros.NodeHarness).
+test_nodes_live.py runs them as processes in real time.
 """
 
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -22,7 +22,6 @@ from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Float64  # noqa: E402
 
@@ -33,81 +32,20 @@ from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode  # noqa:
 from bldc_propulsion.nodes.tachometer_node import TachometerNode  # noqa: E402
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode, main  # noqa: E402
 
-SIM_TIME = Parameter("use_sim_time", value=True)
-RECEIPT_TIMING = {"use_source_timestamps": False}
 T0 = 100.0  # s, start of the synthetic recording
-
-
-class Harness:
-    """A node under test, a helper node that publishes inputs and records outputs, /clock."""
-
-    def __init__(self, context, node):
-        self.context = context
-        self.node = node
-        self.helper = rclpy.create_node("test_helper", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(node)
-        self.executor.add_node(self.helper)
-        self.clock_pub = self.helper.create_publisher(Clock, "/clock", 10)
-        self.received: dict[str, list] = {}
-        self.pubs: dict[str, object] = {}
-
-    def record(self, msg_type, topic):
-        self.received[topic] = []
-        self.helper.create_subscription(msg_type, topic, self.received[topic].append, 100)
-
-    def publisher(self, msg_type, topic):
-        self.pubs[topic] = self.helper.create_publisher(msg_type, topic, 100)
-        return self.pubs[topic]
-
-    def spin_until(self, condition, timeout_s=5.0):
-        deadline = time.monotonic() + timeout_s
-        while not condition():
-            assert time.monotonic() < deadline, "timed out waiting for the node"
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def wait_for_subscribers(self, topic):
-        self.spin_until(lambda: self.pubs[topic].get_subscription_count() > 0)
-
-    def set_time(self, t_s):
-        sec, nanosec = divmod(int(round(t_s * 1e9)), 1_000_000_000)
-        self.clock_pub.publish(Clock(clock=TimeMsg(sec=sec, nanosec=nanosec)))
-        target = int(round(t_s * 1e9))
-        self.spin_until(lambda: self.node.get_clock().now().nanoseconds >= target)
-
-    def send(self, topic, msg, t_s, expect=()):
-        """Publish ``msg`` at sim time ``t_s``; wait until each ``expect`` topic grew by one."""
-        self.set_time(t_s)
-        expect = (expect,) if isinstance(expect, str) else tuple(expect)
-        before = [len(self.received[e]) for e in expect]
-        self.pubs[topic].publish(msg)
-        if expect:
-            self.spin_until(lambda: all(len(self.received[e]) > b for e, b in zip(expect, before)))
-        else:
-            for _ in range(5):
-                self.executor.spin_once(timeout_sec=0.005)
-
-    def close(self):
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.helper.destroy_node()
-
-
-@pytest.fixture
-def context():
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
-def make(context, node_class, **overrides):
-    params = [SIM_TIME] + [Parameter(k, value=v) for k, v in overrides.items()]
-    return Harness(context, node_class(context=context, parameter_overrides=params))
 
 
 def statuses(harness):
     return [s for msg in harness.received[contract.TOPIC_DIAGNOSTICS] for s in msg.status]
+
+
+def estimator_inputs(h, voltage_v=12.0):
+    """The estimator's input publishers, and the pack's voltage at T0 (before any command)."""
+    h.publisher(Float64, contract.TOPIC_PWM)
+    h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+    voltage = BatteryState(voltage=voltage_v, present=True)
+    voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
+    h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
 
 
 # --- tachometer ---
@@ -119,124 +57,107 @@ def tach_signal(speed_rad_s, rate_hz, n, t0, blades=2, high=3.0, low=0.2, duty=0
     return np.where(phase < duty, low, high).astype(np.float32)
 
 
-def test_tachometer_measures_a_known_speed_and_reports_loss(context):
-    h = make(context, TachometerNode, **RECEIPT_TIMING)
-    try:
-        h.record(Float64, contract.TOPIC_ROTOR_SPEED)
-        h.record(Float64, contract.TOPIC_ROTOR_RPM)
-        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
-        h.publisher(Float32MultiArray, contract.TOPIC_TACH_ADC)
-        h.wait_for_subscribers(contract.TOPIC_TACH_ADC)
-        rate, batch, speed = 20000.0, 200, 600.0
-        signal = tach_signal(speed, rate, 60 * batch, T0)
-        first_revolution = 2  # 5 edges (a revolution, 10.5 ms at 600 rad/s) need 2 batches
-        for k in range(60):  # 0.6 s of batches, time of the last sample of each
-            t_last = T0 + ((k + 1) * batch - 1) / rate
-            msg = Float32MultiArray(data=signal[k * batch:(k + 1) * batch].tolist())
-            expect = (contract.TOPIC_ROTOR_SPEED, contract.TOPIC_ROTOR_RPM) \
-                if k >= first_revolution else ()
-            h.send(contract.TOPIC_TACH_ADC, msg, t_last, expect=expect)
-        speeds = [m.data for m in h.received[contract.TOPIC_ROTOR_SPEED]]
-        rpms = [m.data for m in h.received[contract.TOPIC_ROTOR_RPM]]
-        assert 60 - first_revolution <= len(speeds) == len(rpms) <= 60 - 1
-        assert all(s == pytest.approx(speed, rel=0.01) for s in speeds)
-        assert rpms == pytest.approx([s * 60.0 / (2.0 * math.pi) for s in speeds], rel=1e-9)
+def test_tachometer_measures_a_known_speed_and_reports_loss(start_node):
+    h = start_node(TachometerNode)
+    h.record(Float64, contract.TOPIC_ROTOR_SPEED)
+    h.record(Float64, contract.TOPIC_ROTOR_RPM)
+    h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+    h.publisher(Float32MultiArray, contract.TOPIC_TACH_ADC)
+    rate, batch, speed = 20000.0, 200, 600.0
+    signal = tach_signal(speed, rate, 60 * batch, T0)
+    first_revolution = 2  # 5 edges (a revolution, 10.5 ms at 600 rad/s) need 2 batches
+    for k in range(60):  # 0.6 s of batches, time of the last sample of each
+        t_last = T0 + ((k + 1) * batch - 1) / rate
+        msg = Float32MultiArray(data=signal[k * batch:(k + 1) * batch].tolist())
+        expect = (contract.TOPIC_ROTOR_SPEED, contract.TOPIC_ROTOR_RPM) \
+            if k >= first_revolution else ()
+        h.send(contract.TOPIC_TACH_ADC, msg, t_last, expect=expect)
+    speeds = [m.data for m in h.received[contract.TOPIC_ROTOR_SPEED]]
+    rpms = [m.data for m in h.received[contract.TOPIC_ROTOR_RPM]]
+    assert 60 - first_revolution <= len(speeds) == len(rpms) <= 60 - 1
+    assert all(s == pytest.approx(speed, rel=0.01) for s in speeds)
+    assert rpms == pytest.approx([s * 60.0 / (2.0 * math.pi) for s in speeds], rel=1e-9)
 
-        # no more batches: nothing more is published (nothing to stand behind), and
-        # diagnostics say the input is lost
-        n_out = len(speeds)
-        t_end = T0 + 60 * batch / rate
-        for step in range(1, 31):
-            h.set_time(t_end + 0.1 * step)
-            for _ in range(3):
-                h.executor.spin_once(timeout_sec=0.005)
-        assert len(h.received[contract.TOPIC_ROTOR_SPEED]) == n_out
-        last = statuses(h)[-2:]
-        assert any(s.level == DiagnosticStatus.ERROR and "no tachometer/adc batch" in s.message
-                   for s in last), last
-        assert all(s.name.startswith("tachometer: ") for s in statuses(h))
-        assert all(s.hardware_id == "motor" for s in statuses(h))
-    finally:
-        h.close()
+    # no more batches: nothing more is published (nothing to stand behind), and
+    # diagnostics say the input is lost
+    n_out = len(speeds)
+    t_end = T0 + 60 * batch / rate
+    for step in range(1, 31):
+        h.set_time(t_end + 0.1 * step)
+        for _ in range(3):
+            h.executor.spin_once(timeout_sec=0.005)
+    assert len(h.received[contract.TOPIC_ROTOR_SPEED]) == n_out
+    last = statuses(h)[-2:]
+    assert any(s.level == DiagnosticStatus.ERROR and "no tachometer/adc batch" in s.message
+               for s in last), last
+    assert all(s.name.startswith("tachometer: ") for s in statuses(h))
+    assert all(s.hardware_id == "motor" for s in statuses(h))
 
 
 # --- battery filter ---
 
-def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(context):
-    h = make(context, BatteryFilterNode, publish_rate_hz=1000.0, **RECEIPT_TIMING)
-    try:
-        h.record(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
-        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
-        h.publisher(Float64, contract.TOPIC_BATTERY_ADC)
-        h.wait_for_subscribers(contract.TOPIC_BATTERY_ADC)
-        adc = 6.2
-        t = T0
-        for _ in range(300):
-            t += 0.001
-            h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
-                   expect=contract.TOPIC_BATTERY_VOLTAGE)
-        last = h.received[contract.TOPIC_BATTERY_VOLTAGE][-1]
-        assert last.voltage == pytest.approx(1.999 * adc, rel=0.01)
-        assert last.present is True
-        assert math.isnan(last.current) and math.isnan(last.percentage)
-        assert last.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN
-        stamp = last.header.stamp.sec + last.header.stamp.nanosec * 1e-9
-        assert stamp == pytest.approx(t, abs=1e-6)  # time of the sample, on the node clock
-
-        n_out = len(h.received[contract.TOPIC_BATTERY_VOLTAGE])
+def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(start_node):
+    h = start_node(BatteryFilterNode, publish_rate_hz=1000.0)
+    h.record(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
+    h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+    h.publisher(Float64, contract.TOPIC_BATTERY_ADC)
+    adc = 6.2
+    t = T0
+    for _ in range(300):
         t += 0.001
-        h.send(contract.TOPIC_BATTERY_ADC, Float64(data=math.nan), t)
-        assert len(h.received[contract.TOPIC_BATTERY_VOLTAGE]) == n_out  # rejected, not published
-        for _ in range(20):  # later samples are filtered as before
-            t += 0.001
-            h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
-                   expect=contract.TOPIC_BATTERY_VOLTAGE)
-        assert h.received[contract.TOPIC_BATTERY_VOLTAGE][-1].voltage == pytest.approx(
-            1.999 * adc, rel=0.01)
+        h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
+               expect=contract.TOPIC_BATTERY_VOLTAGE)
+    last = h.received[contract.TOPIC_BATTERY_VOLTAGE][-1]
+    assert last.voltage == pytest.approx(1.999 * adc, rel=0.01)
+    assert last.present is True
+    assert math.isnan(last.current) and math.isnan(last.percentage)
+    assert last.power_supply_status == BatteryState.POWER_SUPPLY_STATUS_UNKNOWN
+    stamp = last.header.stamp.sec + last.header.stamp.nanosec * 1e-9
+    assert stamp == pytest.approx(t, abs=1e-6)  # time of the sample, on the node clock
 
-        diagnostics = h.received[contract.TOPIC_DIAGNOSTICS]
-        n_diag = len(diagnostics)
-        h.set_time(t + 1.5)  # the 1 Hz diagnostics timer fires once more
-        h.spin_until(lambda: len(diagnostics) > n_diag)
-        status = diagnostics[-1].status[0]
-        assert status.level == DiagnosticStatus.WARN, status
-        assert status.name.startswith("battery_filter: ")
-        rejected = {kv.key: kv.value for kv in status.values if "reject" in kv.key}
-        assert any(v not in ("0", "") for v in rejected.values()), status
-    finally:
-        h.close()
+    n_out = len(h.received[contract.TOPIC_BATTERY_VOLTAGE])
+    t += 0.001
+    h.send(contract.TOPIC_BATTERY_ADC, Float64(data=math.nan), t)
+    assert len(h.received[contract.TOPIC_BATTERY_VOLTAGE]) == n_out  # rejected, not published
+    for _ in range(20):  # later samples are filtered as before
+        t += 0.001
+        h.send(contract.TOPIC_BATTERY_ADC, Float64(data=adc), t,
+               expect=contract.TOPIC_BATTERY_VOLTAGE)
+    assert h.received[contract.TOPIC_BATTERY_VOLTAGE][-1].voltage == pytest.approx(
+        1.999 * adc, rel=0.01)
+
+    diagnostics = h.received[contract.TOPIC_DIAGNOSTICS]
+    n_diag = len(diagnostics)
+    h.set_time(t + 1.5)  # the 1 Hz diagnostics timer fires once more
+    h.spin_until(lambda: len(diagnostics) > n_diag)
+    status = diagnostics[-1].status[0]
+    assert status.level == DiagnosticStatus.WARN, status
+    assert status.name.startswith("battery_filter: ")
+    rejected = {kv.key: kv.value for kv in status.values if "reject" in kv.key}
+    assert any(v not in ("0", "") for v in rejected.values()), status
 
 
 # --- thrust estimator ---
 
-def test_thrust_estimator_predicts_with_the_fallback_and_warns(context):
-    h = make(context, ThrustEstimatorNode, **RECEIPT_TIMING)
-    try:
-        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
-        h.record(Float64, contract.TOPIC_PREDICTED_THRUST)
-        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
-        h.publisher(Float64, contract.TOPIC_PWM)
-        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
-        h.wait_for_subscribers(contract.TOPIC_PWM)
-        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
-        voltage = BatteryState(voltage=12.0, present=True)
-        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
-        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
-        h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
-        for k in range(1, 50):
-            h.set_time(T0 + 0.01 * k)
-            h.executor.spin_once(timeout_sec=0.005)
-        h.set_time(T0 + 1.5)
-        h.spin_until(lambda: len(h.received[contract.TOPIC_PREDICTED_SPEED]) > 5
-                     and statuses(h))
-        speeds = [m.data for m in h.received[contract.TOPIC_PREDICTED_SPEED]]
-        thrusts = [m.data for m in h.received[contract.TOPIC_PREDICTED_THRUST]]
-        assert all(math.isfinite(s) and s >= 0.0 for s in speeds)
-        assert all(math.isfinite(f) and f >= 0.0 for f in thrusts)
-        assert any(s.level == DiagnosticStatus.WARN and "fallback" in s.message.lower()
-                   for s in statuses(h))
-    finally:
-        h.close()
+def test_thrust_estimator_predicts_with_the_fallback_and_warns(start_node):
+    h = start_node(ThrustEstimatorNode)
+    h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+    h.record(Float64, contract.TOPIC_PREDICTED_THRUST)
+    h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+    estimator_inputs(h)
+    h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
+    for k in range(1, 50):
+        h.set_time(T0 + 0.01 * k)
+        h.executor.spin_once(timeout_sec=0.005)
+    h.set_time(T0 + 1.5)
+    h.spin_until(lambda: len(h.received[contract.TOPIC_PREDICTED_SPEED]) > 5
+                 and statuses(h))
+    speeds = [m.data for m in h.received[contract.TOPIC_PREDICTED_SPEED]]
+    thrusts = [m.data for m in h.received[contract.TOPIC_PREDICTED_THRUST]]
+    assert all(math.isfinite(s) and s >= 0.0 for s in speeds)
+    assert all(math.isfinite(f) and f >= 0.0 for f in thrusts)
+    assert any(s.level == DiagnosticStatus.WARN and "fallback" in s.message.lower()
+               for s in statuses(h))
 
 
 def test_thrust_estimator_refuses_a_bad_model(context, tmp_path):
@@ -268,58 +189,40 @@ def test_thrust_estimator_keeps_the_last_good_model_on_a_bad_reload(context, tmp
 
 # --- all in one ---
 
-def test_thrust_estimator_keeps_its_rate_under_a_40_hz_clock(context):
+def test_thrust_estimator_keeps_its_rate_under_a_40_hz_clock(start_node):
     """`ros2 bag play --clock` steps /clock at 40 Hz: every 10 ms grid time is still predicted."""
-    h = make(context, ThrustEstimatorNode, **RECEIPT_TIMING)
-    try:
-        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
-        h.publisher(Float64, contract.TOPIC_PWM)
-        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
-        h.wait_for_subscribers(contract.TOPIC_PWM)
-        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
-        voltage = BatteryState(voltage=12.0, present=True)
-        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
-        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
-        h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
-        for k in range(1, 81):  # 2 s of /clock in 25 ms steps
-            h.set_time(T0 + 0.025 * k)
-            for _ in range(3):
-                h.executor.spin_once(timeout_sec=0.002)
-        received = h.received[contract.TOPIC_PREDICTED_SPEED]
-        h.spin_until(lambda: len(received) >= 199)  # 100 Hz over 2 s, not 40 Hz (80)
-        for _ in range(10):
-            h.executor.spin_once(timeout_sec=0.005)
-        assert len(received) <= 201
-    finally:
-        h.close()
-
-
-def test_thrust_estimator_stops_predicting_from_a_stale_command(context):
-    """pwm_timeout_s: a fixed-rate pwm that falls silent stops the predictions, and says so."""
-    h = make(context, ThrustEstimatorNode, pwm_timeout_s=0.2, **RECEIPT_TIMING)
-    try:
-        h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
-        h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
-        h.publisher(Float64, contract.TOPIC_PWM)
-        h.publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE)
-        h.wait_for_subscribers(contract.TOPIC_PWM)
-        h.wait_for_subscribers(contract.TOPIC_BATTERY_VOLTAGE)
-        voltage = BatteryState(voltage=12.0, present=True)
-        voltage.header.stamp = TimeMsg(sec=int(T0), nanosec=0)
-        h.send(contract.TOPIC_BATTERY_VOLTAGE, voltage, T0)
-        for k in range(25):  # 0.5 s of pwm at 50 Hz
-            h.send(contract.TOPIC_PWM, Float64(data=0.075), T0 + 0.02 * k)
-        received = h.received[contract.TOPIC_PREDICTED_SPEED]
-        for k in range(1, 61):  # then 1.5 s without pwm
-            h.set_time(T0 + 0.48 + 0.025 * k)
+    h = start_node(ThrustEstimatorNode)
+    h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+    estimator_inputs(h)
+    h.send(contract.TOPIC_PWM, Float64(data=0.075), T0)
+    for k in range(1, 81):  # 2 s of /clock in 25 ms steps
+        h.set_time(T0 + 0.025 * k)
+        for _ in range(3):
             h.executor.spin_once(timeout_sec=0.002)
-        h.spin_until(lambda: any("no pwm for" in s.message for s in statuses(h)))
-        # predictions up to 0.2 s after the last command (0.48 s), none after
-        assert 65 <= len(received) <= 70, len(received)
-        assert any(s.level == DiagnosticStatus.ERROR and "not predicting" in s.message
-                   for s in statuses(h))
-    finally:
-        h.close()
+    received = h.received[contract.TOPIC_PREDICTED_SPEED]
+    h.spin_until(lambda: len(received) >= 199)  # 100 Hz over 2 s, not 40 Hz (80)
+    for _ in range(10):
+        h.executor.spin_once(timeout_sec=0.005)
+    assert len(received) <= 201
+
+
+def test_thrust_estimator_stops_predicting_from_a_stale_command(start_node):
+    """pwm_timeout_s: a fixed-rate pwm that falls silent stops the predictions, and says so."""
+    h = start_node(ThrustEstimatorNode, pwm_timeout_s=0.2)
+    h.record(Float64, contract.TOPIC_PREDICTED_SPEED)
+    h.record(DiagnosticArray, contract.TOPIC_DIAGNOSTICS)
+    estimator_inputs(h)
+    for k in range(25):  # 0.5 s of pwm at 50 Hz
+        h.send(contract.TOPIC_PWM, Float64(data=0.075), T0 + 0.02 * k)
+    received = h.received[contract.TOPIC_PREDICTED_SPEED]
+    for k in range(1, 61):  # then 1.5 s without pwm
+        h.set_time(T0 + 0.48 + 0.025 * k)
+        h.executor.spin_once(timeout_sec=0.002)
+    h.spin_until(lambda: any("no pwm for" in s.message for s in statuses(h)))
+    # predictions up to 0.2 s after the last command (0.48 s), none after
+    assert 65 <= len(received) <= 70, len(received)
+    assert any(s.level == DiagnosticStatus.ERROR and "not predicting" in s.message
+               for s in statuses(h))
 
 
 @pytest.mark.parametrize("node_main, argument, words", [

@@ -21,12 +21,10 @@ from _ros import require_rclpy
 
 require_rclpy()
 
-from test_nodes_live import NODES, ROOT, env, play, player_t0, start_node  # noqa: E402
-
 from bldc_propulsion.nodes import common  # noqa: E402
-
 from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.record import write_sim_bag  # noqa: E402
+from test_nodes_live import NODES, ROOT, env, play, player_t0, start_node  # noqa: E402
 
 PROBE = """
 import os, signal, threading, time
@@ -98,7 +96,7 @@ def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, 
         time.sleep(after_s)  # messages are flowing into every node
         for p in nodes:
             p.send_signal(getattr(signal, sig))
-        for name, p in zip(names, nodes):
+        for name, p in zip(names, nodes, strict=True):
             try:
                 _, err = p.communicate(timeout=10)
             except subprocess.TimeoutExpired:

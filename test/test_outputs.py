@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
 import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -17,13 +18,12 @@ from pathlib import Path
 
 import pytest
 
+from _models import good_model
 from bldc_propulsion.atomic import REPORT_MARKER, describe_path
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.model import save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
-
-from _models import good_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -120,7 +120,8 @@ def refused(home):
 
     before = snapshot()
     with ThreadPoolExecutor(max_workers=6) as pool:
-        procs = dict(zip(REFUSED, pool.map(lambda argv: run(*argv, cwd=home), (v[0] for v in REFUSED.values()))))
+        outcomes = pool.map(lambda argv: run(*argv, cwd=home), (v[0] for v in REFUSED.values()))
+        procs = dict(zip(REFUSED, outcomes, strict=True))
     return before, procs, snapshot()
 
 
@@ -186,3 +187,56 @@ def test_mcap_output_is_one_file(tmp_path):
     assert describe_path(tmp_path / "out.mcap") == "an MCAP recording"
     one_line_error(run("simulate", "--profile", "staircase", "--duration", "2", "--storage", "sqlite3",
                        "-o", "y.mcap", cwd=tmp_path), "MCAP storage only")
+
+
+def _foreign_bag(path: Path, storage: str = "mcap") -> Path:
+    """A recording another tool wrote (rosbags directly, as `ros2 bag record` would: no mark);
+    ``path`` ending in .mcap: its single MCAP file."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from bldc_propulsion.bagio import TYPESTORE
+
+    bag_dir = path.with_name(path.stem + "_dir") if path.suffix == ".mcap" else path
+    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+    with Writer(bag_dir, version=9, storage_plugin=plugin) as writer:
+        conn = writer.add_connection("/pwm", "std_msgs/msg/Float64", typestore=TYPESTORE)
+        writer.write(conn, 10**9, b"\x00\x01\x00\x00" + struct.pack("<d", 0.05))  # CDR Float64
+    if path.suffix == ".mcap":
+        (bag_dir / f"{bag_dir.name}.mcap").rename(path)
+        for f in bag_dir.iterdir():
+            f.unlink()
+        bag_dir.rmdir()
+    return path
+
+
+@pytest.mark.parametrize("name,storage,where", [("bench", "mcap", "its metadata.yaml"),
+                                                ("bench_sqlite", "sqlite3", "its metadata.yaml"),
+                                                ("bench.mcap", "mcap", "its rosbag2 metadata record")])
+def test_force_never_replaces_a_recording_another_tool_wrote(tmp_path, name, storage, where):
+    """A typo in -o must not wipe a bench log: only a recording carrying this tool's mark in
+    rosbag2's custom_data is replaced by --force; one this tool wrote there is."""
+    from bldc_propulsion.atomic import RECORDING, RECORDING_MARK, check_output, recording_marked
+    from bldc_propulsion.errors import BadInputError
+
+    foreign = _foreign_bag(tmp_path / name, storage)
+    before = digest(foreign)
+    assert not recording_marked(foreign)
+    with pytest.raises(BadInputError, match="not written by bldc-propulsion") as err:
+        check_output(foreign, RECORDING, force=True)
+    assert "\n" not in str(err.value)
+    line = one_line_error(run("simulate", "--profile", "staircase", "--duration", "1", "-o", foreign, "--force",
+                              cwd=tmp_path), str(foreign), f"no mark in {where}", "remove it yourself")
+    assert "not written by bldc-propulsion" in line
+    assert digest(foreign) == before and sorted(p.name for p in tmp_path.iterdir()) == [name]
+    ours = tmp_path / f"ours{'.mcap' if name.endswith('.mcap') else ''}"
+    args = ["--storage", storage] if storage != "mcap" else []
+    assert run("simulate", "--profile", "staircase", "--duration", "1", "-o", ours, *args,
+               cwd=tmp_path).returncode == 0
+    assert recording_marked(ours)
+    if ours.is_dir():
+        assert f"{RECORDING_MARK[0]}: {RECORDING_MARK[1]}" in (ours / "metadata.yaml").read_text()
+    first = digest(ours)
+    proc = run("simulate", "--profile", "staircase", "--duration", "1", "--seed", "7", "-o", ours, "--force",
+               *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert digest(ours) != first and recording_marked(ours)

@@ -28,9 +28,10 @@ def events(res: SimResult, volt_every: int, grid: np.ndarray, seed: int) -> list
     time order; inputs stamped alike in a random order, predictions after them."""
     v = BatteryFilter().process(res.battery_t, res.battery_adc)
     rng = np.random.default_rng(seed)
-    ev = ([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
-          + [(t, VOLTAGE, x) for t, x in zip(res.battery_t[::volt_every].tolist(), v[::volt_every].tolist())])
-    ev = [e for _, e in sorted(zip(rng.random(len(ev)), ev))]
+    ev = ([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist(), strict=True)]
+          + [(t, VOLTAGE, x)
+             for t, x in zip(res.battery_t[::volt_every].tolist(), v[::volt_every].tolist(), strict=True)])
+    ev = [e for _, e in sorted(zip(rng.random(len(ev)), ev, strict=True))]
     ev.sort(key=lambda e: e[0])  # stable: ties keep the random order
     return sorted(ev + [(t, PREDICT, 0.0) for t in grid.tolist()], key=lambda e: (e[0], e[1] == PREDICT))
 
@@ -105,8 +106,8 @@ def test_stream_on_the_terminal_voltage_reproduces_the_simulator() -> None:
     """Known truth: the simulator's speed, from its command and its terminal voltage."""
     res = simulate("random_steps", 10.0, 3)
     s = PlantStream(BenchParams(), {}, 12.0, 0.0)
-    ev = sorted([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist())]
-                + [(t, VOLTAGE, x) for t, x in zip(res.truth_t.tolist(), res.truth_voltage.tolist())]
+    ev = sorted([(t, PWM, x) for t, x in zip(res.pwm_t.tolist(), res.pwm.tolist(), strict=True)]
+                + [(t, VOLTAGE, x) for t, x in zip(res.truth_t.tolist(), res.truth_voltage.tolist(), strict=True)]
                 + [(t, PREDICT, 0.0) for t in res.truth_t[1:-1].tolist()], key=lambda e: (e[0], e[1]))
     err = run(s, ev) - res.truth_speed[1:-1]
     assert np.max(np.abs(err)) < 0.5

@@ -29,8 +29,15 @@ from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.identify import Heating
 from bldc_propulsion.priors import (
-    CP_RANGE_FACTOR, INCH_M, KV_RANGE_FACTOR, MotorPriors, figure_of_merit, physics_start,
-    propeller_cp_from_ct, propeller_ct_from_geometry)
+    CP_RANGE_FACTOR,
+    INCH_M,
+    KV_RANGE_FACTOR,
+    MotorPriors,
+    figure_of_merit,
+    physics_start,
+    propeller_cp_from_ct,
+    propeller_ct_from_geometry,
+)
 from bldc_propulsion.sim import BenchParams, simulate
 from bldc_propulsion.sim.random_bench import draw_far_bench
 from bldc_propulsion.sim.record import write_sim_bag

@@ -19,7 +19,6 @@ from hypothesis import strategies as st
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _tachsignal import make_signal  # noqa: E402
-
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
@@ -62,13 +61,13 @@ def test_battery_filter_bad_input(events):
     xs = [x for _, x in events]
     lo, hi = BF.divider_ratio * BF.min_adc_v, BF.divider_ratio * BF.max_adc_v
     f = BatteryFilter(BF)
-    outs = [f.update(t, x) for t, x in zip(ts, xs)]
+    outs = [f.update(t, x) for t, x in zip(ts, xs, strict=True)]
     for v in outs:
         assert v is None or (math.isfinite(v) and lo - 1e-9 <= v <= hi + 1e-9)
     # the batch path gives the same answers (NaN where update said None)
     g = BatteryFilter(BF)
     batch = g.process(np.array(ts), np.array(xs))
-    for v, b in zip(outs, batch):
+    for v, b in zip(outs, batch, strict=True):
         assert (v is None and math.isnan(b)) or (v is not None and b == pytest.approx(v, rel=1e-9, abs=1e-9))
     assert f.accepted + f.rejected == len(xs)
     st_ = f.status()[0]
@@ -178,7 +177,7 @@ def test_thrust_estimator_bad_input(which, events):
     bound = network_bound(model) if which == "network" else 5000.0
     est = ThrustEstimator(model)
     ts = times([d for _, d, _ in events])
-    for (kind, _, v), t in zip(events, ts):
+    for (kind, _, v), t in zip(events, ts, strict=True):
         if kind == "pwm":
             est.update_pwm(t, v)
         elif kind == "voltage":

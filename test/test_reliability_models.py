@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _models import good_model  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.errors import ModelError
 from bldc_propulsion.model import load_model, save_model
-from _models import good_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

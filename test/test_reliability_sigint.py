@@ -20,9 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from bldc_propulsion.model import save_model
-
 from _models import good_model
+from bldc_propulsion.model import save_model
 
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
@@ -120,7 +119,9 @@ def _old_output(tmp_path: Path, command: str) -> Path:
     else:
         out = tmp_path / "out_bag"
         out.mkdir()
-        (out / "metadata.yaml").write_text("previous bag, must survive\n")
+        # previous bag, must survive; marked as this tool's (atomic.RECORDING_MARK): --force replaces only that
+        (out / "metadata.yaml").write_text("# previous bag, must survive\nrosbag2_bagfile_information:\n"
+                                           "  custom_data:\n    written_by: bldc-propulsion\n")
         (out / "out_bag.mcap").write_bytes(b"\x89MCAP0\r\n previous")
     return out
 

@@ -11,7 +11,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _tachsignal import make_signal  # noqa: E402
-
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import BagWriter  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder  # noqa: E402

@@ -13,13 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from _models import good_model
+from _replay_corpus import CASES, build_corpus, differences
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.errors import BagError
 from bldc_propulsion.model import save_model
 from bldc_propulsion.replay import replay_bag
-
-from _models import good_model
-from _replay_corpus import CASES, build_corpus, differences
 
 
 @pytest.fixture(scope="module")

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
 from scipy.signal import lfilter, lfilter_zi
 
 from bldc_propulsion.contract import EFFECTS, PWM_FRAME_HZ, PWM_FULL, PWM_STOP
-from bldc_propulsion.sim.profiles import ARMING_S
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.plant import motor_response
 from bldc_propulsion.sim import (
@@ -21,6 +21,7 @@ from bldc_propulsion.sim import (
     params_with_overrides,
     simulate,
 )
+from bldc_propulsion.sim.profiles import ARMING_S
 from bldc_propulsion.sim.random_bench import model_strength
 
 # the paper's battery filter, eq. (1), at 1 kHz
@@ -69,7 +70,7 @@ def test_speed_rises_with_throttle_over_staircase() -> None:
     levels = sorted(by_level)
     assert len(levels) >= 8
     assert by_level[PWM_STOP] == [0.0] * len(by_level[PWM_STOP])
-    for lo, hi in zip(levels, levels[1:]):
+    for lo, hi in pairwise(levels):
         if hi > 0.055:
             assert min(by_level[hi]) > max(by_level[lo]), (lo, hi, by_level)
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import array
 import math
-import time
 
 import numpy as np
 import pytest
@@ -28,9 +27,7 @@ rclpy = require_rclpy()
 from builtin_interfaces.msg import Time as TimeMsg  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import WrenchStamped  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
-from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import BatteryState, JointState  # noqa: E402
 from std_msgs.msg import Float32MultiArray, Float64  # noqa: E402
 
@@ -62,75 +59,12 @@ def chirp(tmp_path_factory):
     return d
 
 
-@pytest.fixture
-def context():
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-
-
 def ns_of(stamp: TimeMsg) -> int:
     return stamp.sec * 10**9 + stamp.nanosec
 
 
 def stamp_of(ns: int) -> TimeMsg:
     return TimeMsg(sec=ns // 10**9, nanosec=ns % 10**9)
-
-
-class Feeder:
-    """The node under test and a helper that publishes its inputs, /clock, and records outputs."""
-
-    def __init__(self, context, node_class, **params) -> None:
-        overrides = [Parameter("use_sim_time", value=True),
-                     Parameter("use_source_timestamps", value=False),
-                     *[Parameter(k, value=v) for k, v in params.items()]]
-        self.node = node_class(context=context, parameter_overrides=overrides)
-        self.helper = rclpy.create_node("stamped_test_helper", context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        for n in (self.node, self.helper):
-            self.executor.add_node(n)
-        self.clock = self.helper.create_publisher(Clock, "/clock", 10)
-        self.pubs: dict[str, object] = {}
-        self.got: dict[str, list] = {}
-
-    def record(self, msg_type, topic: str) -> None:
-        self.got[topic] = []
-        self.helper.create_subscription(msg_type, topic, self.got[topic].append, 10000)
-
-    def publisher(self, msg_type, topic: str) -> None:
-        self.pubs[topic] = self.helper.create_publisher(msg_type, topic, 100)
-        self.spin_until(lambda: self.pubs[topic].get_subscription_count() > 0)
-
-    def spin_until(self, done, timeout_s: float = 10.0) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not done():
-            assert time.monotonic() < deadline, "timed out waiting for the node"
-            self.executor.spin_once(timeout_sec=0.01)
-
-    def set_time(self, ns: int) -> None:
-        self.clock.publish(Clock(clock=stamp_of(ns)))
-        self.spin_until(lambda: self.node.get_clock().now().nanoseconds >= ns)
-
-    def send(self, topic: str, msg, ns: int, taken) -> None:
-        """Publish ``msg`` at node time ``ns``; spin until ``taken()`` says the node has it."""
-        self.set_time(ns)
-        self.pubs[topic].publish(msg)
-        self.spin_until(taken)
-
-    def drain(self, quiet_s: float = 0.3) -> None:
-        """Spin until no output has arrived for ``quiet_s`` (the last ones are in flight)."""
-        count = lambda: sum(map(len, self.got.values()))  # noqa: E731
-        seen, since = count(), time.monotonic()
-        while time.monotonic() - since < quiet_s:
-            self.executor.spin_once(timeout_sec=0.01)
-            if count() != seen:
-                seen, since = count(), time.monotonic()
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.helper.destroy_node()
 
 
 def rms(x: np.ndarray) -> float:
@@ -145,27 +79,25 @@ def test_revolution_middle_is_half_a_revolution_before_its_end():
                                [2.0 - math.pi / 100.0, 3.0 - math.pi / 50.0])
 
 
-def test_rotor_state_is_stamped_at_the_instant_it_describes(chirp, context):
+def test_rotor_state_is_stamped_at_the_instant_it_describes(chirp, start_node):
     d = chirp
-    f = Feeder(context, TachometerNode, joint_name="motor0_rotor")
-    try:
-        f.record(JointState, c.TOPIC_ROTOR_STATE)
-        f.record(Float64, c.TOPIC_ROTOR_SPEED)
-        f.publisher(Float32MultiArray, c.TOPIC_TACH_ADC)
-        with open_recording(d / "chirp") as rec:
-            batches = [(ns, msg.data) for _, ns, _, msg in _raw_messages(rec, c.TOPIC_TACH_ADC)]
-            t0_ns = rec.t0_ns
-            truth_t, truth = rec.scalars(c.TOPIC_TRUTH_SPEED)
-        for ns, data in batches:
-            t = T0_NS + ns - t0_ns
-            msg = Float32MultiArray(data=array.array("f", np.asarray(data, np.float32).tobytes()))
-            f.send(c.TOPIC_TACH_ADC, msg, t,
-                   lambda t=t: f.node.last_receipt_s is not None
-                   and f.node.last_receipt_s >= t * 1e-9 - 1e-9)
-        f.drain()
-    finally:
-        f.close()
-    states = f.got[c.TOPIC_ROTOR_STATE]
+    f = start_node(TachometerNode, joint_name="motor0_rotor")
+    f.record(JointState, c.TOPIC_ROTOR_STATE)
+    f.record(Float64, c.TOPIC_ROTOR_SPEED)
+    f.publisher(Float32MultiArray, c.TOPIC_TACH_ADC)
+    with open_recording(d / "chirp") as rec:
+        batches = [(ns, msg.data) for _, ns, _, msg in _raw_messages(rec, c.TOPIC_TACH_ADC)]
+        t0_ns = rec.t0_ns
+        truth_t, truth = rec.scalars(c.TOPIC_TRUTH_SPEED)
+    for ns, data in batches:
+        t = T0_NS + ns - t0_ns
+        msg = Float32MultiArray(data=array.array("f", np.asarray(data, np.float32).tobytes()))
+        f.send(c.TOPIC_TACH_ADC, msg, t * 1e-9,
+               taken=lambda t=t: f.node.last_receipt_s is not None
+               and f.node.last_receipt_s >= t * 1e-9 - 1e-9)
+    f.drain()
+    f.close()
+    states = f.received[c.TOPIC_ROTOR_STATE]
     assert states and all(list(m.name) == ["motor0_rotor"] for m in states)
     assert all(len(m.velocity) == 1 and not len(m.position) and not len(m.effort) for m in states)
     stamp = np.array([(ns_of(m.header.stamp) - T0_NS) * 1e-9 for m in states])
@@ -201,58 +133,56 @@ def _raw_messages(rec, topic):
 
 # --- predicted/state, predicted/wrench -------------------------------------------------------
 
-def feed_estimator(d, context, until_s: float = math.inf, **params):
+def feed_estimator(d, start_node, until_s: float = math.inf, **params):
     """The estimator node fed the chirp's pwm and the battery/voltage replay published for it;
-    returns the Feeder (closed) with predicted/state, predicted/wrench and diagnostics."""
-    f = Feeder(context, ThrustEstimatorNode, **params)
-    try:
-        f.record(JointState, c.TOPIC_PREDICTED_STATE)
-        f.record(WrenchStamped, c.TOPIC_PREDICTED_WRENCH)
-        f.record(DiagnosticArray, c.TOPIC_DIAGNOSTICS_ABSOLUTE)
-        f.publisher(Float64, c.TOPIC_PWM)
-        f.publisher(BatteryState, c.TOPIC_BATTERY_VOLTAGE)
-        events = []
-        with open_recording(d / "chirp") as rec:
-            events += [(ns - rec.t0_ns, 0, msg.data) for _, ns, _, msg in _raw_messages(rec, c.TOPIC_PWM)]
-        with open_recording(d / "replay") as rec:
-            events += [(ns - rec.t0_ns, 1, msg.voltage)
-                       for _, ns, _, msg in _raw_messages(rec, c.TOPIC_BATTERY_VOLTAGE)]
-        events.sort(key=lambda e: e[:2])
-        core = lambda: f.node.core  # noqa: E731 - the node may swap its core
-        for rel_ns, kind, value in events:
-            if rel_ns * 1e-9 > until_s:
-                break
-            t = T0_NS + rel_ns
-            if kind == 0:
-                n = f.node.pwm_stream.messages
-                f.send(c.TOPIC_PWM, Float64(data=float(value)), t,
-                       lambda n=n: f.node.pwm_stream.messages > n)
-            else:
-                n = core().voltage_accepted + core().voltage_rejected_time
-                msg = BatteryState(voltage=float(value))
-                msg.header.stamp = stamp_of(t)
-                f.send(c.TOPIC_BATTERY_VOLTAGE, msg, t,
-                       lambda n=n: core().voltage_accepted + core().voltage_rejected_time > n)
-        last = f.node.get_clock().now().nanoseconds
-        for k in range(1, 12):  # the output timer's last grid times, and a diagnostics message
-            f.set_time(last + k * 100_000_000)  # steps under the ticker's 1 s backlog limit
-        f.spin_until(lambda: bool(f.got[c.TOPIC_DIAGNOSTICS_ABSOLUTE]))
-        f.drain()
-    finally:
-        f.close()
+    returns its harness (closed) with predicted/state, predicted/wrench and diagnostics."""
+    f = start_node(ThrustEstimatorNode, **params)
+    f.record(JointState, c.TOPIC_PREDICTED_STATE)
+    f.record(WrenchStamped, c.TOPIC_PREDICTED_WRENCH)
+    f.record(DiagnosticArray, c.TOPIC_DIAGNOSTICS_ABSOLUTE)
+    f.publisher(Float64, c.TOPIC_PWM)
+    f.publisher(BatteryState, c.TOPIC_BATTERY_VOLTAGE)
+    events = []
+    with open_recording(d / "chirp") as rec:
+        events += [(ns - rec.t0_ns, 0, msg.data) for _, ns, _, msg in _raw_messages(rec, c.TOPIC_PWM)]
+    with open_recording(d / "replay") as rec:
+        events += [(ns - rec.t0_ns, 1, msg.voltage)
+                   for _, ns, _, msg in _raw_messages(rec, c.TOPIC_BATTERY_VOLTAGE)]
+    events.sort(key=lambda e: e[:2])
+    core = lambda: f.node.core  # noqa: E731 - the node may swap its core
+    for rel_ns, kind, value in events:
+        if rel_ns * 1e-9 > until_s:
+            break
+        t = T0_NS + rel_ns
+        if kind == 0:
+            n = f.node.pwm_stream.messages
+            f.send(c.TOPIC_PWM, Float64(data=float(value)), t * 1e-9,
+                   taken=lambda n=n: f.node.pwm_stream.messages > n)
+        else:
+            n = core().voltage_accepted + core().voltage_rejected_time
+            msg = BatteryState(voltage=float(value))
+            msg.header.stamp = stamp_of(t)
+            f.send(c.TOPIC_BATTERY_VOLTAGE, msg, t * 1e-9,
+                   taken=lambda n=n: core().voltage_accepted + core().voltage_rejected_time > n)
+    last = f.node.get_clock().now().nanoseconds
+    for k in range(1, 12):  # the output timer's last grid times, and a diagnostics message
+        f.set_time((last + k * 100_000_000) * 1e-9)  # steps under the ticker's 1 s backlog limit
+    f.spin_until(lambda: bool(f.received[c.TOPIC_DIAGNOSTICS_ABSOLUTE]))
+    f.drain()
+    f.close()
     return f
 
 
-def test_predicted_state_equals_replay_at_the_same_stamps(chirp, context):
+def test_predicted_state_equals_replay_at_the_same_stamps(chirp, start_node):
     d = chirp
-    f = feed_estimator(d, context)
+    f = feed_estimator(d, start_node)
     with open_recording(d / "replay") as rec:
         ref = {ns_of(m.header.stamp) - rec.t0_ns: m.velocity[0]
                for _, _, m in rec.messages([c.TOPIC_PREDICTED_STATE])}
         ref_wrench = {ns_of(m.header.stamp) - rec.t0_ns: m.wrench
                       for _, _, m in rec.messages([c.TOPIC_PREDICTED_WRENCH])}
     end = max(ref) + 1000  # the node goes on predicting after the recording ends; replay stops
-    live = {k: m for m in f.got[c.TOPIC_PREDICTED_STATE] if (k := ns_of(m.header.stamp) - T0_NS) <= end}
+    live = {k: m for m in f.received[c.TOPIC_PREDICTED_STATE] if (k := ns_of(m.header.stamp) - T0_NS) <= end}
     by_us = {round(k * 1e-3): v for k, v in ref.items()}  # the same grid time within 1 us
     common = [k for k in live if round(k * 1e-3) in by_us]
     assert len(common) == len(live), "every live stamp is a grid time replay predicted"
@@ -264,7 +194,7 @@ def test_predicted_state_equals_replay_at_the_same_stamps(chirp, context):
     assert max(m.velocity[0] for m in live.values()) > 300.0
 
     # the wrench: thrust b w^2 and the fallback's propeller torque, against the rotor's spin
-    wrenches = [m for m in f.got[c.TOPIC_PREDICTED_WRENCH] if ns_of(m.header.stamp) - T0_NS <= end]
+    wrenches = [m for m in f.received[c.TOPIC_PREDICTED_WRENCH] if ns_of(m.header.stamp) - T0_NS <= end]
     assert len(wrenches) == len(live)
     model = fallback_model()
     w = np.array([live[ns_of(m.header.stamp) - T0_NS].velocity[0] for m in wrenches])
@@ -280,12 +210,12 @@ def test_predicted_state_equals_replay_at_the_same_stamps(chirp, context):
         assert m.wrench.force.z == pytest.approx(r.force.z, rel=1e-6)
 
 
-def test_names_frame_and_spin_direction(chirp, context):
+def test_names_frame_and_spin_direction(chirp, start_node):
     until = 2.5  # s of recording: the rotor is turning from ~1.1 s
-    f = feed_estimator(chirp, context, until_s=until, joint_name="motor3_rotor",
+    f = feed_estimator(chirp, start_node, until_s=until, joint_name="motor3_rotor",
                        frame_id="motor3/rotor", spin_direction=-1)
-    states = f.got[c.TOPIC_PREDICTED_STATE]
-    wrenches = f.got[c.TOPIC_PREDICTED_WRENCH]
+    states = f.received[c.TOPIC_PREDICTED_STATE]
+    wrenches = f.received[c.TOPIC_PREDICTED_WRENCH]
     assert states and all(list(m.name) == ["motor3_rotor"] for m in states)
     assert wrenches and all(m.header.frame_id == "motor3/rotor" for m in wrenches)
     w = {ns_of(m.header.stamp): m.velocity[0] for m in states}
@@ -296,17 +226,17 @@ def test_names_frame_and_spin_direction(chirp, context):
     for m in turning:
         assert m.wrench.torque.z == pytest.approx(kq * w[ns_of(m.header.stamp)] ** 2, rel=1e-9)
     # the diagnostics raise nothing about the torque: the fallback knows it
-    assert not any("wrench" in s.name for m in f.got[c.TOPIC_DIAGNOSTICS_ABSOLUTE] for s in m.status)
+    assert not any("wrench" in s.name for m in f.received[c.TOPIC_DIAGNOSTICS_ABSOLUTE] for s in m.status)
 
 
-def test_a_network_model_publishes_torque_0_and_says_so(chirp, context, tmp_path):
+def test_a_network_model_publishes_torque_0_and_says_so(chirp, start_node, tmp_path):
     path = tmp_path / "net.npz"
     save_model(good_model(), path)  # a network with a thrust coefficient: no torque known
-    f = feed_estimator(chirp, context, until_s=2.0, model_path=str(path))
-    wrenches = f.got[c.TOPIC_PREDICTED_WRENCH]
+    f = feed_estimator(chirp, start_node, until_s=2.0, model_path=str(path))
+    wrenches = f.received[c.TOPIC_PREDICTED_WRENCH]
     assert wrenches and all(m.wrench.torque.z == 0.0 for m in wrenches)
     assert any(m.wrench.force.z > 0.0 for m in wrenches)
-    notes = [s for m in f.got[c.TOPIC_DIAGNOSTICS_ABSOLUTE] for s in m.status if s.name.endswith(": wrench")]
+    notes = [s for m in f.received[c.TOPIC_DIAGNOSTICS_ABSOLUTE] for s in m.status if s.name.endswith(": wrench")]
     assert notes and notes[-1].level == b"\x01" and "torque" in notes[-1].message
 
 

@@ -209,7 +209,7 @@ def test_recording_from_rest_is_predicted_bit_for_bit_as_before(make, run, full,
     assert np.array_equal(now_ph, plant.predict(full))
     monkeypatch.undo()
     rest = full.t <= full.t[0] + 1.0  # the stop pulse: the tachometer says 0
-    fed, est = streamed(model, full, list(zip(full.t[rest].tolist(), full.speed[rest].tolist())))
+    fed, est = streamed(model, full, list(zip(full.t[rest].tolist(), full.speed[rest].tolist(), strict=True)))
     assert np.array_equal(fed, streamed(model, full)[0], equal_nan=True) and est.speed_accepted == rest.sum()
 
 
@@ -235,8 +235,8 @@ def streamed(model, sig: Signals, speeds: Sequence[tuple[float, float]] = ()) ->
     """The estimator fed the recording's events and ``speeds`` (t, rad/s) in time order (a speed
     before an input at the same time), asked at every grid time."""
     est = ThrustEstimator(model)
-    ev = sorted([(t, 1, x) for t, x in zip(*map(np.ndarray.tolist, sig.pwm_events))]
-                + [(t, 2, x) for t, x in zip(*map(np.ndarray.tolist, sig.voltage_events))]
+    ev = sorted([(t, 1, x) for t, x in zip(*map(np.ndarray.tolist, sig.pwm_events), strict=True)]
+                + [(t, 2, x) for t, x in zip(*map(np.ndarray.tolist, sig.voltage_events), strict=True)]
                 + [(t, 0, x) for t, x in speeds]
                 + [(t, 3, 0.0) for t in sig.t.tolist()])
     out = []

@@ -6,11 +6,22 @@ restarted publisher, /clock steps) is reproduced here with exact arrival times.
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import pytest
 
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.nodes.stream_time import (
-    CONTIGUOUS, LATE, LOST, NEW_STREAM, Arrival, EventStream, LatencyFloor, SampleStream, arrival)
+    CONTIGUOUS,
+    LATE,
+    LOST,
+    NEW_STREAM,
+    Arrival,
+    EventStream,
+    LatencyFloor,
+    SampleStream,
+    arrival,
+)
 
 RATE, N = 20000.0, 200  # tachometer: 200-sample batches, 10 ms each
 P = N / RATE
@@ -48,7 +59,7 @@ def test_contiguous_batches_are_timed_by_counting_despite_jitter():
     assert places[0].event == NEW_STREAM
     assert all(p.event == CONTIGUOUS for p in places[1:])
     ts = [p.t_last for p in places]
-    assert all(b - a == pytest.approx(P, abs=1e-12) for a, b in zip(ts, ts[1:]))
+    assert all(b - a == pytest.approx(P, abs=1e-12) for a, b in pairwise(ts))
 
 
 def test_one_message_published_late_is_held_then_forgiven():
@@ -116,7 +127,6 @@ def test_a_late_burst_breaks_once_then_continues():
     s = SampleStream(RATE, 0.005)
     arr = regular(0, 10)
     for k in range(10, 15):  # the publisher held 5 batches, then sent them at once
-        a = regular(k, k + 1)[0]
         arr.append(Arrival(50.0 + 15 * P + 0.0003, 50.0 + 15 * P, k + 1))
     arr += regular(15, 25)
     events = [p.event for p in feed(s, arr)]
@@ -137,8 +147,8 @@ def test_counted_time_that_drifts_from_the_node_clock_resyncs():
     arr = [Arrival(50.0 + k * P * 0.8) for k in range(600)]  # data really 20 % faster
     places = feed(s, arr)
     assert s.resyncs >= 1
-    assert all(p.t_last <= a.receipt_s + 0.1 + 1e-9 for p, a in zip(places, arr))
-    assert all(b.t_last > a.t_last or b.event == NEW_STREAM for a, b in zip(places, places[1:]))
+    assert all(p.t_last <= a.receipt_s + 0.1 + 1e-9 for p, a in zip(places, arr, strict=True))
+    assert all(b.t_last > a.t_last or b.event == NEW_STREAM for a, b in pairwise(places))
 
 
 def test_latency_floor_is_a_sliding_window_minimum():
@@ -172,7 +182,7 @@ def test_ticker_emits_every_grid_time_a_coarse_clock_passes():
         emitted += tick.due(5.0 + 0.025 * k)
     assert len(emitted) == 101
     assert emitted[:3] == pytest.approx([5.0, 5.01, 5.02])
-    assert all(b - a == pytest.approx(0.01) for a, b in zip(emitted, emitted[1:]))
+    assert all(b - a == pytest.approx(0.01) for a, b in pairwise(emitted))
 
 
 def test_ticker_skips_a_clock_jump_instead_of_a_burst_of_stale_outputs():

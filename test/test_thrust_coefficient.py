@@ -19,6 +19,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from _models import good_model
 from bldc_propulsion import cli
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import BagWriter, open_recording
@@ -32,9 +33,12 @@ from bldc_propulsion.sim import BenchParams, simulate
 from bldc_propulsion.sim.record import _streams
 from bldc_propulsion.training.evaluate import THRUST_NO_COEFFICIENT
 from bldc_propulsion.training.train import (
-    AIRBORNE_SPEED_FRACTION, NO_THRUST_SOURCE, ThrustFit, fit_thrust_coefficient, stated_thrust)
-
-from _models import good_model
+    AIRBORNE_SPEED_FRACTION,
+    NO_THRUST_SOURCE,
+    ThrustFit,
+    fit_thrust_coefficient,
+    stated_thrust,
+)
 
 G = 9.80665
 RHO = 1.225
@@ -278,7 +282,7 @@ def test_options_that_go_together_or_out_of_range_are_one_line_errors(capsys, tm
 def test_hover_on_recordings_where_the_rotor_never_turns_is_a_one_line_error(capsys, tmp_path):
     res = simulate("constant", 2.0, 0)
     with BagWriter(tmp_path / "rest") as bag:  # the rotor at rest: nothing is airborne
-        for t, v in zip(res.battery_t[::10], res.battery_adc[::10]):
+        for t, v in zip(res.battery_t[::10], res.battery_adc[::10], strict=True):
             bag.write_float64(c.TOPIC_BATTERY_ADC, float(t), float(v))
         for t in np.arange(0.0, 2.0, 0.02):
             bag.write_float64(c.TOPIC_PWM, float(t), 0.05)

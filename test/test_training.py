@@ -16,9 +16,9 @@ from bldc_propulsion.bagio import BagWriter
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.errors import BadInputError, BagError, OutputExistsError
 from bldc_propulsion.model import load_model, save_model
+from bldc_propulsion.recordings import load_all, load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.recordings import load_all, load_signals
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 from bldc_propulsion.training.train import fit_thrust_coefficient, train_model
 
@@ -76,7 +76,7 @@ def test_decoded_speed_has_no_zero_while_a_spin_up_turns(tmp_path):
     t = np.arange(0.0, 14.0, 1.0 / c.PWM_FRAME_HZ)
     level = np.full(len(t), c.PWM_STOP)
     starts = (1.0, 5.0, 9.0)
-    for t0, lev in zip(starts, (0.09, 0.075, 0.10)):
+    for t0, lev in zip(starts, (0.09, 0.075, 0.10), strict=True):
         level[(t >= t0) & (t < t0 + 2.0)] = lev
     res = simulate("steps", 14.0, 3, effects=BRAKING, pwm=(t, level))
     write_sim_bag(res, tmp_path / "starts")
@@ -131,7 +131,8 @@ def test_model_file_round_trips_into_the_estimator_core(trained, bags, tmp_path)
     batch = predict_speed(model, sig)
     est = ThrustEstimator(model)
     events = sorted(
-        [(t, 0, v) for t, v in zip(*sig.pwm_events)] + [(t, 1, v) for t, v in zip(*sig.voltage_events)]
+        [(t, 0, v) for t, v in zip(*sig.pwm_events, strict=True)]
+        + [(t, 1, v) for t, v in zip(*sig.voltage_events, strict=True)]
     )
     stream = np.full(len(sig.t), np.nan)
     k = 0

@@ -13,14 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _models import good_model
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import BagWriter, open_recording
 from bldc_propulsion.core.features import scale_pwm
 from bldc_propulsion.model import NetworkModel, save_model
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import _streams, write_sim_bag
-
-from _models import good_model
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +32,7 @@ def run(*args: object, cwd: Path) -> subprocess.CompletedProcess:
 
 def run_all(cases: dict[str, list], cwd: Path) -> dict[str, subprocess.CompletedProcess]:
     with ThreadPoolExecutor(max_workers=6) as pool:
-        return dict(zip(cases, pool.map(lambda a: run(*a, cwd=cwd), cases.values())))
+        return dict(zip(cases, pool.map(lambda a: run(*a, cwd=cwd), cases.values()), strict=True))
 
 
 def listing(d: Path) -> list[str]:
@@ -63,7 +62,7 @@ def test_inputs_outside_the_training_range_are_said(home, tmp_path):
         "replay": ["replay", home / "half", "-o", tmp_path / "out", "--model", home / "full_packs.npz", "--json"],
         "inside": ["evaluate", "--model", home / "wide.npz", home / "half", "--json"],
     }, tmp_path)
-    for name, proc in procs.items():
+    for proc in procs.values():
         assert proc.returncode == 0, proc.stderr
     for name in ("evaluate", "replay"):
         proc = procs[name]
@@ -112,7 +111,7 @@ def test_discrepancy_says_when_inputs_leave_the_training_range(tmp_path):
     assert data["warnings"] == warn
     ranges = [w for w in warn if "training range" in w]
     assert len(ranges) == 2, proc.stderr
-    for name, line in zip(("measured", "holdout"), ranges):
+    for name, line in zip(("measured", "holdout"), ranges, strict=True):
         assert line.startswith(f"{tmp_path / name}: inputs outside the model's training range "), line
         share = float(line.split("(pwm ")[1].split(" %")[0]) / 100
         assert abs(share - truth[name]) < 0.01, (line, truth[name])  # within 1 % of the time

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.optimize import brentq
@@ -286,7 +286,8 @@ def integrate(b: ForeignBench, cmd_t: np.ndarray, cmd: np.ndarray, duration_s: f
             "duty": duty, "bus_v": np.array(out_v), "temperature_c": np.array(out_T), "soc": np.array(out_s)}
 
 
-def battery_adc(b: ForeignBench, phys: dict[str, np.ndarray], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def battery_adc(b: ForeignBench, phys: dict[str, np.ndarray],
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """The ADC pin at 1 kHz: the bus voltage through the divider, plus the ESC's switching
     ripple as a 1 kHz ADC aliases it (each sample lands in an on- or off-phase of a fast PWM at
     random: on-phase dips by the motor current through the ripple impedance, off-phase rises,

@@ -11,14 +11,14 @@ from typing import Any
 
 from .. import contract as c
 from ..atomic import CONFIG, MODEL, REPORT, check_outputs
-from ..errors import BadInputError
-from ..priors import MotorPriors, add_prior_arguments, priors_from_args
-from ..specs import spec_path
-from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 # The workflow (scipy, rosbags) is imported inside the functions that run it, so that `--help`
 # stays quick; its decision thresholds, the options' defaults, come from a module that imports nothing.
 from ..discrepancy.defaults import ALPHA, MIN_EFFECT
+from ..errors import BadInputError
+from ..priors import MotorPriors, add_prior_arguments, priors_from_args
+from ..specs import spec_path
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
 
 
 def _effects(text: str) -> list[str]:
@@ -69,7 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"significance level (default {ALPHA})")
     p.add_argument("--min-reduction", type=number(float, 0.0, 1.0), default=MIN_EFFECT,
                    help=f"least held-out MSE reduction to call an effect (default {MIN_EFFECT})")
-    p.add_argument("--hidden", type=HIDDEN, help="hidden neurons of the retrained model (--model only; default: as the model)")
+    p.add_argument("--hidden", type=HIDDEN,
+                   help="hidden neurons of the retrained model (--model only; default: as the model)")
     p.add_argument("--max-epochs", type=EPOCHS, help="epoch limit of the retraining (--model only; default 300)")
     p.add_argument("--seed", type=SEED, help="seed of the retraining (--model only; default 0)")
     p.add_argument("--report", metavar="DIR", help="write the disagreement map, before/after figures, index.html")
@@ -157,6 +158,7 @@ def run(args: argparse.Namespace) -> CommandResult:
                           args.model, args.physics])
     if physics:
         return run_physics(args, priors, model)
+    assert model is not None  # not physics: a network --model
     warnings: list[str] = []
     if args.reference:
         ref_paths = list(args.reference)
@@ -182,7 +184,7 @@ def run(args: argparse.Namespace) -> CommandResult:
             "base_model": str(args.model),
             "added": [{"effect": n, "input": data["added_inputs"][k],
                        "parameters": data["evidence"][n].get("fitted_parameters", {})}
-                      for k, n in enumerate(data["named"])],
+                      for k, n in enumerate(data["added"])],
         }
         save_model(result.model, args.output, force=args.force)
 
@@ -234,7 +236,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
 
     def save() -> None:
         provenance = {"base": base,
-                      "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["named"]],
+                      "added": [{"effect": n, **data["evidence"][n]["fitted_parameters"]} for n in data["added"]],
                       "measured": [str(p) for p in args.measured]}
         if _is_npz(args.output):
             m = result.model
@@ -309,15 +311,16 @@ def _physics_of(m: Any, source: str) -> Any:
 
 def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,
             warnings: list[str]) -> CommandResult:
-    """Step 4's output for either model kind: ``save()`` the model with the named effects to -o
-    (nothing is written when nothing was named), then the summary and every warning."""
+    """Step 4's output for either model kind: ``save()`` the model with the added effects (new
+    and structural) to -o (nothing is written when nothing was added), then the summary and every
+    warning."""
     data = result.data
     lines = list(result.lines)
     if args.output:
-        if data["named"]:
+        if data["added"]:
             save()
             data["model"] = str(args.output)
-            lines.append(f"saved {what} with {', '.join(data['named'])} added to {args.output}")
+            lines.append(f"saved {what} with {', '.join(data['added'])} added to {args.output}")
         else:
             lines.append(f"nothing added: {args.output} not written")
     warnings = [*warnings, *data.pop("warnings", [])]

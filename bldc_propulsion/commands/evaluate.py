@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     _check_distinct(args.model)
     models = [load_model(p) for p in args.model]
     signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
-    evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models)]
+    evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models, strict=True)]
     first = evals[0]  # the contract's keys: the first (or only) model's figures
     data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
                             "thrust_coefficient": first.model.thrust_coefficient,
@@ -170,7 +170,8 @@ def write_evaluation_report(path: Path, signals: list[Signals], evals: list[Eval
     prediction."""
     with report_output(path, force=force) as d:
         if len(evals) == 1:
-            _evaluation_report(d, signals, evals[0].predictions, evals[0].scores)
+            _evaluation_report(d, signals, evals[0].predictions, evals[0].scores,
+                               evals[0].model.thrust_coefficient, evals[0].rmse_rad_s)
         else:
             _comparison_report(d, signals, evals, rows)
     return str(path)
@@ -190,22 +191,56 @@ def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation],
             | {f"{e.label} RMSE (rad/s)": r["rmse_rad_s"][e.path] for e in evals}
             | {f"{e.label} % of range": r["rmse_percent_of_range"][e.path] for e in evals}
             for r in rows]
-    per_model = [{"model": e.path, "kind": e.model.kind}
-                 | {k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
-                 for e in evals for s in e.scores]
+    per_model = [{"model": e.path, "kind": e.model.kind} | score_row(s) for e in evals for s in e.scores]
+    headline = []
+    for e in evals:
+        thrust = [f"{s.path} {s.thrust_rmse_n:.3f} N" for s in e.scores if s.thrust_rmse_n is not None]
+        headline.append((e.label, f"speed RMSE {e.rmse_rad_s:.2f} rad/s overall; in % of the range: "
+                         + ", ".join(f"{s.path} {s.rmse_percent_of_range:.2f}" for s in e.scores)
+                         + (f"; thrust RMSE: {', '.join(thrust)}" if thrust else "; no thrust")))
     report.write_index(d, "bldc_propulsion evaluation report: models side by side", figs,
                        [("side by side: RMSE per recording and per command frequency band", side),
-                        ("per model and recording", per_model)])
+                        ("per model and recording", per_model)],
+                       headline=headline)
 
 
-def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any]) -> None:
+def score_row(s: RecordingScore) -> dict[str, Any]:
+    """One recording's figures as a report table's row, with headers a reader understands
+    (the --json keys say the same with units in their names)."""
+    return {"recording": s.path, "RMSE (rad/s)": s.rmse_rad_s, "% of speed range": s.rmse_percent_of_range,
+            "max error (rad/s)": s.max_error_rad_s, "speed range (rad/s)": s.speed_range_rad_s,
+            "samples": s.samples, "thrust RMSE (N)": s.thrust_rmse_n,
+            "thrust % of range": s.thrust_rmse_percent_of_range, "thrust range (N)": s.thrust_range_n,
+            "no thrust because": s.thrust_unavailable,
+            "outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
+
+
+def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any],
+                       coefficient: float | None = None, overall_rmse_rad_s: float | None = None) -> None:
+    """One model's report: per recording the paper's Fig. 13, a scatter, the thrust against the
+    load cell where both a measured thrust and the model's b exist, the error per band of a
+    chirp; the headline states each recording's speed and thrust error as the summary does."""
     from ..training import report
 
     figs: list[tuple[str, str]] = []
-    for k, (sig, pred) in enumerate(zip(signals, preds)):
+    headline: list[tuple[str, str]] = []
+    if overall_rmse_rad_s is not None:
+        headline.append(("overall speed RMSE", f"{overall_rmse_rad_s:.2f} rad/s"))
+    for k, (sig, pred, s) in enumerate(zip(signals, preds, scores, strict=True)):
         name = f"fig13_{k}.png"
         report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
-        figs.append((name, f"predicted vs measured speed: {sig.path}"))
+        figs.append((name, f"Fig. 13: PWM, voltage, measured and predicted speed and their error: {sig.path}"))
+        headline.append((f"speed, {sig.path}", f"RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of "
+                                               f"the {s.speed_range_rad_s:.0f} rad/s range), max error "
+                                               f"{s.max_error_rad_s:.1f} rad/s"))
+        if sig.thrust is not None and coefficient is not None:
+            name = f"thrust_{k}.png"
+            predicted = coefficient * pred**2
+            report.fig_thrust(sig.t, sig.thrust, predicted, d / name, recording=sig.path, coefficient=coefficient)
+            figs.append((name, f"measured vs predicted thrust (b·ω²) and the thrust error: {sig.path}"))
+            headline.append((f"thrust, {sig.path}", report.thrust_error_text(sig.thrust, predicted)))
+        else:
+            headline.append((f"thrust, {sig.path}", f"no figure: {s.thrust_unavailable}"))
         name = f"scatter_{k}.png"
         report.fig_prediction_scatter(sig.speed, pred, d / name, recording=sig.path)
         figs.append((name, f"predicted vs measured: {sig.path}"))
@@ -218,8 +253,6 @@ def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray],
             bands += [{"recording": s.path, "band (Hz)": _band(b),
                        "samples": b["samples"], "RMSE (rad/s)": b["rmse_rad_s"],
                        "% of speed range": b["rmse_percent_of_range"]} for b in s.bands]
-    rows = [{k: v for k, v in s.as_dict().items() if k not in ("bands", "out_of_training_range")}
-            | {"outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
-            for s in scores]
+    rows = [score_row(s) for s in scores]
     tables = [("per recording", rows)] + ([("error per command frequency band", bands)] if bands else [])
-    report.write_index(d, "bldc_propulsion evaluation report", figs, tables)
+    report.write_index(d, "bldc_propulsion evaluation report", figs, tables, headline=headline)

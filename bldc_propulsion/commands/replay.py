@@ -36,9 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..replay import replay_bag, summary_text
-
     from ..core.wrench import check_rotor_name
+    from ..replay import replay_bag, summary_text
 
     for option, value in (("--joint-name", args.joint_name), ("--frame-id", args.frame_id)):
         check_rotor_name(value, option)

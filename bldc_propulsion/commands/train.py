@@ -210,6 +210,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         "validation_cost": meta["validation_cost"],
         "train_rmse_rad_s": outcome.train_rmse_rad_s,
         "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
+        **rmse_percent_of_range(outcome),
         "thrust_coefficient": outcome.thrust.coefficient,
         "thrust_fit": outcome.thrust.as_metadata(),
         "samples": meta["samples"],
@@ -261,6 +262,7 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
         "effects": m.effects,
         "train_rmse_rad_s": outcome.train_rmse_rad_s,
         "validation_rmse_rad_s": outcome.validation_rmse_rad_s,
+        **rmse_percent_of_range(outcome),
         "candidates": outcome.candidates,
         "thrust_coefficient": fit.coefficient,
         "thrust_fit": fit.as_metadata(),
@@ -285,6 +287,27 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
 
 
 # --- report ---------------------------------------------------------------------------------
+def speed_range_rad_s(signals: list[Signals]) -> float:
+    """Range (max - min) of the measured speed over all of ``signals`` together (rad/s)."""
+    import numpy as np
+
+    w = np.concatenate([s.speed for s in signals]) if signals else np.zeros(0)
+    w = w[np.isfinite(w)]
+    return float(np.ptp(w)) if len(w) else float("nan")
+
+
+def rmse_percent_of_range(outcome: Any) -> dict[str, float | None]:
+    """The training and validation RMSE in % of the speed range of their recordings (--json's
+    ``train_rmse_percent_of_range``, ``validation_rmse_percent_of_range``): comparable across
+    benches of different top speeds, as evaluate's % of range is."""
+    out: dict[str, float | None] = {}
+    for key, rmse, signals in (("train", outcome.train_rmse_rad_s, outcome.train),
+                               ("validation", outcome.validation_rmse_rad_s, outcome.validation)):
+        span = speed_range_rad_s(signals)
+        out[f"{key}_rmse_percent_of_range"] = 100.0 * rmse / span if span > 0 else None
+    return out
+
+
 def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
     """Figures of a training run, written whole to ``path`` (atomic.report_output)."""
     with report_output(path, force=force) as d:
@@ -292,30 +315,89 @@ def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
     return str(path)
 
 
+def training_headline(outcome: Any) -> list[tuple[str, str]]:
+    """What a reader of the training page needs first, in the summary's figures: the model,
+    the RMSE on training and validation recordings (rad/s and % of their speed range), and b
+    with where it came from, or that it is not known."""
+    m, fit = outcome.model, outcome.thrust
+    pct = rmse_percent_of_range(outcome)
+    rows: list[tuple[str, str]] = []
+    if hasattr(outcome, "lm"):  # a network or a hybrid
+        meta = m.metadata
+        rows.append(("model", f"{m.kind} {len(m.input_names)}-{meta['hidden']}-1 on {', '.join(m.input_names)}: "
+                              f"{meta['epochs']} epochs, best {meta['best_epoch']} ({meta['stop_reason']})"))
+    else:
+        rows.append(("model", f"{m.kind}: the bench physics fitted ({m.metadata.get('fit', '')})"))
+    for key, label, rmse, signals in (("train", "training", outcome.train_rmse_rad_s, outcome.train),
+                                      ("validation", "validation", outcome.validation_rmse_rad_s, outcome.validation)):
+        p = pct[f"{key}_rmse_percent_of_range"]
+        rows.append((f"{label} RMSE", f"{rmse:.2f} rad/s"
+                     + (f" ({p:.2f} % of the {speed_range_rad_s(signals):.0f} rad/s range)" if p is not None else "")
+                     + f" on {len(signals)} recording(s)"))
+    if fit.coefficient is None:
+        rows.append(("thrust coefficient b", f"not known ({fit.source}): the model predicts speed only"))
+    else:
+        residual = f", residual {fit.residual_rms_n:.3f} N RMS" if fit.residual_rms_n is not None else ""
+        rows.append(("thrust coefficient b", f"{fit.coefficient:.4g} N s²/rad² (from {fit.source}{residual})"))
+    return rows
+
+
 def _training_report(d: Path, outcome: Any) -> None:
+    """The training page: headline (``training_headline``), then the model against each
+    validation recording (Fig. 13), its thrust against the load cell where thrust is recorded
+    and the model has b, the learning curve (Fig. 12, a network's), the battery filter on the
+    first training recording (Figs. 1-2) and a training recording's command and speed (Figs. 5-6)."""
     from ..training import report
     from ..training.evaluate import predict_speed
 
     figs: list[tuple[str, str]] = []
+    headline = training_headline(outcome)
+    notes: list[str] = []
+    preds = [predict_speed(outcome.model, sig) for sig in outcome.validation]
+    for k, (sig, pred) in enumerate(zip(outcome.validation, preds, strict=True)):
+        name = f"fig13_validation_{k}.png"
+        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
+        figs.append((name, f"Fig. 13: PWM, voltage, measured and predicted speed and their error on validation "
+                           f"recording {sig.path}"))
+    b = outcome.model.thrust_coefficient
+    with_thrust = [(sig, pred, "validation") for sig, pred in zip(outcome.validation, preds, strict=True)
+                   if sig.thrust is not None]
+    if not with_thrust:  # b was fitted on the training recordings' thrust: show how well it fits there
+        sig = next((s for s in outcome.train if s.thrust is not None), None)
+        with_thrust = [(sig, predict_speed(outcome.model, sig), "training")] if sig is not None else []
+    if b is None:
+        notes.append("no thrust figure: the model has no thrust coefficient b")
+    elif not with_thrust:
+        notes.append("no thrust figure: no training or validation recording has /thrust/measured")
+    else:
+        for k, (sig, pred, role) in enumerate(with_thrust):
+            name = f"thrust_{role}_{k}.png"
+            predicted = b * pred**2
+            report.fig_thrust(sig.t, sig.thrust, predicted, d / name, recording=sig.path, coefficient=b)
+            figs.append((name, f"measured vs predicted thrust (b·ω²) and the thrust error on {role} recording "
+                               f"{sig.path}"))
+            headline.append((f"thrust, {role} {sig.path}", report.thrust_error_text(sig.thrust, predicted)))
     if hasattr(outcome, "lm"):  # a network (a physics model has no epochs)
         h = outcome.lm.history
         report.fig_training(h.train_cost, h.val_cost, outcome.lm.best_epoch, d / "fig12_training.png")
-        figs.append(("fig12_training.png", "Fig. 12: training and validation cost per epoch"))
+        figs.append(("fig12_training.png", "Fig. 12: learning curve, training and validation cost per epoch"))
+    else:
+        notes.append("no learning curve: a physics fit has no epochs (least squares on the constants)")
     first = outcome.train[0]
     raw = _raw_battery(first)
     if raw is not None:
         report.fig_battery_filter(raw[0], raw[1], raw[2], d / "fig01_battery_filter.png",
                                   pwm_t=first.t, pwm=first.pwm, recording=first.path)
-        figs.append(("fig01_battery_filter.png", f"Fig. 1-2: raw vs filtered battery voltage ({first.path})"))
-    ramp = next((s for s in outcome.train if "triangle" in s.path or "ramp" in s.path), outcome.train[-1])
+        figs.append(("fig01_battery_filter.png", f"Figs. 1-2: raw vs filtered battery voltage, and the PWM "
+                                                 f"command ({first.path})"))
+    # the paper's Figs. 5-6 show a ramp: a training recording with ramps if there is one
+    ramp = next((s for s in outcome.train if report.describe_command(s.t, s.pwm).startswith("ramps")),
+                outcome.train[0])
     report.fig_ramp(ramp.t, ramp.pwm, ramp.speed, d / "fig05_ramp.png", recording=ramp.path)
-    figs.append(("fig05_ramp.png", f"Figs. 5-6: PWM and measured speed ({ramp.path})"))
-    for k, sig in enumerate(outcome.validation):
-        pred = predict_speed(outcome.model, sig)
-        name = f"fig13_validation_{k}.png"
-        report.fig_validation(sig.t, sig.pwm, sig.voltage, sig.speed, pred, d / name, title=sig.path)
-        figs.append((name, f"Fig. 13: predicted vs measured speed on validation recording {sig.path}"))
-    report.write_index(d, "bldc_propulsion training report", figs)
+    figs.append(("fig05_ramp.png", f"Figs. 5-6: PWM command ({report.describe_command(ramp.t, ramp.pwm)}) and "
+                                   f"measured speed ({ramp.path})"))
+    report.write_index(d, f"bldc_propulsion training report: {outcome.model.kind} model", figs,
+                       headline=headline, notes=notes)
 
 
 def _raw_battery(sig: Signals) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

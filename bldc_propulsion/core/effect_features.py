@@ -11,10 +11,10 @@ recording predicts on replay what it predicted in training.
 | ``pwm_lag`` | rotor_lag | ``tau_s`` | command through a first-order lag (from rest) |
 | ``pwm_delayed`` | input_delay | ``delay_s`` | command as it was ``delay_s`` ago (dead time) |
 | ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level) |
-| ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag with one time constant rising, another falling |
+| ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag: one time constant up, one down |
 | ``thermal_load`` | motor_heating | ``tau_s`` | first-order thermal state driven by an I^2 R proxy |
-| ``pwm_delayed_filtered`` | input_delay | ``delay_s``, ``tau_s`` | the delayed command through the model's own low-pass |
-| ``pwm_above_start_filtered`` | esc_deadband | ``threshold``, ``tau_s`` | max(pwm - threshold, 0) through the model's own low-pass |
+| ``pwm_delayed_filtered`` | input_delay | ``delay_s``, ``tau_s`` | delayed command, the model's low-pass |
+| ``pwm_above_start_filtered`` | esc_deadband | ``threshold``, ``tau_s`` | the above, the model's low-pass |
 
 The two ``*_filtered`` inputs exist because a dead time or a start level acts on the command
 before everything the model derives from it: the model's ``pwm_filtered`` input (a 0.25 s
@@ -157,7 +157,8 @@ def pwm_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.nda
     tau = _param(params, PWM_LAG, "tau_s")
     times, pos = _merged(grid, pwm_t)
     u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))  # at rest before the first command
-    return lag_on_times(times, u, tau, REST_PWM)[pos]
+    y: np.ndarray = lag_on_times(times, u, tau, REST_PWM)[pos]
+    return y
 
 
 def pwm_delayed(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray, volt: np.ndarray,
@@ -207,7 +208,8 @@ def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, vol
     down = _param(params, PWM_ASYMMETRIC_LAG, "tau_down_s")
     times, pos = _merged(grid, pwm_t)
     u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))
-    return asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
+    y: np.ndarray = asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
+    return y
 
 
 def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
@@ -220,7 +222,8 @@ def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: n
         q = np.where((times < pwm_t[0]) | (times < volt_t[0]), 0.0, q)  # no loss known yet
     else:
         q = np.zeros_like(q)
-    return lag_on_times(times, q, tau, 0.0)[pos]
+    y: np.ndarray = lag_on_times(times, q, tau, 0.0)[pos]
+    return y
 
 
 def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | None, float]:
@@ -242,7 +245,8 @@ def _mapped_lag(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
     et = pwm_t + d  # when each command reaches the ESC
     times, pos = _merged(grid, et)
     u = np.asarray(_map_level(_held(et, pwm, times), thr), dtype=float)
-    return lag_on_times(times, u, tau, float(u[0]) if len(u) else 0.0)[pos]
+    y: np.ndarray = lag_on_times(times, u, tau, float(u[0]) if len(u) else 0.0)[pos]
+    return y
 
 
 def pwm_delayed_filtered(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,

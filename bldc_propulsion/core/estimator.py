@@ -24,8 +24,9 @@ the whole speed for the rotor's time constant. A network model ignores it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -54,14 +55,38 @@ _PWM, _VOLTAGE = 0, 1  # kinds of the inputs kept in the start window
 class SpeedModel(Protocol):
     """What the estimator needs from a model: any kind of model.py's, or the physics fallback."""
 
-    input_names: tuple[str, ...]
-    input_min: np.ndarray
-    input_max: np.ndarray
-    thrust_coefficient: float | None  #: None: the model has no b (speed only)
+    # read-only (properties): a model may compute them (PlantModel, the fallback) or store them
+    @property
+    def input_names(self) -> tuple[str, ...]: ...
+    @property
+    def input_min(self) -> np.ndarray: ...
+    @property
+    def input_max(self) -> np.ndarray: ...
+    @property
+    def thrust_coefficient(self) -> float | None:
+        """b (N s^2/rad^2); None: the model has no b (speed only)."""
 
     def feature_params(self) -> dict[str, dict[str, float]]: ...
 
     def forward(self, X_raw: np.ndarray) -> np.ndarray: ...
+
+
+class _NetworkWeights(SpeedModel, Protocol):
+    """What :func:`_fast_forward` reads from a network model (model.NetworkModel)."""
+
+    W1: np.ndarray  #: (H, n)
+    b1: np.ndarray  #: (H,)
+    W2: np.ndarray  #: (H,)
+    b2: float
+    output_min: float  #: rad/s
+    output_max: float  #: rad/s
+
+
+class _HybridParts(SpeedModel, Protocol):
+    """What :func:`_fast_forward` reads from a hybrid model (model.HybridModel)."""
+
+    network: SpeedModel
+    physics_index: int  #: column of ``physics_speed`` among the inputs
 
 
 @dataclass(frozen=True)
@@ -126,7 +151,8 @@ class PhysicsModel:
         duty = np.clip((pwm_f - self.start_fraction) / (1.0 - self.start_fraction), 0.0, 1.0)
         vm = duty * np.maximum(volts, 0.0)
         a = self.resistance_ohm * self.torque_coefficient / ke
-        return 2.0 * vm / (ke + np.sqrt(ke * ke + 4.0 * a * vm))
+        w: np.ndarray = 2.0 * vm / (ke + np.sqrt(ke * ke + 4.0 * a * vm))
+        return w
 
     def forward_one(self, x: list[float]) -> float:
         """:meth:`forward` of one row in plain floats: the same operations in the same order
@@ -140,7 +166,7 @@ class PhysicsModel:
         return 2.0 * vm / (ke + math.sqrt(ke * ke + 4.0 * a * vm))
 
 
-def _fast_forward(model: SpeedModel):
+def _fast_forward(model: SpeedModel) -> Callable[[list[float]], float]:
     """x (list of raw inputs) -> speed (rad/s); the network's scaling folded into its weights.
 
     Same function as ``model.forward`` (equal to ~1e-13), at a third of the cost per call, which
@@ -151,21 +177,23 @@ def _fast_forward(model: SpeedModel):
     if kind == PHYSICS:
         return lambda x: x[0]
     if kind == HYBRID:
-        net, k = _fast_forward(model.network), model.physics_index  # type: ignore[attr-defined]
+        hybrid = cast(_HybridParts, model)
+        net, k = _fast_forward(hybrid.network), hybrid.physics_index
         return lambda x: x[k] + net(x)
     W1 = getattr(model, "W1", None)
     if isinstance(model, PhysicsModel):
         return model.forward_one
     if W1 is None or getattr(model, "is_fallback", False):
         return lambda x: float(model.forward(np.asarray(x, dtype=float)))
-    lo = np.asarray(model.input_min, dtype=float)
-    hi = np.asarray(model.input_max, dtype=float)
+    net_w = cast(_NetworkWeights, model)  # it has W1: a network's weights and scaling
+    lo = np.asarray(net_w.input_min, dtype=float)
+    hi = np.asarray(net_w.input_max, dtype=float)
     g = 2.0 / (hi - lo)  # xs = g x - (g lo + 1)
     W1s = np.ascontiguousarray(W1 * g)
-    b1s = model.b1 - W1 @ (g * lo + 1.0)
-    half = 0.5 * (model.output_max - model.output_min)
-    W2s = model.W2 * half
-    b2s = (model.b2 + 1.0) * half + model.output_min
+    b1s = net_w.b1 - W1 @ (g * lo + 1.0)
+    half = 0.5 * (net_w.output_max - net_w.output_min)
+    W2s = net_w.W2 * half
+    b2s = (net_w.b2 + 1.0) * half + net_w.output_min
     dot, tanh = np.dot, np.tanh
 
     def f(x: list[float]) -> float:
@@ -293,10 +321,10 @@ class ThrustEstimator:
             return False
         self._measured = (t, w)
         self.speed_accepted += 1
-        log = self._start_log
-        if log is not None:  # the physics started at rest with nothing measured yet
+        log, start_t = self._start_log, self._start_t
+        if log is not None and start_t is not None:  # the physics started at rest, nothing measured yet
             self._start_log = None
-            since = t - self._start_t  # type: ignore[operator]
+            since = t - start_t
             if w >= REST_SPEED_RAD_S and -MEASURED_SPEED_MAX_AGE_S <= since <= START_WINDOW_S:
                 self._start_from(w, log)
         return True
@@ -325,10 +353,11 @@ class ThrustEstimator:
 
     def _keep(self, kind: int, t: float, value: float) -> None:
         """Keep an input for a start from a measured speed, while START_WINDOW_S lasts."""
-        if t - self._start_t > START_WINDOW_S:  # type: ignore[operator]
+        log, start_t = self._start_log, self._start_t
+        if log is None or start_t is None or t - start_t > START_WINDOW_S:
             self._start_log = None
         else:
-            self._start_log.append((kind, t, value))  # type: ignore[union-attr]
+            log.append((kind, t, value))
 
     def _start_from(self, w: float, log: list[tuple[int, float, float]]) -> None:
         """Start the physics again from ``w`` (rad/s) at its first command, over the inputs it
@@ -385,7 +414,7 @@ class ThrustEstimator:
         rejected = (self.pwm_rejected_value + self.pwm_rejected_time
                     + self.voltage_rejected_value + self.voltage_rejected_time)
         now = (rejected, self.clipped, self.predictions)
-        d_rej, d_clip, d_pred = (a - b for a, b in zip(now, self._reported))
+        d_rej, d_clip, d_pred = (a - b for a, b in zip(now, self._reported, strict=True))
         self._reported = now
         fs = self.features
         if self.is_fallback:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import ClassVar
+from typing import ClassVar, overload
 
 import numpy as np
 
@@ -52,7 +52,11 @@ def voltage_ok(volts: float) -> bool:
     return math.isfinite(volts) and VOLTAGE_MIN_V <= volts <= VOLTAGE_MAX_V
 
 
-def scale_pwm(level):
+@overload
+def scale_pwm(level: float) -> float: ...
+@overload
+def scale_pwm(level: np.ndarray) -> np.ndarray: ...
+def scale_pwm(level: float | np.ndarray) -> float | np.ndarray:
     """PWM level -> the paper's shifted and scaled command (0 at 0.05 = stop, 1 at 0.10 = full)."""
     return (level - c.PWM_STOP) / (c.PWM_FULL - c.PWM_STOP)
 
@@ -144,7 +148,8 @@ class BatteryVoltage(Feature):
     def value_at(self, t: float) -> float:
         return self._v
 
-    def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+    def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+              volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
         return zero_order_hold(volt_t, volt, grid_t)
 
 
@@ -162,7 +167,8 @@ class Pwm(Feature):
     def value_at(self, t: float) -> float:
         return self._u
 
-    def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+    def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+              volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
         return zero_order_hold(pwm_t, scale_pwm(pwm), grid_t)
 
 
@@ -203,7 +209,8 @@ class PwmLowpass(Feature):
             return math.nan
         return self._y + _lag_gain(t - self._t, self.params["tau_s"]) * (self._u - self._y)
 
-    def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+    def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+              volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
         n = len(pwm_t)
         if n == 0:
             return np.full(len(grid_t), np.nan)
@@ -321,7 +328,8 @@ class PhysicsSpeed(Feature):
     def value_at(self, t: float) -> float:
         return self._stream.speed_at(t)
 
-    def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+    def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+              volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
         """The batch twin (``plant.motor_response`` with the supply held: equal to the stream)."""
         out = np.full(len(grid_t), np.nan)
         if len(pwm_t) == 0 or len(volt_t) == 0:
@@ -387,11 +395,11 @@ def _register_effect_features() -> None:
             def value_at(self, t: float) -> float:
                 return float(self._stream.value(t))
 
-            def batch(self, grid_t, pwm_t, pwm, volt_t, volt):
+            def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+              volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
                 if len(pwm_t) == 0:
                     return np.full(len(grid_t), np.nan)
-                out = np.asarray(ef.compute(self.name, grid_t, pwm_t, pwm, volt_t, volt, self.params), float)
-                out = out.copy()
+                out: np.ndarray = np.array(ef.compute(self.name, grid_t, pwm_t, pwm, volt_t, volt, self.params), float)
                 out[grid_t < pwm_t[0]] = np.nan  # as streaming: unknown before the first command
                 return out
 
@@ -482,7 +490,8 @@ def _accepted(t: np.ndarray, v: np.ndarray, lo: float, hi: float) -> np.ndarray:
         ok = np.isfinite(t) & np.isfinite(v) & (v >= lo) & (v <= hi)
     tv = np.where(ok, t, -np.inf)
     prev = np.maximum.accumulate(np.concatenate(([-np.inf], tv)))[:-1]
-    return ok & (t >= prev)
+    mask: np.ndarray = ok & (t >= prev)
+    return mask
 
 
 def compute_features(
@@ -501,7 +510,7 @@ def compute_features(
     """
     grid_t = np.asarray(grid_t, dtype=float)
     arrays = [np.asarray(a, dtype=float) for a in (pwm_t, pwm, volt_t, volt)]
-    for a, what in zip(arrays, ("pwm_t", "pwm", "volt_t", "volt")):
+    for a, what in zip(arrays, ("pwm_t", "pwm", "volt_t", "volt"), strict=True):
         if a.ndim != 1:
             raise BadInputError(f"features: {what} must be 1-D, got shape {a.shape}")
     pwm_t, pwm, volt_t, volt = arrays

@@ -32,8 +32,20 @@ from collections.abc import Mapping
 
 from ..contract import EFFECTS, PWM_STOP
 from ..plant import (
-    FRAME_TOLERANCE_S, PLANT_FIELDS, PlantParams, Supply, check_initial_speed, check_plant, dead_time_s,
-    make_step, plant_problem, resolve_effects, running_supply_current, start_level, strength_problem, throttle,
+    FRAME_TOLERANCE_S,
+    PLANT_FIELDS,
+    PlantParams,
+    Supply,
+    check_initial_speed,
+    check_plant,
+    dead_time_s,
+    make_step,
+    plant_problem,
+    resolve_effects,
+    running_supply_current,
+    start_level,
+    strength_problem,
+    throttle,
 )
 from .battery_filter import BatteryFilterConfig
 
@@ -93,7 +105,7 @@ class PlantStream:
     """
 
     @classmethod
-    def of(cls, d: Mapping[str, float], initial_speed: float = 0.0) -> "PlantStream":
+    def of(cls, d: Mapping[str, float], initial_speed: float = 0.0) -> PlantStream:
         """From flat, checked parameters (``stream_params``), the rotor at ``initial_speed``."""
         return cls(*split_params(d), initial_speed=initial_speed)
 
@@ -203,7 +215,8 @@ class PlantStream:
 
     def _final(self, k: int) -> bool:
         """Whether no input still to come can change step k (its inputs are stamped before the horizon)."""
-        ts = self._t0 + k * self._dt  # type: ignore[operator]
+        assert self._t0 is not None, "steps exist only after the first command"
+        ts = self._t0 + k * self._dt
         return ts < self._horizon and ts - self._delay + FRAME_TOLERANCE_S < self._horizon
 
     def _advance(self, t: float) -> None:
@@ -234,8 +247,9 @@ class PlantStream:
         threshold, exponent = self._map
         v_ref, sbv, rs, a_lp = self._supply
         step = self._step
+        assert t0 is not None, "steps exist only after the first command"
         while k < k_end:
-            ts = t0 + k * dt  # type: ignore[operator]
+            ts = t0 + k * dt
             x = ts - lead + FRAME_TOLERANCE_S
             if pi < n_p and pt[pi] <= x:
                 held = level

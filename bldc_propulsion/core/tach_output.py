@@ -65,8 +65,9 @@ class SpeedOutput:
             self.valid = False
         self._speeds, self._breaks = speeds, breaks
         if self.valid and d.signal_ok:
-            w = d.speed_now
-            stamp = float(revolution_middle(d.speed_edge_t, w))
+            w, edge_t = d.speed_now, d.speed_edge_t
+            assert edge_t is not None, "a valid speed was measured over a revolution"
+            stamp = float(revolution_middle(edge_t, w))
             self.fresh = stamp != self.stamp_s
             self.stamp_s = stamp
             return w

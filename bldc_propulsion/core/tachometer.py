@@ -71,13 +71,13 @@ import array
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Literal, TypeAlias, overload
 
 import numpy as np
 
 from ..errors import BadInputError
 from .status import ERROR, OK, WARN, CoreStatus, counters
-from .tachometer_parts import (TWO_PI, EdgeDetector, RowPlan, SampleClock, SpeedGate, TachCounters,
-                               TachOutput)
+from .tachometer_parts import TWO_PI, EdgeDetector, RowPlan, SampleClock, SpeedGate, TachCounters, TachOutput
 
 #: Values of :attr:`TachBatchResult.state`.
 SPINNING = "spinning"
@@ -164,14 +164,26 @@ class TachBatchResult:
 _EMPTY = np.zeros(0)
 
 
+#: A batch of ADC samples (V): a numpy array (replay, tests), rclpy's ``array.array('f')``
+#: (Float32MultiArray.data, a live node) or a list of floats.
+Samples: TypeAlias = "np.ndarray | array.array[float] | Sequence[float]"
+
+
 class _Counter:
     """A decoder attribute that is one field of its :class:`TachCounters` (read and write)."""
 
     def __set_name__(self, owner: type, name: str) -> None:
         self.name = name
 
-    def __get__(self, obj: TachometerDecoder | None, owner: type | None = None):
-        return self if obj is None else getattr(obj.counts, self.name)
+    @overload
+    def __get__(self, obj: None, owner: type | None = None) -> _Counter: ...
+    @overload
+    def __get__(self, obj: TachometerDecoder, owner: type | None = None) -> int: ...
+    def __get__(self, obj: TachometerDecoder | None, owner: type | None = None) -> _Counter | int:
+        if obj is None:  # the class attribute itself
+            return self
+        count: int = getattr(obj.counts, self.name)
+        return count
 
     def __set__(self, obj: TachometerDecoder, value: int) -> None:
         setattr(obj.counts, self.name, value)
@@ -248,7 +260,7 @@ class TachometerDecoder:
         self._cursor = 0
         self._plan = None
 
-    def _planned_row(self, samples) -> tuple[RowPlan, int] | None:
+    def _planned_row(self, samples: Samples) -> tuple[RowPlan, int] | None:
         """(plan, row) for ``samples`` if they are the next expected batch and can be planned."""
         exp = self._expected
         k = self._cursor
@@ -274,7 +286,11 @@ class TachometerDecoder:
         self._plan, self._plan_start = self._edges.plan_rows(X), k
         return self._plan, 0
 
-    def process_batch(self, t_last: float, samples, result: bool = True) -> TachBatchResult | None:
+    @overload
+    def process_batch(self, t_last: float, samples: Samples, result: Literal[True] = True) -> TachBatchResult: ...
+    @overload
+    def process_batch(self, t_last: float, samples: Samples, result: bool) -> TachBatchResult | None: ...
+    def process_batch(self, t_last: float, samples: Samples, result: bool = True) -> TachBatchResult | None:
         """Decode one batch of contiguous samples (V); ``t_last`` is the time (s) of the last one.
         With ``result=False`` nothing is returned (the decoder's state is all a caller needs)."""
         planned = self._planned_row(samples) if self._expected is not None else None
@@ -334,7 +350,7 @@ class TachometerDecoder:
             starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
             if len(starts) == 0 or starts[0] > 0:
                 self._nonfinite_gap(out)
-            for k, (a, b) in enumerate(zip(starts.tolist(), stops.tolist())):
+            for k, (a, b) in enumerate(zip(starts.tolist(), stops.tolist(), strict=True)):
                 if k > 0:
                     self._nonfinite_gap(out)
                 for c in range(a, b, chunk):
@@ -344,7 +360,7 @@ class TachometerDecoder:
         self._check_time(clock.last_sample_t())
         return self._result(out) if result else None
 
-    def process(self, t0: float, samples, batch_size: int | None = None) -> TachBatchResult:
+    def process(self, t0: float, samples: Samples, batch_size: int | None = None) -> TachBatchResult:
         """Decode a flat array whose first sample is at ``t0`` (s), in batches of ``batch_size``.
 
         Same state and results as feeding the batches to :meth:`process_batch` (the default,
@@ -477,5 +493,5 @@ class TachometerDecoder:
         clock = self._clock
         clock.see(now)
         pending = self._edges.pending
-        t_pending = None if pending is None else clock.anchor + pending[0] * clock.dt
+        t_pending = None if pending is None or clock.anchor is None else clock.anchor + pending[0] * clock.dt
         return self._gate.check_timeout(now, clock.t_start, t_pending)

@@ -127,8 +127,9 @@ class SampleClock:
     def breaks(self, t_first: float) -> bool:
         """True if a batch whose first sample is at ``t_first`` does not continue the clock
         (gap or resync, counted); the caller then settles the old clock and calls :meth:`restart`."""
-        dt = self.dt
-        delta = t_first - (self.anchor + self.next_idx * dt)
+        dt, anchor = self.dt, self.anchor
+        assert anchor is not None, "breaks() is asked from the second batch on"
+        delta = t_first - (anchor + self.next_idx * dt)
         if abs(delta) > self._gap_tolerance_s:
             if delta > 0:
                 self.counts.gaps += 1
@@ -154,6 +155,7 @@ class SampleClock:
         return i0
 
     def last_sample_t(self) -> float:
+        assert self.anchor is not None, "no sample yet"
         return self.anchor + (self.next_idx - 1) * self.dt
 
     def see(self, now: float) -> None:
@@ -229,6 +231,7 @@ class SpeedGate:
     def edge(self, p: float, out: TachOutput) -> None:
         """An accepted edge at position p: history, speed, timeout bookkeeping."""
         clock = self._clock
+        assert clock.anchor is not None, "an edge comes from a decoded sample"
         t = clock.anchor + p * clock.dt
         counts = self.counts
         if self.last_edge_t is not None and t - self.last_edge_t > self._timeout_s \
@@ -355,6 +358,7 @@ class EdgeDetector:
         self.break_continuity()
 
     def _confirm(self, out: TachOutput) -> None:
+        assert self.pending is not None, "confirmed only while an edge is pending"
         self.known = self.pending_levels
         self._gate.edge(self.pending[0], out)
 
@@ -370,9 +374,9 @@ class EdgeDetector:
         x0 = x.item(0)
         if self.tail is None:
             self.tail = x0
-        if self.hi is None:
-            self.hi = x0 + c
-            self.lo = min(self._initial_low, x0) - c
+        hi0, lo0 = self.hi, self.lo
+        if hi0 is None or lo0 is None:  # the first samples: the trackers start here
+            hi0, lo0 = x0 + c, min(self._initial_low, x0) - c
         # Level trackers see a 2-sample min (clear level) / max (blocked level) of the signal,
         # so a one-sample spike does not move them. Peak trackers with linear decay,
         # hi[i] = max(s[i], hi[i-1] - c), vectorised as hi[i] = max_j<=i (s[j] + c j) - c i
@@ -382,8 +386,8 @@ class EdgeDetector:
         np.minimum(x[:-1], x[1:], out=u[1:])
         u[0] = min(self.tail, x0)
         u += k
-        if u[0] < self.hi - c:
-            u[0] = self.hi - c
+        if u[0] < hi0 - c:
+            u[0] = hi0 - c
         np.maximum.accumulate(u, out=u)
         hi = u
         hi -= k
@@ -391,8 +395,8 @@ class EdgeDetector:
         np.maximum(x[:-1], x[1:], out=v[1:])
         v[0] = max(self.tail, x0)
         v -= k
-        if v[0] > self.lo + c:
-            v[0] = self.lo + c
+        if v[0] > lo0 + c:
+            v[0] = lo0 + c
         np.minimum.accumulate(v, out=v)
         lo = v
         lo += k
@@ -597,7 +601,7 @@ class EdgeDetector:
                 trig.insert(0, first)
             self.state = plan.last_val[j]
         else:
-            trig = ()
+            trig = []
         self._finish_slice(r, trig, plan.HI[j], plan.LO[j], r_prev0, i0, out)
         return True
 
@@ -613,6 +617,7 @@ class EdgeDetector:
             if p is None:  # the crossing was in an earlier slice
                 p = self.cross if self.cross is not None else float(i0 + kk)
             self._switch(p, i0 + kk, out, hi[kk], lo[kk])
+        assert self.r_last is not None, "both callers set it first"
         if self._low_f <= self.r_last <= self._high_f:
             # the slice ends inside a transition: its switch may come in a later slice and
             # need the midpoint crossing found here

@@ -39,8 +39,9 @@ from ..errors import BadInputError
 from ..recordings import Signals
 from . import scoring as sc
 
-#: Least fractional reduction of the held-out mean squared error for an effect to be added. 5 %: ~2.5 % of the RMSE, well above the run-to-run scatter of a
-#: retrained network (~0.2 % on the README case) and far below what a real missing effect gives.
+#: Least fractional reduction of the held-out mean squared error for an effect to be added. 5 %: ~2.5 % of
+#: the RMSE, well above the run-to-run scatter of a retrained network (~0.2 % on the README case) and far
+#: below what a real missing effect gives.
 ACCEPT_MIN_REDUCTION = 0.05
 
 #: Significance level of the replication on a --holdout (module docstring: why not the workflow's alpha).
@@ -98,6 +99,12 @@ class Acceptance:
                 and not self.rmse_after > self.rmse_before and self.at_bound is None
                 and self.contradicted is None)
 
+    @property
+    def test(self) -> str:
+        """Which data decided: 'holdout' (the --holdout recordings) or 'measured' (held-out data
+        of the measured recordings)."""
+        return "holdout" if self.source.startswith("holdout") else "measured"
+
     def describe(self) -> str:
         verdict = "added" if self.accepted else (
             f"not added ({self.at_bound}: not a basis for a verdict)" if self.at_bound else
@@ -108,8 +115,9 @@ class Acceptance:
                 f"{self.blocks} blocks better, p = {self.p_value:.2g}: {verdict}")
 
     def as_json(self) -> dict[str, Any]:
-        return {"source": self.source, "rmse_before_rad_s": self.rmse_before, "rmse_after_rad_s": self.rmse_after,
-                "mse_reduction": self.mse_reduction, "p_value": self.p_value, "blocks": self.blocks,
+        return {"source": self.source, "test": self.test, "rmse_before_rad_s": self.rmse_before,
+                "rmse_after_rad_s": self.rmse_after, "mse_reduction": self.mse_reduction,
+                "mse_reduction_pct": 100.0 * self.mse_reduction, "p_value": self.p_value, "blocks": self.blocks,
                 "blocks_improved": self.blocks_improved, "min_mse_reduction": self.margin, "alpha": self.alpha,
                 "at_bound": self.at_bound, "contradicted": self.contradicted, "accepted": self.accepted}
 
@@ -154,11 +162,40 @@ def from_score(effect: str, score: sc.Score, source: str, alpha: float,
                       score.blocks, score.blocks_improved, margin, alpha)
 
 
+#: The three things a candidate can end as (console, --json ``status``, the report).
+ADDED, STRUCTURAL, NOT_ADDED = "added", "structural", "considered, not added"
+#: What an added effect is, in words.
+ADDED_LABELS = {"new": "added (new in the measured data)",
+                "structural": "added (structural: the model lacks it on its own training data too)"}
+
+
+def decided_by(ev: dict[str, Any]) -> dict[str, Any]:
+    """The test that decided a candidate (its ``evidence`` entry): the held-out acceptance test
+    when it was fitted, else the measured data's step-3 score (it was not proposed)."""
+    a = ev.get("acceptance")
+    if a is not None:
+        return {"test": a["test"], "source": a["source"], "reduction_pct": 100.0 * a["mse_reduction"],
+                "p_value": a["p_value"]}
+    m = ev["measured"]
+    return {"test": "measured", "source": "held-out time blocks of the measured data (step 3: not proposed)",
+            "reduction_pct": 100.0 * m["mse_reduction"], "p_value": m["p_value"]}
+
+
+def status(ev: dict[str, Any]) -> tuple[str, str]:
+    """(status, label): ADDED with its ADDED_LABELS, STRUCTURAL (present on the reference too, not
+    added) or NOT_ADDED."""
+    if ev.get("named"):
+        return ADDED, ADDED_LABELS[ev.get("added_as") or "new"]
+    if ev["verdict"] == "structural":
+        return STRUCTURAL, "structural (the model lacks it on its own training data too), not added"
+    return NOT_ADDED, NOT_ADDED
+
+
 def considered(evidence: dict[str, Any], named: Sequence[str]) -> list[dict[str, Any]]:
     """Every candidate that was scored and not added, with its figures and why not."""
     out = []
     for name, ev in evidence.items():
-        if name in named:
+        if name in named or ev.get("named"):
             continue
         m = ev.get("measured") or {}
         acc = ev.get("acceptance")
@@ -167,16 +204,25 @@ def considered(evidence: dict[str, Any], named: Sequence[str]) -> list[dict[str,
         elif acc is not None and acc.get("contradicted"):
             why = f"fitted, but {acc['contradicted']}"
         elif acc is not None and not acc["accepted"]:
-            why = "fitted, but it did not improve held-out data enough"
-        elif ev["verdict"] == "new":
-            why = "new, but the loop stopped before it (an earlier candidate was rejected or --max-effects reached)"
-        else:
+            why = f"fitted, but it did not improve the {acc['test']} data enough"
+        elif acc is not None:
+            why = "fitted and passed, but another was added first"
+        elif ev["verdict"].startswith("not new"):
             why = ev["verdict"]
-        out.append({"effect": name, "verdict": ev["verdict"], "why": why,
+        else:
+            why = "not proposed (the loop stopped first, or too small a share on the measured data)"
+        st, _ = status(ev)
+        out.append({"effect": name, "verdict": ev["verdict"], "status": st, "why": why,
+                    "decided_by": decided_by(ev),
                     "measured_mse_reduction": m.get("mse_reduction"), "p_value": m.get("p_value"),
                     "reference_mse_reduction": (ev.get("reference") or {}).get("mse_reduction"),
                     "acceptance": acc})
     return out
+
+
+def decided_text(d: dict[str, Any]) -> str:
+    """The deciding test's figure, one way everywhere: '<test> test: 23.3 %, p = 5e-05'."""
+    return f"{d['test']} test: {d['reduction_pct']:.1f} %, p = {d['p_value']:.2g}"
 
 
 def considered_lines(items: Sequence[dict[str, Any]]) -> list[str]:
@@ -184,10 +230,13 @@ def considered_lines(items: Sequence[dict[str, Any]]) -> list[str]:
     lines = []
     for x in items:
         ref = x["reference_mse_reduction"]
-        fig = (f"held-out {100 * (x['measured_mse_reduction'] or 0.0):.1f} % (p = {x['p_value']:.2g})"
-               + (f", reference {100 * ref:.1f} %" if ref is not None else ""))
+        fig = decided_text(x["decided_by"])
+        if x["decided_by"]["test"] != "measured":
+            measured = 100 * (x["measured_mse_reduction"] or 0.0)
+            fig += f"; measured (proposal only): {measured:.1f} %, p = {x['p_value']:.2g}"
+        fig += f"; reference {100 * ref:.1f} %" if ref is not None else ""
         acc = x["acceptance"]
-        lines.append(f"considered, not added: {x['effect']} ({x['why']}; {fig}"
+        lines.append(f"{x['status']}: {x['effect']} ({x['why']}; {fig}"
                      + (f"; {acc['source']} RMSE {acc['rmse_before_rad_s']:.2f} -> {acc['rmse_after_rad_s']:.2f} "
-                        f"rad/s, {100 * acc['mse_reduction']:.1f} %, p = {acc['p_value']:.2g}" if acc else "") + ")")
+                        f"rad/s" if acc else "") + ")")
     return lines

@@ -56,7 +56,7 @@ class DataSet:
 
     @property
     def residuals(self) -> list[np.ndarray]:
-        return [s.speed - p for s, p in zip(self.signals, self.predictions)]
+        return [s.speed - p for s, p in zip(self.signals, self.predictions, strict=True)]
 
 
 def rmse(residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray] | None = None) -> float:

@@ -24,13 +24,11 @@ itself, which is its identification).
 from __future__ import annotations
 
 import math
-
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
 from scipy import stats
 
 from .. import contract as c
@@ -111,8 +109,9 @@ def identify_dynamics(signals: Sequence[Signals]) -> Dynamics:
                 A = np.column_stack([np.ones_like(x), x, x**2, x**3, vv, vv * x])
                 beta, *_ = np.linalg.lstsq(A, y, rcond=None)
                 sse[i, j] += float(np.sum((y - A @ beta) ** 2))
-    i, j = np.unravel_index(int(np.argmin(sse)), sse.shape)
-    return Dynamics(float(ID_DELAYS[i]), float(tu[j]), float(td[j]), float(np.sqrt(sse[i, j] / max(n_total, 1))))
+    best_i, best_j = (int(k) for k in np.unravel_index(int(np.argmin(sse)), sse.shape))
+    return Dynamics(float(ID_DELAYS[best_i]), float(tu[best_j]), float(td[best_j]),
+                    float(np.sqrt(sse[best_i, best_j] / max(n_total, 1))))
 
 
 def identify_start_level(signals: Sequence[Signals], dyn: Dynamics) -> float:
@@ -373,6 +372,12 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
 #: the speed the reference's rotor settles at for that level: a lower supply or a hotter winding
 #: lowers the speed by some per cent, only the loss of drive halves it.
 NO_DRIVE_FRACTION = 0.5
+#: A reference hold counts as "spinning" only above this share of the reference's fastest settled
+#: hold: a rotor that reads a few hundredths of a rad/s is at rest, and interpolating from it
+#: puts tens of rad/s at levels just above, where the static map is still at zero (the friction
+#: is not yet overcome; on a lower pack even less so), so a measured rotor at rest there would be
+#: taken for a start level that rose.
+SPINNING_MIN_SHARE = 0.02
 #: The end of a hold the speed is read from: a line fitted to it gives the end speed and whether
 #: the rotor had settled (drift <= 2 % + twice the noise) or was still rising.
 SETTLED_S = 0.3
@@ -429,7 +434,8 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     NO_DRIVE_FRACTION of the reference's speed at that level, had no drive: the start level rose.
     Read from the holds, not from a fit of the throttle map (which the network re-weights, and a
     lag would take for a slower spin-down)."""
-    spin = reference.settled & (reference.speed > 0) & ~reference.rising
+    top = float(np.max(reference.speed[reference.settled], initial=0.0))
+    spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
     if spin.sum() < 2:
         return False, "the reference recordings hold too few levels at which the rotor settles spinning"
     order = np.argsort(reference.levels[spin])
@@ -667,7 +673,7 @@ def identify_heating(measured: Sequence[Signals], reference: Sequence[Signals]) 
         return Heating(0.0, 0.0, 0.0)
     beta, *_ = np.linalg.lstsq(A, y, rcond=None)
     v_med = float(np.median(np.concatenate(volts))) if volts else 11.5
-    full = float(_static_map_terms([c.PWM_FULL], [v_med])[0] @ beta[:6])
+    full = float(_static_map_terms(np.array([c.PWM_FULL]), np.array([v_med]))[0] @ beta[:6])
     return Heating(float(beta[6]), float(beta[7]), hottest,
                    _clustered_se(A, y - A @ beta, np.concatenate(holds_), np.array([0, 0, 0, 0, 0, 0, -1, 1])),
                    full if full > 0.0 else math.inf)
@@ -739,11 +745,11 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
                 f"reference's at similar speeds while its rising steps are unchanged: it is not braked "
                 f"(p = {x.p_value:.2g}; {x.n_measured} vs {x.n_reference} steps)")),
         }
-        for name, (chg, why) in from_steps.items():
+        for name, (chg, because) in from_steps.items():
             # too few steps at speeds the reference also has is no evidence: the fit of the whole
             # recordings is not asked instead (its spin-down time constant takes a rotor running
             # down with no drive below a raised start level, or other speeds, for a change)
-            changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, why(chg)) if chg is not None
+            changes[name] = ((chg.change - chg.margin if chg.changed else -1.0, 0.0, because(chg)) if chg is not None
                              else (-1.0, 0.0, ""))
         if steps.spin_up is not None and steps.spin_up.changed:
             # a heavier rotor slows the falling steps too, and not by the same factor (braking and
@@ -868,7 +874,7 @@ def refine(ev: dict[str, Any], best: str | None, named: Sequence[str], measured:
                  "recordings")
         dyn = (identify_dynamics(measured), identify_dynamics(reference))
         if "esc_deadband" in ev:
-            for dy, sigs in zip(dyn, (measured, reference)):
+            for dy, sigs in zip(dyn, (measured, reference), strict=True):
                 dy.start_level = identify_start_level(sigs, dy)
         cache["dynamics"] = dyn
         cache["steps"] = step_dynamics(measured, reference,

@@ -38,9 +38,14 @@ from . import effects as fx
 from . import scoring as sc
 from .base import DataSet, Options, Progress, Scores, Trial, rmse
 
-#: The measured recordings' last part kept out of the retraining (early stopping, and the held-out
-#: evidence without a --holdout).
-VALIDATION_FRACTION = 0.2
+#: The measured recordings' share kept out of the retraining (early stopping, and the held-out
+#: evidence without a --holdout): every VALIDATION_EVERY-th of VALIDATION_CHUNKS equal chunks of
+#: each recording, so the early stopping sees the recording's whole range of commands (a last
+#: 20 % in one piece can miss what differs: a tail the base model already fits stopped every
+#: retraining at its first epoch, the base model returned unchanged whatever the effect).
+VALIDATION_CHUNKS = 10
+VALIDATION_EVERY = 5
+VALIDATION_FRACTION = 1.0 / VALIDATION_EVERY
 
 
 def check_inputs_computable(model: Any, signals: Sequence[Signals]) -> None:
@@ -72,9 +77,9 @@ def run_model(model: Any, signals: Sequence[Signals]) -> DataSet:
 def score_dataset(ds: DataSet, cands: Sequence[fx.Candidate], speed_scale: float, what: str) -> dict[str, sc.Score]:
     blocks = sc.make_blocks([s.duration_s for s in ds.signals], what)
     labels = sc.block_labels([len(s.t) for s in ds.signals], blocks)
-    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions)]
+    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions, strict=True)]
     r = np.concatenate(ds.residuals)
-    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs)])
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs, strict=True)])
     out: dict[str, sc.Score] = {}
     for cand in cands:
         extras = [np.vstack([cand.columns(cx, prm) for cx in ctxs]) for prm in cand.grid]
@@ -90,16 +95,17 @@ def score_pooled(meas: DataSet, ref: DataSet | None, cands: Sequence[fx.Candidat
         return score_dataset(meas, cands, speed_scale, "measured"), {}
     sets = [meas, ref]
     labels, groups, first = [], [], 0
-    for ds, what in zip(sets, ("measured", "reference")):
+    for ds, what in zip(sets, ("measured", "reference"), strict=True):
         blocks = sc.make_blocks([s.duration_s for s in ds.signals], what)
         lab = sc.block_labels([len(s.t) for s in ds.signals], blocks)
         labels.append(np.where(lab >= 0, lab + first, -1))
         groups.append(np.arange(first, first + int(sum(blocks))))
         first += int(sum(blocks))
     lab = np.concatenate(labels)
-    ctxs = [fx.Context(s, p, speed_scale) for ds in sets for s, p in zip(ds.signals, ds.predictions)]
+    ctxs = [fx.Context(s, p, speed_scale) for ds in sets for s, p in zip(ds.signals, ds.predictions, strict=True)]
     r = np.concatenate([np.concatenate(ds.residuals) for ds in sets])
-    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, [z for ds in sets for z in ds.inputs])])
+    inputs = [z for ds in sets for z in ds.inputs]
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, inputs, strict=True)])
     out_m: dict[str, sc.Score] = {}
     out_r: dict[str, sc.Score] = {}
     for cand in cands:
@@ -109,9 +115,9 @@ def score_pooled(meas: DataSet, ref: DataSet | None, cands: Sequence[fx.Candidat
 
 
 def fitted_params(ds: DataSet, cand: fx.Candidate, speed_scale: float) -> dict[str, float]:
-    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions)]
+    ctxs = [fx.Context(s, p, speed_scale) for s, p in zip(ds.signals, ds.predictions, strict=True)]
     r = np.concatenate(ds.residuals)
-    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs)])
+    null_X = np.vstack([fx.null_columns(cx, z) for cx, z in zip(ctxs, ds.inputs, strict=True)])
     extras = [np.vstack([cand.columns(cx, prm) for cx in ctxs]) for prm in cand.grid]
     return sc.fit_params(r, null_X, extras, cand.grid)
 
@@ -133,6 +139,22 @@ def slice_signals(s: Signals, t0: float, t1: float, tag: str) -> Signals:
         current=s.current[sel] if s.current is not None else None,
         pwm_events=(pt[kp], pv[kp]), voltage_events=(vt[kv], vv[kv]), speed_events=(st[ks], sv[ks]),
     )
+
+
+def split_measured(s: Signals) -> tuple[list[Signals], list[Signals]]:
+    """A measured recording's training parts and validation chunks (VALIDATION_CHUNKS)."""
+    edges = np.linspace(s.t[0], s.t[-1], VALIDATION_CHUNKS + 1)
+    train, val = [], []
+    start = edges[0]
+    for k in range(VALIDATION_CHUNKS):
+        if (k + 1) % VALIDATION_EVERY == 0:
+            if edges[k] > start:
+                train.append(slice_signals(s, start, edges[k], f"train{k}"))
+            val.append(slice_signals(s, edges[k], edges[k + 1], f"validation{k}"))
+            start = edges[k + 1]
+    if edges[-1] > start:
+        train.append(slice_signals(s, start, edges[-1], "train_end"))
+    return train, val
 
 
 def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference: Sequence[Signals],
@@ -164,14 +186,14 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
         train = [cand.on_reference(s, params, reference_params) for s in reference]
         progress(f"the reference recordings get {cand.input_name} at their own identified {reference_params}")
     for s in measured:
-        cut = s.t[0] + (1.0 - VALIDATION_FRACTION) * (s.t[-1] - s.t[0])
-        train.append(slice_signals(s, s.t[0], cut, "train"))
-        val.append(slice_signals(s, cut, s.t[-1], "validation"))
+        parts, held = split_measured(s)
+        train += parts
+        val += held
     hidden = opts.hidden or int(np.asarray(model.W1).shape[0])
     base_hidden = int(np.asarray(model.W1).shape[0])
     warm = opts.warm_start and hidden == base_hidden
     progress(f"retraining {len(inputs)}-{hidden}-1 on {', '.join(inputs)} "
-             f"({len(train)} training parts, {len(val)} validation parts"
+             + f"({len(train)} training parts, {len(val)} validation parts"
              + (", starting from the model's own weights with the new input's weights at 0"
                 + (", " + ", ".join(f"{k}'s carried over to {v}" for k, v in rename.items()) if rename else "")
                 + ")" if warm else ")"))
@@ -300,19 +322,19 @@ class NetworkKind:
                      extra={"input": cand.input_name})
 
     def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
-        """The measured recordings' last VALIDATION_FRACTION (early stopping only), or, when that
-        is too short to block, step 3's held-out blocks."""
-        tails, before, after = [], [], []
+        """The measured recordings' validation chunks (early stopping only, ``split_measured``),
+        or, when they are too short to block, step 3's held-out blocks."""
+        chunks, before, after = [], [], []
         new = self._pending["meas"]
-        for s, pb, pa in zip(self.cur_meas.signals, self.cur_meas.predictions, new.predictions):
-            cut = s.t[0] + (1.0 - VALIDATION_FRACTION) * (s.t[-1] - s.t[0])
-            sel = s.t >= cut
-            tails.append(slice_signals(s, cut, s.t[-1], "validation"))
-            before.append(pb[sel])
-            after.append(pa[sel])
+        for s, pb, pa in zip(self.cur_meas.signals, self.cur_meas.predictions, new.predictions, strict=True):
+            for v in split_measured(s)[1]:
+                sel = (s.t >= v.t[0]) & (s.t <= v.t[-1])
+                chunks.append(v)
+                before.append(pb[sel])
+                after.append(pa[sel])
         try:
-            return acc.judge(name, tails, before, after, f"the measured recordings' last "
-                             f"{100 * VALIDATION_FRACTION:.0f} % (early stopping only, not trained on)", alpha)
+            return acc.judge(name, chunks, before, after, f"the measured recordings' validation chunks "
+                             f"({100 * VALIDATION_FRACTION:.0f} %, early stopping only, not trained on)", alpha)
         except BadInputError:
             return acc.from_score(name, scores.measured, "held-out blocks of the measured data (step 3)", alpha)
 

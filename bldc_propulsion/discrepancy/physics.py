@@ -36,10 +36,10 @@ from ..atomic import CONFIG, atomic_output
 from ..core.battery_filter import BatteryFilterConfig
 from ..core.features import measured_start_speed
 from ..errors import BadInputError
-from ..priors import MotorPriors, physics_start
 from ..plant import full_drive_speeds, motor_response, resolve_effects, spin_up_time_constant_s
-from ..sim.params import BenchParams, params_with_overrides
+from ..priors import MotorPriors, physics_start
 from ..recordings import Signals
+from ..sim.params import BenchParams, params_with_overrides
 from . import scoring as sc
 
 #: Constants calibrated on the measured data, log-parameterised: first within a factor
@@ -187,7 +187,7 @@ class PhysicsModel:
         return motor_response(self.params, self.effects, s.pwm_events, (s.t[ok], s.voltage[ok]), s.t,
                               self.supply_v, supply_tau_s(s), initial_speed=w0)
 
-    def with_supply(self, signals: Sequence[Signals]) -> "PhysicsModel":
+    def with_supply(self, signals: Sequence[Signals]) -> PhysicsModel:
         """The model with its stiff-supply voltage set to the median battery voltage of
         ``signals`` if the CONFIG did not set it. One voltage for every recording: a supply that
         knew each recording's own voltage would already hold most of the battery_voltage effect."""
@@ -198,12 +198,12 @@ class PhysicsModel:
             raise BadInputError(f"{signals[0].path}: no valid battery voltage for the physics model")
         return dataclasses.replace(self, supply_v=v)
 
-    def with_effect(self, name: str, strength: float) -> "PhysicsModel":
+    def with_effect(self, name: str, strength: float) -> PhysicsModel:
         return dataclasses.replace(self, effects={**self.effects, name: float(strength)})
 
-    def with_constants(self, values: Sequence[float]) -> "PhysicsModel":
-        return dataclasses.replace(
-            self, params=dataclasses.replace(self.params, **dict(zip(CALIBRATED, map(float, values)))))
+    def with_constants(self, values: Sequence[float]) -> PhysicsModel:
+        calibrated: dict[str, Any] = dict(zip(CALIBRATED, map(float, values), strict=True))
+        return dataclasses.replace(self, params=dataclasses.replace(self.params, **calibrated))
 
     def constants(self) -> dict[str, float]:
         return {n: float(getattr(self.params, n)) for n in CALIBRATED}
@@ -368,7 +368,7 @@ class Data:
     blocks: int
 
     @classmethod
-    def of(cls, signals: Sequence[Signals], what: str) -> "Data":
+    def of(cls, signals: Sequence[Signals], what: str) -> Data:
         blocks = sc.make_blocks([s.duration_s for s in signals], what)
         lab = sc.block_labels([len(s.t) for s in signals], blocks)
         rows, labels, first = [], [], 0
@@ -380,7 +380,7 @@ class Data:
         return cls(list(signals), rows, np.concatenate(labels), int(sum(blocks)))
 
     def residual(self, model: PhysicsModel) -> np.ndarray:
-        return np.concatenate([s.speed[r] - model.predict(s)[r] for s, r in zip(self.signals, self.rows)])
+        return np.concatenate([s.speed[r] - model.predict(s)[r] for s, r in zip(self.signals, self.rows, strict=True)])
 
 
 @dataclass
@@ -428,11 +428,12 @@ def calibrate(model: PhysicsModel, data: Data, anchor: np.ndarray, log_range: np
         logs = start.copy()
         logs[live] = x[:len(live)]
         m = model.with_constants(anchor * np.exp(logs))
-        for name, v in zip(free, x[len(live):len(live) + len(free)]):
+        for name, v in zip(free, x[len(live):len(live) + len(free)], strict=True):
             m = m.with_effect(name, v)
         if comp:
-            m = dataclasses.replace(m, params=dataclasses.replace(m.params, **{
-                n: comp_anchor[n] * math.exp(v) for n, v in zip(comp, x[len(live) + len(free):])}))
+            compensation: dict[str, Any] = {
+                n: comp_anchor[n] * math.exp(v) for n, v in zip(comp, x[len(live) + len(free):], strict=True)}
+            m = dataclasses.replace(m, params=dataclasses.replace(m.params, **compensation))
         return m
 
     lo = np.concatenate([-span[live], np.zeros(len(free)), np.full(len(comp), -COMPANION_LOG_RANGE)]) + shift
@@ -627,7 +628,7 @@ def fit_flags(fit: Fit, config: PhysicsModel, what: str) -> list[FitFlag]:
         """The range a * e^(+-span) and whether ``value`` ended on a bound of it."""
         return a * math.exp(-span), a * math.exp(span), abs(abs(math.log(value / a)) - span) < 1e-3
 
-    for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range):
+    for (name, value), a, span in zip(fit.model.constants().items(), fit.anchor, fit.log_range, strict=True):
         if span == 0.0:
             continue  # held, not fitted
         cfg = float(getattr(config.params, name))
@@ -739,7 +740,7 @@ def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
     """The strength with the least SSE on all of ``data`` (jointly with the constants): the best
     grid point, the grid extended past its end when the best is there, then the vertex of the
     parabola through the best point and its neighbours."""
-    pts = dict(zip(STRENGTH_GRID[name], fits))
+    pts = dict(zip(STRENGTH_GRID[name], fits, strict=True))
     lo, hi = 0.0, STRENGTH_MAX[name]
     for _ in range(3):
         xs = sorted(pts)

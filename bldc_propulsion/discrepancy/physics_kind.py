@@ -141,6 +141,7 @@ class PhysicsKind:
         above the speed's own noise (``NOT_EXPLAINED_FACTOR``; a model that cannot follow its own
         reference would take any effect that bends it towards the data for what changed)."""
         noise = rs.speed_noise([s.speed_events for s in reference])
+        assert self.reference_fit is not None  # set by the reference fit that calls this
         rmse_ref = self.reference_fit["rmse_rad_s"]
         self.reference_fit["speed_noise_rad_s"] = noise
         span = speed_range(reference)
@@ -153,7 +154,8 @@ class PhysicsKind:
                     f"the noise or {100 * NOT_EXPLAINED_SHARE:g} % of the range)")
         # the motor and propeller (Kv, CP, and the physical check on them), not the ESC's map, the
         # pack's resistance or an effect's strength
-        blocking = [f.text() for f in flags if f.blocks and (f.quantity in ph.MOTOR_AND_PROPELLER or f.reason is not None)]
+        blocking = [f.text() for f in flags
+                    if f.blocks and (f.quantity in ph.MOTOR_AND_PROPELLER or f.reason is not None)]
         if blocking:
             return f"the base physics fitted on the reference is not physical ({'; '.join(blocking)})"
         return None
@@ -177,11 +179,12 @@ class PhysicsKind:
 
     def score(self, names: Sequence[str], progress: Progress) -> dict[str, Scores]:
         if self._ref_pending and self.cur_ref is not None:
+            assert self.ref_data is not None  # cur_ref is fitted on it
             # the effect named since: on the reference too, from the measured data's strength
-            m = self.cur_ref.model
+            ref_model = self.cur_ref.model
             for name in self._ref_pending:
-                m = m.with_effect(name, self.cur.model.effects[name])
-            self.cur_ref = ph.recalibrate(self.cur_ref, m, self.ref_data, self.cur.free)
+                ref_model = ref_model.with_effect(name, self.cur.model.effects[name])
+            self.cur_ref = ph.recalibrate(self.cur_ref, ref_model, self.ref_data, self.cur.free)
         self._ref_pending = []
         out = {}
         for name in names:
@@ -189,7 +192,7 @@ class PhysicsKind:
             self._fits[name] = ph.effect_fits(self.cur, name, self.meas_data)
             m = ph.score(self.cur, self._fits[name], grid, self.meas_data)
             r = (ph.score(self.cur_ref, ph.effect_fits(self.cur_ref, name, self.ref_data), grid, self.ref_data)
-                 if self.cur_ref else None)
+                 if self.cur_ref is not None and self.ref_data is not None else None)
             # (the grid strength chosen most often across the folds: the fit of step 4 refines it)
             out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model))
         return out
@@ -206,7 +209,8 @@ class PhysicsKind:
         self._trial_strength[name] = strength
         params = {"strength": strength, **fit.model.constants(), **fit.companions()}
         return Trial(fit, predictions(fit.model, hold), params,
-                     ph.describe(name, strength, fit.model), ph.fitted_value(name, strength, fit.model.params, fit.model.supply_v),
+                     ph.describe(name, strength, fit.model),
+                     ph.fitted_value(name, strength, fit.model.params, fit.model.supply_v),
                      [f.text() for f in flags if f.blocks])
 
     def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
@@ -229,7 +233,9 @@ class PhysicsKind:
         if name != "motor_heating":
             return None
         heat = identify_heating(self.meas_data.signals, self.ref_data.signals)
-        return None if heat.changed else f"the speed's response to the thermal state is the reference's ({heat.describe()})"
+        if heat.changed:
+            return None
+        return f"the speed's response to the thermal state is the reference's ({heat.describe()})"
 
     def keep(self, trial: Trial) -> None:
         self.cur = trial.model

@@ -148,7 +148,7 @@ def find_windows(path: str, t: np.ndarray, r: np.ndarray, pwm: np.ndarray, volta
     above = a > threshold
     # merge gaps shorter than MERGE_GAP_S, drop windows shorter than MIN_WINDOW_S
     idx = np.flatnonzero(np.diff(np.concatenate([[0], above.astype(int), [0]])))
-    spans = [[s, e] for s, e in zip(idx[::2], idx[1::2])]
+    spans = [[s, e] for s, e in zip(idx[::2], idx[1::2], strict=True)]
     merged: list[list[int]] = []
     for s, e in spans:
         if merged and (t[s] - t[merged[-1][1] - 1]) < MERGE_GAP_S:
@@ -245,7 +245,7 @@ def residual_tests(residuals: Sequence[np.ndarray], inputs: Sequence[dict[str, n
     acfs, weights = [], []
     xcs: dict[str, list[np.ndarray]] = {}
     n_total = 0
-    for r, u in zip(residuals, inputs):
+    for r, u in zip(residuals, inputs, strict=True):
         ok = np.isfinite(r)
         rd = r[ok][::TEST_DECIMATION]
         if len(rd) <= TEST_LAGS + 2:
@@ -270,13 +270,13 @@ PWM_BINS = (0.05, 0.06, 0.07, 0.08, 0.09, 0.1001)
 
 
 def condition_bins(t: Sequence[np.ndarray], r: Sequence[np.ndarray], pwm: Sequence[np.ndarray],
-                   voltage: Sequence[np.ndarray]) -> dict[str, list[dict[str, float]]]:
+                   voltage: Sequence[np.ndarray]) -> dict[str, list[dict[str, float | str]]]:
     """RMS residual per PWM level bin, per command direction, per voltage and time-under-load tercile."""
     R = np.concatenate([np.asarray(x) for x in r])
     P = np.concatenate([np.asarray(x) for x in pwm])
     V = np.concatenate([np.asarray(x) for x in voltage])
-    D = np.concatenate([pwm_rate(tt, pp) for tt, pp in zip(t, pwm)])
-    L = np.concatenate([time_under_load(tt, pp) for tt, pp in zip(t, pwm)])
+    D = np.concatenate([pwm_rate(tt, pp) for tt, pp in zip(t, pwm, strict=True)])
+    L = np.concatenate([time_under_load(tt, pp) for tt, pp in zip(t, pwm, strict=True)])
     ok = np.isfinite(R)
 
     def rms(sel: np.ndarray) -> dict[str, float]:
@@ -285,13 +285,14 @@ def condition_bins(t: Sequence[np.ndarray], r: Sequence[np.ndarray], pwm: Sequen
                 "rms_residual_rad_s": float(np.sqrt(np.mean(R[s] ** 2))) if s.any() else float("nan"),
                 "mean_residual_rad_s": float(np.mean(R[s])) if s.any() else float("nan")}
 
-    out: dict[str, list[dict[str, float]]] = {"pwm": [], "pwm_direction": [], "voltage": [], "time_under_load": []}
-    for lo, hi in zip(PWM_BINS[:-1], PWM_BINS[1:]):
+    out: dict[str, list[dict[str, float | str]]] = {
+        "pwm": [], "pwm_direction": [], "voltage": [], "time_under_load": []}
+    for lo, hi in zip(PWM_BINS[:-1], PWM_BINS[1:], strict=True):
         out["pwm"].append({"low": lo, "high": min(hi, c.PWM_FULL), **rms((P >= lo) & (P < hi))})
     for name, sel in (("rising", D > 0.02), ("falling", D < -0.02), ("steady", np.abs(D) <= 0.02)):
         out["pwm_direction"].append({"direction": name, **rms(sel)})
     for key, x in (("voltage", V), ("time_under_load", L)):
         qs = np.nanpercentile(x, [0, 33.3, 66.7, 100]) if len(x) else [0, 0, 0, 0]
-        for lo, hi in zip(qs[:-1], qs[1:]):
+        for lo, hi in zip(qs[:-1], qs[1:], strict=True):
             out[key].append({"low": float(lo), "high": float(hi), **rms((x >= lo) & (x <= hi))})
     return out

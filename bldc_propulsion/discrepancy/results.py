@@ -37,7 +37,7 @@ def sentence(effect: str, feature: str, meas: sc.Score, ref: sc.Score | None, ve
     if verdict == "structural":
         return (f"{core} and {ref_txt}: {noun} lacks it on its own reference data too "
                 f"(structural, not new in the measured data)")
-    return f"{core}: {verdict}"
+    return f"{core}; on the measured data: {verdict} (that test proposes, the held-out one decides)"
 
 
 @dataclass
@@ -59,7 +59,8 @@ class Evidence:
     fitted_parameters: dict[str, Any] | None = None
     fitted_value: dict[str, Any] | None = None  #: physics: the fitted value in physical units
     acceptance: acc.Acceptance | None = None
-    named: bool = False
+    named: bool = False  #: added to the model (new or structural: ``added_as``)
+    added_as: str | None = None  #: 'new' or 'structural' once added
 
     def override(self, verdict: str, text: str) -> None:
         """The identification's verdict replaces the scores' (kept in ``verdict_residual``)."""
@@ -70,7 +71,8 @@ class Evidence:
         unless the identification wrote it, the sentence say the same number."""
         self.fitted_parameters, self.fitted_value = parameters, value
         if self.verdict_residual is None:
-            self.sentence = sentence(self.effect, feature, self.measured, self.reference, self.verdict, self.noun)
+            self.sentence = sentence(self.effect, feature, self.measured, self.reference,
+                                     self.added_as or self.verdict, self.noun)
         self.feature = feature
 
     def as_json(self) -> dict[str, Any]:
@@ -90,6 +92,9 @@ class Evidence:
             out["acceptance"] = self.acceptance.as_json()
         if self.named:
             out["named"] = True
+            out["added_as"] = self.added_as
+        out["status"], out["label"] = acc.status(out)
+        out["decided_by"] = acc.decided_by(out)
         return out
 
 
@@ -104,9 +109,12 @@ class Round:
     acceptance: acc.Acceptance | None = None
     named: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific (the network's added input)
+    #: every candidate fitted this round, in the order tried (the last is ``proposed``)
+    trials: list[dict[str, Any]] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"evidence": {k: v.as_json() for k, v in self.evidence.items()}}
+        out: dict[str, Any] = {"evidence": {k: v.as_json() for k, v in self.evidence.items()},
+                               "trials": list(self.trials)}
         if self.proposed is not None:
             out.update(proposed=self.proposed, **self.extra, parameters=self.parameters,
                        holdout_rmse_rad_s=self.holdout_rmse,
@@ -145,15 +153,22 @@ class Result:
     kind_fields: dict[str, Any] = field(default_factory=dict)
     #: why nothing was scored or named (the reference is not explained), None when the loop ran
     no_verdict: str | None = None
+    #: every effect added, in order: ``named`` (new in the measured data) and structural ones
+    added: list[str] = field(default_factory=list)
 
     def as_json(self) -> dict[str, Any]:
         evidence = {k: v.as_json() for k, v in self.evidence.items()}
         found = self.found
+        added = list(self.added or self.named)
         return {
             "named": list(self.named),
+            "added": added,
+            "added_structural": [k for k in added if k not in self.named],
             "no_verdict": self.no_verdict,
-            "structural": [x for x in self.structural if x["effect"] not in self.named],
-            "considered_not_added": acc.considered(evidence, self.named),
+            "structural": [x for x in self.structural if x["effect"] not in added],
+            "considered_not_added": acc.considered(evidence, added),
+            "verdicts": {k: {"status": v["status"], "label": v["label"], **v["decided_by"]}
+                         for k, v in evidence.items()},
             **self.gap,
             "holdout_in_sample": self.holdout_in_sample,
             "holdout_recordings": self.recordings["holdout"],
@@ -197,27 +212,36 @@ def kept_text(kept: dict[str, Any]) -> str:
 
 
 def summary_lines(data: dict[str, Any]) -> list[str]:
+    """The summary for people: new effects, then structural ones, each added or not with the
+    figure of the test that decided (the same statuses and % as --json and the report)."""
     lines = []
+    added = data.get("added", data["named"])
+    structural_added = [k for k in added if k not in data["named"]]
     if data["named"]:
-        lines.append("new effect(s) found in the measured data: " + ", ".join(data["named"]))
-        for name in data["named"]:
-            ev = data["evidence"][name]
-            lines.append("  " + ev["sentence"])
-            if ev.get("fitted_value"):
-                lines.append(f"    fitted: {value_text(ev['fitted_value'])} (strength "
-                             f"{ev['fitted_value']['strength']:.3g})")
-            if ev.get("acceptance"):
-                lines.append("    added because " + kept_text(ev["acceptance"]))
-    elif data.get("no_verdict"):
-        lines.append(f"no effect is named: {data['no_verdict']}")
-    elif data["structural"]:
-        lines.append("nothing new in the measured data: what the model lacks, it lacks on its own reference "
-                     "data too (structural, below)")
-    else:
-        lines.append("no effect improves data it was not fitted on: nothing named")
-    for s in data["structural"]:
-        lines.append("structural (also on the reference data): " + s["sentence"])
-    lines += acc.considered_lines([x for x in data.get("considered_not_added", []) if x["verdict"] != "structural"])
+        lines.append("new effect(s) found in the measured data, added: " + ", ".join(data["named"]))
+    if structural_added:
+        lines.append("structural effect(s) added (the model lacks them on its own training data too): "
+                     + ", ".join(structural_added))
+    for name in added:
+        ev = data["evidence"][name]
+        lines.append(f"{ev['label']}: {name}")
+        lines.append("  " + ev["sentence"])
+        if ev.get("fitted_value"):
+            lines.append(f"    fitted: {value_text(ev['fitted_value'])} (strength "
+                         f"{ev['fitted_value']['strength']:.3g})")
+        if ev.get("acceptance"):
+            lines.append(f"    decided by the {ev['acceptance']['test']} test: " + kept_text(ev["acceptance"]))
+    if not added:
+        if data.get("no_verdict"):
+            lines.append(f"no effect is named: {data['no_verdict']}")
+        elif data["structural"]:
+            lines.append("nothing added: nothing new in the measured data, and what the model lacks on its own "
+                         "reference data too did not pass the deciding test (below)")
+        else:
+            lines.append("nothing added: no effect improves data it was not fitted on")
+    items = data.get("considered_not_added", [])
+    lines += acc.considered_lines([x for x in items if x["status"] == acc.STRUCTURAL])
+    lines += acc.considered_lines([x for x in items if x["status"] != acc.STRUCTURAL])
     lines.append(f"{len(data['windows'])} disagreement window(s) in the measured data "
                  f"(smoothed |residual| > {data['window_threshold_rad_s']:.1f} rad/s)")
     for w in data["windows"][:5]:
@@ -259,36 +283,50 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
     rp.fig_disagreement_map(pwm, rate, res, d / "disagreement_map.png", voltage=volt)
     figs.append(("disagreement_map.png", "mean residual (measured - model) per PWM level and rate, "
                  "and vs battery voltage, on the measured recordings"))
-    for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions)):
+    for k, (s, pb, pa) in enumerate(zip(hold_base.signals, hold_base.predictions, hold_final.predictions, strict=True)):
         name = f"before_after_{k}.png"
         spans = [(w.t_start_s, w.t_end_s) for w in hold_windows if w.path == s.path]
         rp.fig_before_after(s.t, s.speed, pb, pa, d / name, windows=spans, recording=s.path)
-        figs.append((name, f"{s.path}: model before and after adding {', '.join(data['named']) or 'nothing'}"))
-    rows = [{"effect": k, "verdict": v["verdict"],
-             "measured reduction": v["measured"]["mse_reduction"], "measured p": v["measured"]["p_value"],
-             "reference reduction": (v["reference"] or {}).get("mse_reduction"),
-             "reference p": (v["reference"] or {}).get("p_value"), "feature": v["feature"]}
+        figs.append((name, f"{s.path}: model before and after adding "
+                           f"{', '.join(data.get('added', data['named'])) or 'nothing'}"))
+
+    def pct(x: float | None) -> str:
+        return "" if x is None else f"{100 * x:.1f} %"
+
+    # one row per candidate: what it ended as and the test that decided, then the measured data's
+    # proposal and the reference's share (in % like the console)
+    rows = [{"effect": k, "status": v["label"], "decided by": v["decided_by"]["test"],
+             "reduction (deciding test)": f"{v['decided_by']['reduction_pct']:.1f} %",
+             "p (deciding test)": f"{v['decided_by']['p_value']:.2g}",
+             "measured: reduction": pct(v["measured"]["mse_reduction"]),
+             "measured: p": f"{v['measured']['p_value']:.2g}",
+             "reference: reduction": pct((v["reference"] or {}).get("mse_reduction")),
+             "reference: p": "" if v["reference"] is None else f"{v['reference']['p_value']:.2g}",
+             "feature": v["feature"]}
             for k, v in data["evidence"].items()]
     gap = [{"holdout RMSE before": data["holdout_rmse_before"], "after": data["holdout_rmse_after"],
             "in windows before": data["holdout_rmse_in_windows_before"],
             "in windows after": data["holdout_rmse_in_windows_after"]}]
     # a named effect's fitted value and held-out figure as the summary states them (the same text)
     added = []
-    for k in data["named"]:
+    for k in data.get("added", data["named"]):
         ev = data["evidence"][k]
-        row: dict[str, Any] = {"effect": k, "feature": ev["feature"]}
+        row: dict[str, Any] = {"effect": k, "status": ev["label"], "feature": ev["feature"]}
         if ev.get("fitted_value"):
             row["fitted value"] = value_text(ev["fitted_value"])
             row["strength"] = f"{ev['fitted_value']['strength']:.3g}"
         if ev.get("acceptance"):
-            row["held-out figure that kept it"] = kept_text(ev["acceptance"])
+            row[f"decided by the {ev['acceptance']['test']} test"] = kept_text(ev["acceptance"])
         added.append(row)
-    skipped = [{"effect": x["effect"], "why": x["why"], "held-out MSE reduction": x["measured_mse_reduction"],
-                "p": x["p_value"], "reference MSE reduction": x["reference_mse_reduction"],
-                "tried on held-out data": (x["acceptance"] or {}).get("mse_reduction")}
+    skipped = [{"effect": x["effect"], "status": x["status"], "why": x["why"], "decided by": x["decided_by"]["test"],
+                "reduction (deciding test)": f"{x['decided_by']['reduction_pct']:.1f} %",
+                "p (deciding test)": f"{x['decided_by']['p_value']:.2g}",
+                "measured: reduction (proposal only)": pct(x["measured_mse_reduction"]),
+                "reference: reduction": pct(x["reference_mse_reduction"])}
                for x in data.get("considered_not_added", [])]
-    tables = [("candidate effects (held-out scores)", rows), ("added: the held-out figure that kept each", added),
-              ("considered, not added", skipped), ("the gap", gap)]
+    tables = [("candidate effects: what each ended as, and the test that decided", rows),
+              ("added: the test that decided each", added),
+              ("not added (structural, or considered, not added)", skipped), ("the gap", gap)]
     flags = data.get("fit_flags") or []
     if flags:
         tables.append(("fit flags: a fitted quantity at a bound of its range, or implausibly far from the CONFIG",
@@ -298,4 +336,8 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
                         for f in flags]))
     if data.get("warnings"):
         tables.append(("warnings", [{"warning": w} for w in data["warnings"]]))
-    rp.write_index(d, "discrepancy: " + (", ".join(data["named"]) or "nothing new named"), figs, tables)
+    new = ", ".join(data["named"])
+    structural = ", ".join(k for k in data.get("added", []) if k not in data["named"])
+    parts = [*([f"new: {new}"] if new else []), *([f"structural, added: {structural}"] if structural else [])]
+    title = "; ".join(parts)
+    rp.write_index(d, "discrepancy: " + (title or "nothing added"), figs, tables)

@@ -55,7 +55,7 @@ def block_labels(n_samples: Sequence[int], blocks: Sequence[int]) -> np.ndarray:
     """Block index of every sample of the concatenated recordings (-1: in no block)."""
     labels = []
     first = 0
-    for n, b in zip(n_samples, blocks):
+    for n, b in zip(n_samples, blocks, strict=True):
         if b == 0:
             labels.append(np.full(n, -1))
             continue
@@ -74,7 +74,7 @@ class BlockStats:
     n: np.ndarray  # (K,)       samples per block
 
     @classmethod
-    def of(cls, X: np.ndarray, r: np.ndarray, labels: np.ndarray, K: int) -> "BlockStats":
+    def of(cls, X: np.ndarray, r: np.ndarray, labels: np.ndarray, K: int) -> BlockStats:
         m = X.shape[1]
         G = np.zeros((K, m, m))
         g = np.zeros((K, m))

@@ -12,17 +12,24 @@ bench physics, ``physics_kind.py``):
    the measured data (and of the measured data alone) and of the reference. NEW (``classify``):
    significant (p < alpha, >= min_effect) on the measured data and on the measured data alone,
    and the share of the residual it removes on the reference is less than STRUCTURAL_RATIO of
-   the share it removes on the measured data; STRUCTURAL otherwise if it helps the reference. The best new effect (measured score) is proposed; for a kind whose scores are
-   residual corrections, the identification rules (``identify.refine``) decide the dynamic
-   family and heating from the response itself.
+   the share it removes on the measured data; STRUCTURAL otherwise if it helps the reference.
+   These verdicts only PROPOSE and rank (``proposals``): for a kind whose scores are residual
+   corrections, the identification rules (``identify.refine``) decide the dynamic family and
+   heating from the response itself and their choice is tried first; then every other candidate
+   new or structural on the measured data, or removing >= min_effect of the residual whatever
+   its p, by that share (at most MAX_TRIALS per round).
 4. Add: the kind fits the effect into a trial model.
-5. Keep or reject (``acceptance.py``): the trial is kept only if it beats the current model on
-   data it was not fitted on (the holdout, at p < HOLDOUT_ALPHA: a replication of step 3's
-   finding; else the kind's own held-out data, at p < alpha) by ACCEPT_MIN_REDUCTION, and no
-   fitted quantity ended at a bound or implausibly far from the CONFIG; the first rejection
-   ends the loop, and every candidate not added is reported as "considered, not added". Show: holdout RMSE before and after, overall and inside the
-   holdout's disagreement windows. Repeat from 3 until nothing new is significant, a candidate
-   is rejected, or ``max_effects``.
+5. Decide (``decide``, ``acceptance.py``): one test for every candidate, the held-out one, because
+   a replication on recordings nothing was fitted on is the stronger evidence and one test per
+   candidate cannot contradict itself. The trial is added only if it beats the current model on
+   the holdout at p < HOLDOUT_ALPHA (else on the kind's own held-out data of the measured
+   recordings, at p < alpha) by ACCEPT_MIN_REDUCTION, and no fitted quantity ended at a bound or
+   implausibly far from the CONFIG. The first proposal that passes is added,
+   labelled new or structural (``added_as``: structural = the model lacks it on its own
+   reference data too); when every proposal fails, the loop ends, and every candidate not added
+   is reported as "considered, not added" (or "structural" when it is one) with the figure of
+   the test that decided. Show: holdout RMSE before and after, overall and inside the holdout's
+   disagreement windows. Repeat from 3 until nothing is added or ``max_effects`` are.
 """
 
 from __future__ import annotations
@@ -42,11 +49,20 @@ from . import acceptance as acc
 from . import identify as idf
 from . import residuals as rs
 from . import scoring as sc
-from .base import ALPHA, MIN_EFFECT, DataSet, ModelKind, Options, Progress, rmse
+from .base import ALPHA, MIN_EFFECT, DataSet, ModelKind, Options, Progress, Scores, Trial, rmse
 from .network import NetworkKind
 from .physics_kind import PhysicsKind
-from .results import (STRUCTURAL_RATIO, Disagreement, Evidence, Result, Round, gap_fields,
-                      sentence, summary_lines, write_report)
+from .results import (
+    STRUCTURAL_RATIO,
+    Disagreement,
+    Evidence,
+    Result,
+    Round,
+    gap_fields,
+    sentence,
+    summary_lines,
+    write_report,
+)
 
 __all__ = ["ALPHA", "MIN_EFFECT", "Options", "WorkflowResult", "check_effect_names", "check_holdout",
            "classify", "run", "run_physics_workflow", "run_workflow"]
@@ -82,6 +98,53 @@ def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: flo
     return "not significant"
 
 
+#: Most candidates fitted and judged per round (each costs a fit, a network's a retraining).
+MAX_TRIALS = 3
+
+#: The deciding rule, printed with every run (module docstring, step 5).
+RULE = ("the measured data only propose and rank the candidates; the test that adds or rejects each one is the "
+        "held-out one (the --holdout when given, else held-out data of the measured recordings), because a "
+        "replication on recordings nothing was fitted on is the stronger evidence and one test for every "
+        "candidate cannot contradict itself; the k candidates tried in a round are each tested at alpha / k, "
+        "so trying several does not raise the chance of a false addition")
+
+
+def proposals(ev: dict[str, Evidence], first: str | None, min_effect: float) -> list[str]:
+    """The candidates step 4 fits, in the order they are tried (at most MAX_TRIALS): the
+    identification's (or the scores') proposal, then every other one the measured data propose
+    (new or structural there, or removing >= ``min_effect`` of the residual whatever its p), by
+    the share it removes; those the identification found unchanged from the reference ("not
+    new") after the others, since it proposes and ranks like the scores and decides nothing."""
+    rest = [k for k, e in ev.items() if k != first
+            and (e.verdict in ("new", "structural") or e.measured.fraction >= min_effect)]
+    rest.sort(key=lambda k: (ev[k].verdict.startswith("not new"), -ev[k].measured.fraction))
+    return ([first] if first is not None else []) + rest[:MAX_TRIALS - (first is not None)]
+
+
+def added_as(ev: Evidence) -> str:
+    """'new' or 'structural' for an effect the deciding test added: the step-3 (or the
+    identification's) verdict when it was one of them, else by the shares it removes (classify's
+    rule without the measured data's significance, which no longer decides)."""
+    if ev.verdict in ("new", "structural"):
+        return ev.verdict
+    if ev.verdict.startswith("not new"):  # the response is the reference's: the model's own lack
+        return "structural"
+    m, r = ev.measured.fraction, ev.reference.fraction if ev.reference is not None else None
+    return "structural" if r is not None and m > 0 and max(r, 0.0) >= STRUCTURAL_RATIO * m else "new"
+
+
+def decide(kind: ModelKind, name: str, trial: Trial, scores: Scores, hold: Sequence[Signals], hold_cur: DataSet,
+           holdout: bool, opts: Options, tried: int = 1) -> acc.Acceptance:
+    """The deciding test of one fitted candidate (RULE): the --holdout against the current model,
+    else the kind's own held-out data of the measured recordings, at the level divided by the
+    ``tried`` candidates of the round (Bonferroni: the first of several that passes is added, so
+    each is held to alpha / k for the round's chance of a false addition to stay at alpha)."""
+    if not holdout:
+        return kind.heldout(name, trial, scores, opts.alpha / tried)
+    return acc.judge(name, hold, hold_cur.predictions, trial.hold.predictions, "holdout",
+                     opts.replication_alpha / tried)
+
+
 def check_effect_names(names: Sequence[str] | None) -> list[str]:
     """``names`` as a list; BadInputError naming the first one that is not an effect of the contract."""
     for name in names or []:
@@ -101,7 +164,7 @@ def check_holdout(holdout: Sequence[Signals], measured: Sequence[Signals], refer
 def windows_of(ds: DataSet, threshold: float) -> tuple[list[rs.Window], list[np.ndarray]]:
     wins: list[rs.Window] = []
     masks = []
-    for s, r in zip(ds.signals, ds.residuals):
+    for s, r in zip(ds.signals, ds.residuals, strict=True):
         w, m = rs.find_windows(s.path, s.t, r, s.pwm, s.voltage, threshold)
         wins += w
         masks.append(m)
@@ -160,7 +223,8 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
     hold_cur = hold_base
     found = find_disagreement(meas, ref, progress)
 
-    named: list[str] = []
+    added: list[str] = []  # every effect added, in order (new and structural)
+    named: list[str] = []  # the new ones
     structural: list[dict[str, Any]] = []
     evidence: dict[str, Evidence] = {}
     rounds: list[Round] = []
@@ -168,8 +232,10 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
     no_verdict = kind.no_verdict()
     if no_verdict:
         progress(f"  no effect is named: {no_verdict}")
-    while len(named) < opts.max_effects and not no_verdict:
-        names = kind.candidates(restrict, named)
+    if not no_verdict:
+        progress(f"the rule: {RULE}")
+    while len(added) < opts.max_effects and not no_verdict:
+        names = kind.candidates(restrict, added)
         if not names:
             progress("  every effect considered is already in the model")
             break
@@ -188,7 +254,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
             progress(f"  {name:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
                      + (f" alone {100 * own.fraction:6.1f} % (p {own.p_value:.2g})" if own is not m else "")
                      + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
-                     + f"  -> {verdict}")
+                     + f"  -> {verdict} on the measured data (proposes only)")
             if verdict == "new" and (best is None or m.fraction > round_ev[best].measured.fraction):
                 best = name
             if verdict == "structural" and name not in [x["effect"] for x in structural]:
@@ -200,48 +266,62 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         rounds.append(Round(round_ev))
         refined = idf.Refined(best)
         if kind.identifies_response:
-            refined = idf.refine(round_ev, best, named, measured, reference, *kind.residual_rmse(), cache,
+            refined = idf.refine(round_ev, best, added, measured, reference, *kind.residual_rmse(), cache,
                                  opts.alpha, opts.min_effect, progress)
-        if refined.best is None:
-            progress("  no new effect is significant")
+        tried = proposals(round_ev, refined.best, opts.min_effect)
+        if not tried:
+            progress(f"  nothing to propose: no candidate removes >= {100 * opts.min_effect:.0f} % of the "
+                     "residual on the measured data")
             break
-        name = refined.best
-        ev = round_ev[name]
-        progress(f"  proposed: {ev.sentence}")
-        trial = kind.add(name, refined.params, refined.reference_params, scores[name], hold, progress)
-        if holdout:
-            judged = acc.judge(name, hold, hold_cur.predictions, trial.hold.predictions, "holdout",
-                               opts.replication_alpha)
-        else:
-            judged = kind.heldout(name, trial, scores[name], opts.alpha)
-        if trial.flags:
-            judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
-        against = kind.contradicted(name)
-        if against:
-            judged = dataclasses.replace(judged, contradicted=against)
-        ev.acceptance = judged
-        ev.refit(trial.parameters, trial.feature, trial.value)
-        rounds[-1] = Round(round_ev, name, trial.parameters, rmse(trial.hold.residuals), judged, extra=trial.extra)
-        progress(f"step 5: {judged.describe()}")
-        if not judged.accepted:
-            # the best candidate does not help data it was not fitted on: weaker ones will not either
+        kept: Trial | None = None
+        for name in tried:
+            ev = round_ev[name]
+            progress(f"  proposed: {ev.sentence}")
+            params = (refined.params, refined.reference_params) if name == refined.best else (None, None)
+            trial = kind.add(name, *params, scores[name], hold, progress)
+            judged = decide(kind, name, trial, scores[name], hold, hold_cur, bool(holdout), opts, len(tried))
+            if trial.flags:
+                judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
+            against = kind.contradicted(name)
+            if against:
+                judged = dataclasses.replace(judged, contradicted=against)
+            ev.acceptance = judged
+            ev.refit(trial.parameters, trial.feature, trial.value)
+            rounds[-1].trials.append({"effect": name, "parameters": trial.parameters, **trial.extra,
+                                      "holdout_rmse_rad_s": rmse(trial.hold.residuals),
+                                      "acceptance": judged.as_json()})
+            rounds[-1] = dataclasses.replace(rounds[-1], proposed=name, parameters=trial.parameters,
+                                             holdout_rmse=rmse(trial.hold.residuals), acceptance=judged,
+                                             extra=trial.extra)
+            progress(f"step 5: {judged.describe()}")
+            if judged.accepted:
+                kept = trial
+                break
+        if kept is None:
+            # every proposal failed the deciding test: a later round would propose the same
             break
-        kind.keep(trial)
-        named.append(name)
+        kind.keep(kept)
+        added.append(name)
+        ev.added_as = added_as(ev)
+        if ev.verdict_residual is None and ev.verdict not in ("new", "structural"):
+            # the sentence says what it was added as, not the measured test's (proposing) verdict
+            ev.sentence = sentence(name, ev.feature, ev.measured, ev.reference, ev.added_as, kind.noun)
+        if ev.added_as == "new":
+            named.append(name)
         ev.named = True
         rounds[-1].named = name
-        hold_cur = trial.hold
+        hold_cur = kept.hold
 
     # the one number: a named effect's fitted value as the final model has it (the physics path
     # refits earlier effects' strengths with every later one)
-    for name in named:
+    for name in added:
         now = kind.fitted(name)
         if now is not None:
             evidence[name].refit(*now)
 
     # step 5: the gap
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
-    kind_fields, head, tail = kind.finish(named)
+    kind_fields, head, tail = kind.finish(added)
     result = Result(
         named, structural, evidence, rounds, gap_fields(hold_base, hold_cur, hold_masks), found, hold_windows,
         {"reference": [s.path for s in reference], "measured": [s.path for s in measured],
@@ -250,7 +330,7 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
         {"alpha": opts.alpha, "holdout_alpha": opts.replication_alpha if holdout else None,
          "min_mse_reduction": opts.min_effect, "structural_ratio": STRUCTURAL_RATIO,
          "test": "one-sided paired sign-flip randomisation test over held-out time blocks"},
-        [*warnings, *kind.warnings()], kind_fields, no_verdict)
+        [*warnings, *kind.warnings()], kind_fields, no_verdict, added)
     data = result.as_json()
     if opts.report_dir:
         data["report"] = write_report(Path(opts.report_dir), meas, hold_base, hold_cur, hold_windows, data,

@@ -20,10 +20,14 @@ import csv
 import re
 from array import array
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
 from ..errors import BadInputError
+
+if TYPE_CHECKING:
+    import _csv  # the type csv.reader returns (typeshed's name for it)
 from ..training.import_csv import _norm
 from .common import (
     DSHOT_MAX,
@@ -70,10 +74,10 @@ def looks_like_csv(head: bytes) -> bool:
     return "motor[0]" in text and ("time (us)" in text or '"time"' in text or "time," in text)
 
 
-def _open_rows(path: Path):  # type: ignore[no-untyped-def]
+def _open_rows(path: Path) -> tuple[TextIO, _csv.Reader]:
     try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096)
+        with open(path, "rb") as raw:
+            head = raw.read(4096)
     except OSError as exc:
         raise BadInputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if is_blackbox_binary(head):
@@ -130,8 +134,9 @@ def read_betaflight_csv(
             if n and n not in index:
                 index[n] = k
         time_col = next(name for name in TIME_COLUMNS if name in index)
-        motor_cols = {int(m.group(1)): name for name in index if (m := _MOTOR.fullmatch(name))}
-        erpm_cols = {int(m.group(1)): name for name in index if (m := _ERPM.fullmatch(name))}
+        # (a walrus in a comprehension binds in this function: `found`, not the motors' `m`)
+        motor_cols = {int(found.group(1)): name for name in index if (found := _MOTOR.fullmatch(name))}
+        erpm_cols = {int(found.group(1)): name for name in index if (found := _ERPM.fullmatch(name))}
         volt_col = next((name for name in VOLTAGE_COLUMNS if name in index), None)
         amp_col = next((name for name in CURRENT_COLUMNS if name in index), None)
         columns = [time_col, *motor_cols.values(), *erpm_cols.values(),
@@ -230,7 +235,7 @@ def read_betaflight_csv(
     )
 
 
-def _header(path: Path, reader) -> tuple[dict[str, str], list[str]]:  # type: ignore[no-untyped-def]
+def _header(path: Path, reader: _csv.Reader) -> tuple[dict[str, str], list[str]]:
     """(the ``"key","value"`` lines before the column header, the column header)."""
     meta: dict[str, str] = {}
     for row in reader:
@@ -245,7 +250,7 @@ def _header(path: Path, reader) -> tuple[dict[str, str], list[str]]:  # type: ig
                         f"{HEADER_SEARCH_LINES} lines; not a Betaflight blackbox CSV")
 
 
-def _numbers(path: Path, reader, cols: list[int], names: list[str]) -> np.ndarray:  # type: ignore[no-untyped-def]
+def _numbers(path: Path, reader: _csv.Reader, cols: list[int], names: list[str]) -> np.ndarray:
     """The given columns of every data row as floats (empty or NaN cell -> NaN); a flat array of
     doubles while reading, so that a long high-rate log costs 8 bytes per value."""
     flat = array("d")

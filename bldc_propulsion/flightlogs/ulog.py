@@ -139,7 +139,8 @@ def read_ulog(path: Path, *, pole_count: int | None = None, motors: list[int] | 
                 current = None
 
     mapping = [command_text + ", held on 50 Hz frames",
-               "esc_status esc[i].esc_rpm (mechanical RPM) -> rotor/speed rad/s" if speeds else "no esc_rpm: no rotor/speed"]
+               "esc_status esc[i].esc_rpm (mechanical RPM) -> rotor/speed rad/s" if speeds
+               else "no esc_rpm: no rotor/speed"]
     if "MOT_POLE_COUNT" in params:
         mapping[-1] += f" (PX4's MOT_POLE_COUNT={params['MOT_POLE_COUNT']})"
     if voltage is not None:

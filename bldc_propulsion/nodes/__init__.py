@@ -18,27 +18,17 @@ import os
 import signal
 import sys
 
+from bldc_propulsion import quiet_start
+
 #: The node executables (setup.py's entry points) and the modules ``python -m`` runs.
 _EXECUTABLES = {"battery_filter", "tachometer", "thrust_estimator", "propulsion_all"}
 _MODULES = {f"{__name__}.{m}" for m in (
     "battery_filter_node", "tachometer_node", "thrust_estimator_node", "all_in_one")}
 
-
-def _starting_executable() -> bool:
-    """Whether this process is a node executable being started (not an importing library)."""
-    if os.path.basename(sys.argv[0]) in _EXECUTABLES:
-        return True
-    argv = getattr(sys, "orig_argv", [])
-    return any(a == "-m" and b in _MODULES for a, b in zip(argv, argv[1:]))
-
-
-def _exit_quietly(_signum: int, _frame: object) -> None:
-    """Nothing is running yet to stop in order: leave now (no traceback, no cleanup to do)."""
-    os._exit(0)
-
-
 #: Whether this process is a node executable (then the two behaviours above apply).
-EXECUTABLE = _starting_executable()
+EXECUTABLE = quiet_start.started_as(_EXECUTABLES, _MODULES)
+if EXECUTABLE:  # nothing is running yet to stop in order: leave at once, status 0
+    quiet_start.install(0, (signal.SIGINT, signal.SIGTERM))
 
 
 def leave(status: int) -> int:
@@ -66,8 +56,3 @@ def leave(status: int) -> int:
             pass
     os._exit(status)
 
-
-if EXECUTABLE:
-    for _signum in (signal.SIGINT, signal.SIGTERM):
-        if signal.getsignal(_signum) is not signal.SIG_IGN:  # an ignored signal stays ignored
-            signal.signal(_signum, _exit_quietly)

@@ -33,10 +33,15 @@ from rclpy.parameter import Parameter
 
 from bldc_propulsion.nodes.battery_filter_node import BatteryFilterNode
 from bldc_propulsion.nodes.common import (
-    Plan, events_executor, on_events, run_node, single_threaded)
+    Plan,
+    events_executor,
+    on_events,
+    run_node,
+    single_threaded,
+    unknown_parameters_once,
+)
 from bldc_propulsion.nodes.lean_executor import LeanExecutor
-from bldc_propulsion.nodes.params import (
-    NODE_PARAMS, namespaces, own_arguments, parameters_help, rotor_name)
+from bldc_propulsion.nodes.params import NODE_PARAMS, namespaces, own_arguments, parameters_help, rotor_name
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
@@ -47,7 +52,13 @@ MAX_MOTORS = 16
 
 
 def build_nodes(motors: int, **kwargs: Any) -> list[Node]:
-    """The battery filter, then a tachometer and an estimator per motor (``kwargs``: Node args)."""
+    """The battery filter, then a tachometer and an estimator per motor (``kwargs``: Node args).
+    A parameter no node declares is warned about once for the process, not by every node."""
+    with unknown_parameters_once('propulsion_all'):
+        return _build_nodes(motors, **kwargs)
+
+
+def _build_nodes(motors: int, **kwargs: Any) -> list[Node]:
     nodes: list[Node] = [BatteryFilterNode(**kwargs)]
     for namespace in namespaces(motors):
         ns: dict[str, Any] = {'namespace': namespace} if namespace else {}

@@ -16,9 +16,8 @@ import math
 import sys
 from typing import Any
 
-from rclpy.node import Node
-
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
@@ -27,9 +26,15 @@ from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConf
 from bldc_propulsion.core.status import counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.nodes.common import (
-    NodeClock, WithInfo, declare_parameters, diagnostic_array, input_qos, run_node, to_stamp)
-from bldc_propulsion.nodes.params import (
-    BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs)
+    NodeClock,
+    WithInfo,
+    declare_parameters,
+    diagnostic_array,
+    input_qos,
+    run_node,
+    to_stamp,
+)
+from bldc_propulsion.nodes.params import BATTERY_FILTER, BATTERY_FILTER_PARAMS, DIAGNOSTICS_PERIOD_S, core_kwargs
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
 
 

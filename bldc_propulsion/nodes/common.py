@@ -7,24 +7,27 @@ without ROS; this module only puts those values into messages.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import faulthandler
 import inspect
 import signal
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any, cast
 
 import rclpy
+import rclpy.logging
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.clock import JumpThreshold
+from rclpy.clock import JumpThreshold, ROSClock
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 from std_msgs.msg import Float64
@@ -56,15 +59,17 @@ def declare_parameters(node: Node, table: Sequence[Param]) -> dict[str, Any]:
     The value is the override (parameter file, ``-p``) if any, else the table's default. A value
     of the wrong type or out of range makes rclpy raise here, naming the parameter. An override
     that no node of this package declares gets one WARN line (``params.unknown_parameters``)
-    and is otherwise ignored, as rclpy ignores it.
+    and is otherwise ignored, as rclpy ignores it; inside ``unknown_parameters_once`` the
+    process warns once instead, after all its nodes are declared.
     """
     values: dict[str, Any] = {}
     for p in table:
         descriptor = ParameterDescriptor(description=p.description, read_only=p.read_only)
-        if isinstance(p.default, float) and p.min is not None:
+        if isinstance(p.default, float) and p.min is not None and p.max is not None:
             descriptor.floating_point_range = [
                 FloatingPointRange(from_value=float(p.min), to_value=float(p.max), step=0.0)]
-        elif isinstance(p.default, int) and not isinstance(p.default, bool) and p.min is not None:
+        elif (isinstance(p.default, int) and not isinstance(p.default, bool)
+              and p.min is not None and p.max is not None):
             descriptor.integer_range = [
                 IntegerRange(from_value=int(p.min), to_value=int(p.max), step=1)]
         try:
@@ -72,9 +77,37 @@ def declare_parameters(node: Node, table: Sequence[Param]) -> dict[str, Any]:
         except ParameterException as e:  # wrong type, out of range: name it, one line
             raise BadInputError(
                 f"{node.get_fully_qualified_name()}: parameter {p.name}: {_why(e, p)}") from e
-    for warning in unknown_parameters(parameter_overrides(node), table, NODE_PARAMS.values()):
-        node.get_logger().warning(warning)
+    given = _GIVEN_PARAMETERS.get()
+    if given is not None:
+        given.update(parameter_overrides(node))
+    else:
+        for warning in unknown_parameters(parameter_overrides(node), table, NODE_PARAMS.values()):
+            node.get_logger().warning(warning)
     return values
+
+
+#: While a process builds several nodes (``unknown_parameters_once``): the override names they
+#: were given, collected so that a typo is warned about once, not once per node.
+_GIVEN_PARAMETERS: contextvars.ContextVar[set[str] | None] = contextvars.ContextVar(
+    "bldc_propulsion_given_parameters", default=None)
+
+
+@contextlib.contextmanager
+def unknown_parameters_once(logger_name: str) -> Iterator[None]:
+    """Nodes declared in this block warn about no unknown parameter; at its end, one WARN line
+    (logger ``logger_name``) per name that no node of the package declares, with the nearest
+    name of any of them: ``-p`` and a launch's parameters reach every node of a propulsion_all
+    process, so a typo would otherwise be reported by each of its nodes (9 on a quadrotor)."""
+    given: set[str] = set()
+    token = _GIVEN_PARAMETERS.set(given)
+    try:
+        yield
+    finally:
+        _GIVEN_PARAMETERS.reset(token)
+    every = list({p.name: p for table in NODE_PARAMS.values() for p in table}.values())
+    logger = rclpy.logging.get_logger(logger_name)
+    for warning in unknown_parameters(given, every):
+        logger.warning(warning)
 
 
 def parameter_overrides(node: Node) -> list[str]:
@@ -165,7 +198,7 @@ def stop_on_signals() -> Iterator[threading.Event]:
     try:
         yield stop
     finally:
-        for signum, handler in zip(signums, previous):
+        for signum, handler in zip(signums, previous, strict=True):
             signal.signal(signum, handler)
 
 
@@ -226,8 +259,9 @@ def run_node(name: str, build: Callable[[], Node | Sequence[Node]],
         summary = ((module.__doc__ if module else None) or name).strip().split("\n")[0]
         print(node_help(name, summary, table), end="")
         return 0
-    with contextlib.suppress(ValueError, OSError):  # no file descriptor (a captured stderr)
-        faulthandler.enable(sys.__stderr__)  # a crash in rclpy's C++ prints the Python stack
+    if sys.__stderr__ is not None:  # None: started without a stderr (pythonw, some daemons)
+        with contextlib.suppress(ValueError, OSError):  # no file descriptor (a captured stderr)
+            faulthandler.enable(sys.__stderr__)  # a crash in rclpy's C++ prints the Python stack
     with stop_on_signals() as stop:
         status = _run(name, build, args, plan, stop)
     return leave(status)  # a node executable ends here, without the interpreter's finalization
@@ -248,7 +282,7 @@ def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] 
     threads: list[threading.Thread] = []
     try:
         built = build()
-        nodes = list(built) if isinstance(built, (list, tuple)) else [built]
+        nodes = [built] if isinstance(built, Node) else list(built)
         pairs = plan(nodes)
         for executor, members in pairs:
             executors.append(executor)
@@ -366,7 +400,8 @@ class NodeClock:
     message (``Clock.ros_time_is_active`` takes a lock and a C call, 1.5 us warm)."""
 
     def __init__(self, node: Node) -> None:
-        self._clock = node.get_clock()
+        # a node's clock is a ROSClock (rclpy's Node.get_clock is annotated with the base class)
+        self._clock = cast(ROSClock, node.get_clock())
         self._sim = self._clock.ros_time_is_active
         self._on_change = self._clock.create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True),

@@ -12,12 +12,13 @@ import difflib
 import math
 import re
 import textwrap
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping, Sequence, Union
+from typing import Any
 
 from bldc_propulsion import contract
 
-Value = Union[bool, int, float, str]
+Value = bool | int | float | str
 
 # --- Node names (relative: a namespace like /motor0 is pushed by the launch file) ---
 BATTERY_FILTER = "battery_filter"
@@ -50,7 +51,7 @@ def stream_params(depth: int, tolerance_s: float) -> tuple[Param, ...]:
               "nothing.", 1, 100000, core=False),
         Param("clock_tolerance_s", tolerance_s, "A message later than the transport-latency floor "
               "by more than this (s, on the publisher's clock) breaks the stream: the "
-              "publisher skipped data or sent a late burst (README 'Timing and faults').",
+              "publisher skipped data or sent a late burst (docs/ros.md 'Timing and faults').",
               0.0001, 10.0, core=False),
         Param("use_source_timestamps", True, "Judge lateness on the publisher's clock "
               "(message info); false = on receipt (e.g. `ros2 bag play --rate` below 1).",

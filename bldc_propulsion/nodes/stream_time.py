@@ -5,7 +5,7 @@ Guessing their times from receipt alone turns a stall into a wrong number (a bat
 100 ms late looks like the next one, so the edges across a hole give a speed 60 % too high).
 What rclpy does give, with every executor (``common.WithInfo``), is the message info of each message:
 the publisher's clock when it published (``source_timestamp``) and the publisher's sequence
-number (``publication_sequence_number``). The rules (README "Timing and faults"):
+number (``publication_sequence_number``). The rules (docs/ros.md, "Timing and faults"):
 
 Fixed-rate streams (``SampleStream``: battery/adc samples, tachometer/adc batches of n samples)
 are timed by counting samples: a message that follows the previous one carries the next n
@@ -24,8 +24,9 @@ really follows is decided by two witnesses:
    skipped data (driver overrun, a recording with a hole) or sent a late burst, and the stream
    breaks before the held one (a gap of its lateness) rather than bridging a hole it cannot
    see into; a late burst costs one revolution of output, never a wrong one. Next one on
-   time: the held one was only published late (a busy publisher), and nothing breaks. A node that stalls while the publisher keeps going is NOT late on the publisher's
-   clock: the queued messages are processed with their counted times and nothing is lost.
+   time: the held one was only published late (a busy publisher), and nothing breaks. A node
+   that stalls while the publisher keeps going is NOT late on the publisher's clock: the queued
+   messages are processed with their counted times and nothing is lost.
 
 Event streams (``EventStream``: pwm, published on change) are timed by their source time mapped
 onto the node clock through the same latency floor (so a command that sat in the queue during
@@ -41,8 +42,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 #: Window (s, on the observing clock) over which the transport latency floor is the minimum.
 FLOOR_WINDOW_S = 2.0

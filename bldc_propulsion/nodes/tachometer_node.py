@@ -31,10 +31,23 @@ from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
-    JointStateOutput, NodeClock, ScalarOutput, WithInfo, declare_parameters, diagnostic_array,
-    input_qos, run_node, stamped_name)
+    JointStateOutput,
+    NodeClock,
+    ScalarOutput,
+    WithInfo,
+    declare_parameters,
+    diagnostic_array,
+    input_qos,
+    run_node,
+    stamped_name,
+)
 from bldc_propulsion.nodes.params import (
-    DIAGNOSTICS_PERIOD_S, TACH_TIMEOUT_CHECK_PERIOD_S, TACHOMETER, TACHOMETER_PARAMS, core_kwargs)
+    DIAGNOSTICS_PERIOD_S,
+    TACH_TIMEOUT_CHECK_PERIOD_S,
+    TACHOMETER,
+    TACHOMETER_PARAMS,
+    core_kwargs,
+)
 from bldc_propulsion.nodes.stream_time import NEW_STREAM, Placement, SampleStream, arrival
 
 
@@ -101,7 +114,7 @@ class TachometerNode(Node):
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
         timing = {**self.stream.counters(), "batches_withheld": self.output.withheld}
-        if self.input_lost():
+        if self.input_lost() and self.last_receipt_s is not None:  # lost implies a batch came once
             statuses.append(CoreStatus(
                 'input', ERROR,
                 f'no tachometer/adc batch for {self.now_s() - self.last_receipt_s:.2f} s: '

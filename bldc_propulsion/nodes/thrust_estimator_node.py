@@ -50,17 +50,24 @@ from bldc_propulsion import contract
 from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
-from bldc_propulsion.core.wrench import (
-    check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status)
+from bldc_propulsion.core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
-    JointStateOutput, NodeClock, ScalarOutput, WithInfo, WrenchOutput, declare_parameters,
-    diagnostic_array, input_qos, run_node, stamp_s, stamped_name)
-from bldc_propulsion.nodes.params import (
-    DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS)
+    JointStateOutput,
+    NodeClock,
+    ScalarOutput,
+    WithInfo,
+    WrenchOutput,
+    declare_parameters,
+    diagnostic_array,
+    input_qos,
+    run_node,
+    stamp_s,
+    stamped_name,
+)
+from bldc_propulsion.nodes.params import DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
-
 
 FALLBACK_TIMER_HZ = 25.0
 
@@ -135,7 +142,8 @@ class ThrustEstimatorNode(Node):
         if self.core.thrust_coefficient is not None and self.thrust_out is None:
             self.thrust_out = ScalarOutput(self, contract.TOPIC_PREDICTED_THRUST)
             self.wrench_out = WrenchOutput(self, contract.TOPIC_PREDICTED_WRENCH, self.frame_id)
-        elif self.core.thrust_coefficient is None and self.thrust_out is not None:
+        elif (self.core.thrust_coefficient is None and self.thrust_out is not None
+              and self.wrench_out is not None):  # the two come and go together
             self.destroy_publisher(self.thrust_out.publisher)
             self.destroy_publisher(self.wrench_out.publisher)
             self.thrust_out = self.wrench_out = None
@@ -143,7 +151,7 @@ class ThrustEstimatorNode(Node):
     def on_timer(self) -> None:
         self.speed_out.refresh()
         self.state_out.refresh()
-        if self.thrust_out is not None:
+        if self.thrust_out is not None and self.wrench_out is not None:
             self.thrust_out.refresh()
             self.wrench_out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
@@ -163,7 +171,7 @@ class ThrustEstimatorNode(Node):
                 w = float(p.speed_rad_s)
                 self.speed_out.publish(w)
                 self.state_out.publish(tick, w)  # stamped with the grid time it answers
-                if self.thrust_out is not None and p.thrust_n is not None:
+                if self.thrust_out is not None and self.wrench_out is not None and p.thrust_n is not None:
                     self.thrust_out.publish(float(p.thrust_n))
                     self.wrench_out.publish(tick, float(p.thrust_n), reaction_torque_nm(
                         self.torque_coefficient, w, self.spin_direction))
@@ -176,7 +184,7 @@ class ThrustEstimatorNode(Node):
                           stale_command_ticks=self.stale_ticks,
                           output_ticks_skipped=self.ticks.skipped)
         now = self.now_s()
-        if self.command_stale(now):
+        if self.command_stale(now) and self.last_pwm_s is not None:  # stale implies a pwm came once
             statuses.append(CoreStatus(
                 'input', ERROR, f'no pwm for {now - self.last_pwm_s:.2f} s '
                 f'(pwm_timeout_s {self.pwm_timeout_s:g}): not predicting', timing))

@@ -16,13 +16,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 from scipy.signal import lfilter
 
 from ..errors import BadInputError
-from ..plant import check_command, esc_duty, make_step, resolve_effects
-from ..plant import motor_response  # noqa: F401  (re-exported: its home before plant.py)
+from ..plant import (
+    check_command,
+    esc_duty,
+    make_step,
+    motor_response,  # noqa: F401  (re-exported: its home before plant.py)
+    resolve_effects,
+)
 from .params import BenchParams, check_params
 from .profiles import check_duration, make_profile
 
@@ -88,7 +94,11 @@ def _check_soc(soc: float) -> float:
     return x
 
 
-def pack_ocv(p: BenchParams, soc: np.ndarray | float) -> np.ndarray:
+@overload
+def pack_ocv(p: BenchParams, soc: float) -> float: ...
+@overload
+def pack_ocv(p: BenchParams, soc: np.ndarray) -> np.ndarray: ...
+def pack_ocv(p: BenchParams, soc: np.ndarray | float) -> np.ndarray | float:
     """Pack open-circuit voltage (V) at state of charge ``soc`` (clamped to 0..1)."""
     return p.battery_cells * np.interp(soc, p.battery_cell_soc, p.battery_cell_ocv_v)
 

@@ -11,6 +11,8 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from itertools import pairwise
+from typing import Any
 
 from ..errors import BadInputError
 from ..plant import PLANT_FIELDS, PlantParams, check_plant, value_problem
@@ -110,7 +112,7 @@ def check_params(p: BenchParams) -> BenchParams:
             raise _bad(f.name, why)
     soc, ocv = p.battery_cell_soc, p.battery_cell_ocv_v
     if len(soc) != len(ocv) or len(soc) < 2 or soc[0] != 0.0 or soc[-1] != 1.0 or any(
-        b <= a for a, b in zip(soc, soc[1:])
+        b <= a for a, b in pairwise(soc)
     ):
         raise _bad("battery_cell_soc", "table must rise strictly from 0 to 1, one voltage per entry")
     if p.tach_low_v >= p.tach_high_v or p.tach_high_v > p.tach_adc_full_scale_v:
@@ -126,7 +128,9 @@ def check_params(p: BenchParams) -> BenchParams:
 def params_with_overrides(base: BenchParams, overrides: Mapping[str, float]) -> BenchParams:
     """``base`` with ``{name: value}`` replaced; BadInputError for unknown names or bad values."""
     known = [f.name for f in dataclasses.fields(base) if f.name not in _TABLES]
-    changes: dict[str, float | int] = {}
+    #: field -> value; the names are checked here, the values by check_params (hence Any: the
+    #: fields have several types, which replace(**changes) cannot see per name)
+    changes: dict[str, Any] = {}
     for name, value in overrides.items():
         if name not in known:
             if name in _TABLES:

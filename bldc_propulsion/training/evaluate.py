@@ -81,6 +81,9 @@ class RecordingScore:
     out_of_range: RangeReport | None = None
     #: thrust RMSE (N) of b w^2 against /thrust/measured, when the recording has it and the model a b
     thrust_rmse_n: float | None = None
+    #: the measured thrust's range (N) over the samples scored, and the thrust RMSE in % of it
+    thrust_range_n: float | None = None
+    thrust_rmse_percent_of_range: float | None = None
     #: why there is no thrust RMSE (None: there is one)
     thrust_unavailable: str | None = None
 
@@ -95,6 +98,8 @@ class RecordingScore:
             "bands": self.bands,
             "out_of_training_range": self.out_of_range.as_dict() if self.out_of_range else None,
             "thrust_rmse_n": self.thrust_rmse_n,
+            "thrust_range_n": self.thrust_range_n,
+            "thrust_rmse_percent_of_range": self.thrust_rmse_percent_of_range,
             "thrust_unavailable": self.thrust_unavailable,
         }
 
@@ -123,7 +128,11 @@ def score(model: Model, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
     else:  # thrust = b w^2 from the same predicted speed
         t_err = model.thrust_coefficient * pred**2 - sig.thrust
         t_ok = np.isfinite(t_err)
-        out.thrust_rmse_n = float(np.sqrt(np.mean(t_err[t_ok] ** 2))) if t_ok.any() else None
+        if t_ok.any():
+            out.thrust_rmse_n = float(np.sqrt(np.mean(t_err[t_ok] ** 2)))
+            out.thrust_range_n = float(np.ptp(sig.thrust[t_ok]))
+            out.thrust_rmse_percent_of_range = (100.0 * out.thrust_rmse_n / out.thrust_range_n
+                                                if out.thrust_range_n > 0 else None)
     out.bands = band_errors(sig.t, sig.pwm, err, rng)
     return out, pred
 
@@ -154,7 +163,7 @@ def band_errors(t: np.ndarray, pwm: np.ndarray, err: np.ndarray, speed_range_rad
 
 def evaluate(model: Model, signals: Sequence[Signals]) -> tuple[float, list[RecordingScore], list[np.ndarray]]:
     """Overall RMSE (rad/s) over all samples, per-recording scores and predictions."""
-    scores, preds = zip(*(score(model, s) for s in signals)) if signals else ((), ())
-    errs = np.concatenate([p - s.speed for p, s in zip(preds, signals)])
+    scores, preds = zip(*(score(model, s) for s in signals), strict=True) if signals else ((), ())
+    errs = np.concatenate([p - s.speed for p, s in zip(preds, signals, strict=True)])
     errs = errs[np.isfinite(errs)]
     return float(np.sqrt(np.mean(errs**2))), list(scores), list(preds)

@@ -23,12 +23,11 @@ from .. import __version__
 from .. import contract as c
 from ..discrepancy import physics as ph
 from ..errors import BadInputError
-from ..model import HybridModel, PlantModel
+from ..model import HybridModel, NetworkModel, PlantModel
 from ..priors import MotorPriors
 from ..recordings import Signals
 from .evaluate import predict_speed
 from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, train_model
-
 
 #: The throttle map held straight (the CONFIG's exponent) in one of each ESC's two fits: with
 #: every effect's strength free as well, the exponent and Kv can trade against each other
@@ -65,7 +64,8 @@ def rmse(model: PlantModel, signals: Sequence[Signals]) -> float:
 
 
 def _plant_model(m: ph.PhysicsModel, tau_s: float) -> PlantModel:
-    return PlantModel(m.params, m.effects, m.supply_v, supply_tau_s=tau_s)  # type: ignore[arg-type]
+    assert m.supply_v is not None, "a fit on recordings has their supply (with_supply)"
+    return PlantModel(m.params, m.effects, m.supply_v, supply_tau_s=tau_s)
 
 
 def train_physics(
@@ -107,12 +107,13 @@ def train_physics(
         say(f"start: {line}")
     data = ph.Data.of(train, "training")
     t0 = time.perf_counter()
-    candidates = []
+    candidates: list[dict[str, Any]] = []  # the JSON metadata's records, plus each fit's model and flags
     for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
         start = dataclasses.replace(base, effects=effects).with_supply(train)
         init = start  # the bent map starts from the straight fit
-        for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)), (f"{esc}, throttle map bent", HELD)):
+        for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)),
+                           (f"{esc}, throttle map bent", HELD)):
             say(f"fitting Kv, CP and the effects' strengths, {name}")
             fit = ph.fit_reference(init, data, hold=hold)
             init = fit.model
@@ -204,10 +205,12 @@ def train_hybrid(
         max_epochs=max_epochs, patience=patience, progress=progress, restarts=restarts,
         feature_params=plant.feature_params(), start_at_zero=True,
     )
-    meta = outcome.model.metadata  # the physics part's parameters live in its own arrays; b was
+    network = outcome.model
+    assert isinstance(network, NetworkModel), "train_model trains a network"
+    meta = network.metadata  # the physics part's parameters live in its own arrays; b was
     meta["feature_params"].pop(c.INPUT_PHYSICS_SPEED, None)  # fitted on the speed, not its residual
     meta["physics"] = plant.metadata
     meta["thrust_fit"] = plant.metadata["thrust_fit"]
-    outcome.model.thrust_coefficient = plant.thrust_coefficient
-    return dataclasses.replace(outcome, model=HybridModel(plant, outcome.model), train=physics.train,
+    network.thrust_coefficient = plant.thrust_coefficient
+    return dataclasses.replace(outcome, model=HybridModel(plant, network), train=physics.train,
                                validation=physics.validation, thrust=physics.thrust)

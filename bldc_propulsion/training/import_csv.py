@@ -9,7 +9,7 @@ recording:
 | topic | type | content |
 |---|---|---|
 | ``/pwm`` | Float64 | ESC us / 20000 us, zero-order hold of the logged command on a 50 Hz frame grid |
-| ``/battery/voltage`` | BatteryState | supply voltage, one per row with a voltage (measured directly, so already the filtered battery voltage) |
+| ``/battery/voltage`` | BatteryState | supply voltage, one per row with a voltage (measured: already filtered) |
 | ``/rotor/speed`` | Float64 | rad/s, from optical RPM if it has data, else electrical RPM |
 | ``/thrust/measured`` | Float64 | N (x 9.80665 from kgf, x 9.80665e-3 from gf, x 4.4482216152605 from lbf) |
 | ``/battery/current`` | Float64 | A; an *addition* to the contract (it allows added topics), for thermal states |
@@ -46,8 +46,19 @@ from .. import contract as c
 from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
 from ..errors import BadInputError
-from .csv_command import (UNIT_RANGE, Alignment, OtherLog, align_by_speed, csv_header, hold, mapping_text,
-                          out_of_range, read_autoquad, resolve_unit, to_level)
+from .csv_command import (
+    UNIT_RANGE,
+    Alignment,
+    OtherLog,
+    align_by_speed,
+    csv_header,
+    hold,
+    mapping_text,
+    out_of_range,
+    read_autoquad,
+    resolve_unit,
+    to_level,
+)
 
 #: Added topic (not in the contract's tables): supply current in amperes.
 TOPIC_BATTERY_CURRENT = "battery/current"
@@ -429,7 +440,8 @@ def import_csv(
 
     first_t = min(float(s[1].min()) for s in streams)
     with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
-        whence = "" if alignment is None else f" from {Path(other_src).name}'s Duty, shifted {alignment.offset_s:+.3f} s"
+        whence = ("" if alignment is None or other_src is None
+                  else f" from {Path(other_src).name}'s Duty, shifted {alignment.offset_s:+.3f} s")
         bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({unit}{whence}) -> "
                                 f"pwm level, held on 50 Hz frames; speed: {speed_note}", first_t)
         bag.write_merged(streams)
@@ -459,6 +471,7 @@ def import_csv(
     levels = sorted({round(float(x), 12) for x in level_cmd})
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
     skipped_total = int(sum(table.skipped.values()))
+    volts = cols["voltage"] if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None
     return {
         "path": str(out),
         "source": str(src),
@@ -489,8 +502,8 @@ def import_csv(
         "esc_us_levels": sorted({float(x) for x in cols["esc"]})[:50] if "esc" in cols and unit == "us" else [],
         "speed_max_rad_s": None if rpm is None or not np.any(np.isfinite(rpm))
         else float(np.nanmax(rpm) * RPM_TO_RAD_S),
-        "voltage_min_v": float(np.nanmin(cols["voltage"])) if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None,
-        "voltage_max_v": float(np.nanmax(cols["voltage"])) if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None,
+        "voltage_min_v": None if volts is None else float(np.nanmin(volts)),
+        "voltage_max_v": None if volts is None else float(np.nanmax(volts)),
         "topics": counts,
         "added_topics": ["/" + TOPIC_BATTERY_CURRENT] if "/" + TOPIC_BATTERY_CURRENT in counts else [],
         "messages": int(written),

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 import scipy.linalg
@@ -133,7 +133,7 @@ class _Evaluator:
         np.subtract(self.d, self.y, out=self.e)
         return 0.5 * float(np.dot(self.e, self.e))
 
-    def swap(self, other: "_Evaluator") -> None:
+    def swap(self, other: _Evaluator) -> None:
         """Exchange result buffers with a trial evaluator: the accepted trial's A becomes current."""
         self.A, other.A = other.A, self.A
         self.y, other.y = other.y, self.y
@@ -179,8 +179,7 @@ def train_lm(
     n = X.shape[1]
     if (X_val is None) != (d_val is None):
         raise ValueError("give both X_val and d_val, or neither")
-    has_val = X_val is not None
-    if has_val:
+    if X_val is not None and d_val is not None:
         X_val, d_val = _as_xy(X_val, d_val, "validation", n)
     if int(max_epochs) != max_epochs or max_epochs < 0:
         raise ValueError(f"max_epochs must be a non-negative integer, got {max_epochs!r}")
@@ -210,7 +209,7 @@ def train_lm(
     P = X.shape[0]
     cur = _Evaluator(X, d, H)
     trial = _Evaluator(X, d, H, Xat=cur.Xat)  # same data, its own result buffers
-    val = _Evaluator(X_val, d_val, H) if has_val else None
+    val = _Evaluator(X_val, d_val, H) if X_val is not None and d_val is not None else None
 
     # [J e] stored transposed (N+1, P), C order, so every write while filling it is a
     # contiguous row; and [J e]^T [J e] yields [[J^T J, J^T e], [., e^T e]] in one pass.
@@ -292,7 +291,7 @@ def train_lm(
 
     tc = np.asarray(hist_tc)
     vc = np.asarray(hist_vc)
-    P_val = X_val.shape[0] if has_val else 1
+    P_val = X_val.shape[0] if X_val is not None else 1
     history = LMHistory(
         train_cost=tc,
         val_cost=vc,

@@ -55,14 +55,14 @@ def pack(W1: np.ndarray, b1: np.ndarray, W2: np.ndarray, b2: float) -> np.ndarra
     W2 = np.asarray(W2, dtype=np.float64).reshape(-1)
     if b1.shape != (H,) or W2.shape != (H,):
         raise ValueError(f"b1 and W2 must have {H} elements, got {b1.shape} and {W2.shape}")
-    b2 = np.asarray(b2, dtype=np.float64)
-    if b2.size != 1:
-        raise ValueError(f"b2 must be a scalar, got shape {b2.shape}")
+    b2_arr = np.asarray(b2, dtype=np.float64)
+    if b2_arr.size != 1:
+        raise ValueError(f"b2 must be a scalar, got shape {b2_arr.shape}")
     phi = np.empty(n_params(n, H))
     phi[: n * H] = W1.ravel(order="F")
     phi[n * H : (n + 1) * H] = b1
     phi[(n + 1) * H : (n + 2) * H] = W2
-    phi[-1] = b2.reshape(())
+    phi[-1] = b2_arr.reshape(())
     return phi
 
 

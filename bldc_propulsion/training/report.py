@@ -11,9 +11,12 @@ column before plotting, which keeps the ESC modulation band visible and the figu
 from __future__ import annotations
 
 import html
+import json
 import math
 import os
+import sys
 from collections.abc import Iterable, Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
@@ -28,6 +31,7 @@ from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from ..atomic import atomic_output  # noqa: E402
+from ..errors import BadInputError  # noqa: E402
 
 DPI = 90
 MAX_LINE_POINTS = 4000  #: per plotted line; longer signals are min/max-enveloped
@@ -58,7 +62,7 @@ def _envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -
     buckets = max_points // 2
     edges = np.linspace(0, n, buckets + 1).astype(int)
     tt, yy = [], []
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in pairwise(edges.tolist()):
         if b <= a:
             continue
         seg = y[a:b]
@@ -142,7 +146,7 @@ def fig_battery_filter(
         pt = _arr(pwm_t) if pwm_t is not None else _arr(t)
         _line(ax2, pt, pwm, color="C1", lw=1.0, drawstyle="steps-post")
         ax2.set_ylabel("PWM level")
-        ax2.set_title("Fig. 2: the applied PWM signal")
+        ax2.set_title(f"Fig. 2: the applied PWM command, {describe_command(pt, pwm)}")
         ax2.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time (s)")
     fig.tight_layout()
@@ -150,15 +154,49 @@ def fig_battery_filter(
     return _save(fig, out)
 
 
+#: A command level held at least this long counts as a step (a 50 Hz ramp or chirp changes
+#: every 20 ms; the bundled staircases hold each level 2-3 s, random steps about 1 s).
+HELD_STEP_S = 0.2
+
+
+def describe_command(t: Any, pwm: Any) -> str:
+    """What a PWM command is, in words a title can carry ("held in 27 steps between 0.050 and
+    0.100", "ramps between ...", "varying between ..."), so that a figure says what its data
+    is rather than what the paper's figure of the same number showed."""
+    tt, p = _pair(t, pwm)
+    if len(p) < 2:
+        return "no command recorded"
+    span = f"between {float(p.min()):.3f} and {float(p.max()):.3f}"
+    change = np.flatnonzero(np.diff(p) != 0.0) + 1
+    starts = np.concatenate([[0], change])
+    ends = np.concatenate([change, [len(p) - 1]])
+    held = tt[ends] - tt[starts]
+    if len(held) and float(np.median(held)) >= HELD_STEP_S:
+        return f"held in {int(np.sum(held >= HELD_STEP_S))} steps {span}"
+    # a ramp keeps its direction for seconds: the direction of 0.5 s means rarely reverses
+    dt = float(np.median(np.diff(tt))) if len(tt) > 1 else 0.0
+    block = max(1, int(round(0.5 / dt))) if dt > 0 else 1
+    n = len(p) // block
+    means = p[: n * block].reshape(n, block).mean(axis=1) if n else p
+    d = np.sign(np.diff(means))
+    d = d[d != 0]
+    reversals = int(np.sum(d[1:] != d[:-1])) if len(d) > 1 else 0
+    if len(d) and reversals <= 0.1 * len(d):
+        return f"ramps {span}"
+    return f"a varying command {span}"
+
+
 def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike, recording: str = "") -> Path:
-    """Paper Figs. 5-6: PWM sweep and the angular speed it produces (start of rotation ~0.055)."""
+    """The paper's Figs. 5-6 for any recording: its PWM command and the angular speed it
+    produces (rotation starts near 0.055). The titles say what the command is (steps, ramps),
+    since the paper's "sweeping the applicable range" would mislabel a staircase."""
     fig, axes = _figure(2, 1, (8.0, 5.6), sharex=True)
     _line(axes[0, 0], t, pwm, color="C1", lw=1.0)
     axes[0, 0].set_ylabel("PWM level")
-    axes[0, 0].set_title("Fig. 5: PWM signal sweeping the applicable range")
+    axes[0, 0].set_title(f"PWM command: {describe_command(t, pwm)}", fontsize=10)
     _line(axes[1, 0], t, speed, color="C0", lw=1.0)
     axes[1, 0].set_ylabel("angular speed (rad/s)")
-    axes[1, 0].set_title("Fig. 6: the corresponding angular speed")
+    axes[1, 0].set_title("measured angular speed", fontsize=10)
     axes[1, 0].set_xlabel("time (s)")
     for ax in axes[:, 0]:
         ax.grid(alpha=0.3)
@@ -196,7 +234,7 @@ def fig_training(history_train: Any, history_val: Any, best_epoch: int | None, o
         _no_data(ax, "no cost history")
     ax.set_xlabel("epoch")
     ax.set_ylabel("cost J")
-    ax.set_title("Fig. 12: decrease of the training and checking errors")
+    ax.set_title("Fig. 12: training and validation cost per epoch (learning curve)")
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     return _save(fig, out)
@@ -281,7 +319,7 @@ def fig_band_error(bands: Sequence[dict[str, float]], out: PathLike, recording: 
         labels = [f"{b['low_hz']:.1f}-{b['high_hz']:.1f}" for b in bands]
         rmse = [float(b["rmse_rad_s"]) for b in bands]
         bars = ax.bar(labels, rmse, color="C0")
-        for bar, b in zip(bars, bands):
+        for bar, b in zip(bars, bands, strict=True):
             ax.annotate(f"{b['rmse_percent_of_range']:.2f} %", (bar.get_x() + bar.get_width() / 2, bar.get_height()),
                         ha="center", va="bottom", fontsize=8)
         ax.set_ylim(0, max(rmse) * 1.18 if max(rmse) > 0 else 1.0)
@@ -311,7 +349,8 @@ def fig_compare(
     _line(axes[0, 0], t, pwm, color="C1", lw=0.9)
     axes[0, 0].set_ylabel("PWM level")
     axes[0, 0].set_title("PWM input")
-    _line(axes[1, 0], t, speed_measured, color="0.2", lw=1.4, label="measured")
+    # measured as a wide grey band beneath the models: a model that follows it cannot hide it
+    _line(axes[1, 0], t, speed_measured, color="0.6", lw=3.0, label="measured", zorder=1)
     m = _arr(speed_measured)
     colors = ("C3", "C0", "C2", "C4", "C5", "C6")
     for k, (label, pred) in enumerate(predictions):
@@ -329,6 +368,65 @@ def fig_compare(
     for ax in axes.ravel():
         ax.grid(alpha=0.3)
     fig.suptitle(f"models side by side{': ' + recording if recording else ''}", fontsize=10)
+    fig.tight_layout()
+    _name_recording(fig, recording)
+    return _save(fig, out)
+
+
+def thrust_error(measured_n: Any, predicted_n: Any) -> tuple[float, float, float]:
+    """(RMSE N, measured thrust range N, RMSE in % of that range) of predicted thrust, over the
+    samples where both are finite: the figures ``fig_thrust`` states."""
+    m, p = _arr(measured_n), _arr(predicted_n)
+    if len(m) != len(p):
+        raise ValueError(f"measured and predicted thrust differ in length ({len(m)} vs {len(p)})")
+    ok = np.isfinite(m) & np.isfinite(p)
+    if not ok.any():
+        return math.nan, math.nan, math.nan
+    rmse = _rmse(m[ok] - p[ok])
+    span = float(np.ptp(m[ok]))
+    return rmse, span, 100.0 * rmse / span if span > 0 else math.nan
+
+
+def thrust_error_text(measured_n: Any, predicted_n: Any) -> str:
+    """"RMSE 0.031 N (1.2 % of the 2.53 N thrust range)": the figure's title and a report's
+    headline say it in the same words."""
+    rmse, span, pct = thrust_error(measured_n, predicted_n)
+    return f"RMSE {rmse:.3f} N ({pct:.1f} % of the {span:.2f} N thrust range)"
+
+
+def fig_thrust(
+    t: Any,
+    thrust_measured: Any,
+    thrust_predicted: Any,
+    out: PathLike,
+    recording: str = "",
+    coefficient: float | None = None,
+) -> Path:
+    """Thrust, the product's output, against the load cell: measured and predicted (b w^2 of
+    the predicted speed) over time (top) and the error measured - predicted in N (bottom, with
+    its RMSE in N and in % of the measured thrust range in the title)."""
+    t_, m, p = _arr(t), _arr(thrust_measured), _arr(thrust_predicted)
+    fig, axes = _figure(2, 1, (9.0, 5.8), sharex=True)
+    top, bottom = axes[0, 0], axes[1, 0]
+    b = f", b = {coefficient:.4g} N s²/rad²" if coefficient is not None else ""
+    if len(t_) and len(m) == len(p) == len(t_):
+        _line(top, t_, m, color="0.55", lw=2.4, label="measured (load cell)")
+        _line(top, t_, p, color="C3", lw=1.0, label=f"predicted b·ω²{b}")
+        top.legend(fontsize=8, loc="best")
+        err = m - p
+        _line(bottom, t_, err, color="C2", lw=0.9)
+        bottom.axhline(0.0, color="k", lw=0.6)
+        bottom.set_title(f"thrust error measured - predicted: {thrust_error_text(m, p)}", fontsize=10)
+    else:
+        _no_data(top)
+        _no_data(bottom)
+        bottom.set_title("thrust error measured - predicted", fontsize=10)
+    top.set_ylabel("thrust (N)")
+    top.set_title(f"{recording + ': ' if recording else ''}measured and predicted thrust", fontsize=10)
+    bottom.set_ylabel("error (N)")
+    bottom.set_xlabel("time (s)")
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
     fig.tight_layout()
     _name_recording(fig, recording)
     return _save(fig, out)
@@ -528,17 +626,23 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
+def _td(value: Any) -> str:
+    """A table cell: numbers right-aligned (digits line up), text left-aligned (it reads)."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    return ('<td class="n">' if number else "<td>") + html.escape(_cell(value)) + "</td>"
+
+
 def _table_html(caption: str, rows: Sequence[dict[str, Any]]) -> str:
     columns: list[str] = []
     for row in rows:
         for key in row:
             if key not in columns:
                 columns.append(key)
-    out = [f'<table>\n<caption>{html.escape(str(caption))}</caption>']
+    out = [f'<div class="table"><table>\n<caption>{html.escape(str(caption))}</caption>']
     out.append("<tr>" + "".join(f"<th>{html.escape(str(c))}</th>" for c in columns) + "</tr>")
     for row in rows:
-        out.append("<tr>" + "".join(f"<td>{html.escape(_cell(row.get(c)))}</td>" for c in columns) + "</tr>")
-    out.append("</table>")
+        out.append("<tr>" + "".join(_td(row.get(c)) for c in columns) + "</tr>")
+    out.append("</table></div>")
     return "\n".join(out)
 
 
@@ -555,7 +659,36 @@ def _href(report_dir: Path, figure: str) -> str:
 _CSS = """body{font-family:sans-serif;max-width:1200px;margin:1em auto;padding:0 1em;color:#222}
 figure{margin:1.5em 0}img{max-width:100%;border:1px solid #ddd}figcaption{font-size:.9em;color:#444}
 table{border-collapse:collapse;margin:1em 0;font-size:.9em}caption{text-align:left;font-weight:bold}
-th,td{border:1px solid #ccc;padding:.25em .6em;text-align:right}th{background:#f3f3f3}"""
+th,td{border:1px solid #ccc;padding:.25em .6em;text-align:left;vertical-align:top}th{background:#f3f3f3}
+td.n{text-align:right}
+dl.headline{display:grid;grid-template-columns:max-content auto;gap:.2em 1em;margin:.6em 0;
+background:#f6f8fa;border:1px solid #dde;padding:.6em 1em}dl.headline dt{font-weight:bold}dl.headline dd{margin:0}
+p.note{color:#7a4b00}div.table{overflow-x:auto}nav ol{margin:.3em 0;font-size:.9em}"""
+
+
+def _headline_html(headline: Sequence[tuple[str, str]]) -> str:
+    items = "".join(f"<dt>{html.escape(str(k))}</dt><dd>{html.escape(str(v))}</dd>" for k, v in headline)
+    return f'<dl class="headline">{items}</dl>'
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON values (NaN and infinity as None, numpy scalars and arrays as numbers/lists)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_jsonable(v) for v in list(value)]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(float(value)) else None
+    return value if value is None or isinstance(value, str) else str(value)
+
+
+#: Written beside every report's index.html: its title, headline, figures and tables as JSON, so
+#: that an index of several reports (``write_reports_index``) reads numbers, not HTML.
+REPORT_JSON = "report.json"
 
 
 def write_index(
@@ -563,10 +696,15 @@ def write_index(
     title: str,
     figures: Sequence[tuple[str, str]],
     tables: Sequence[tuple[str, Sequence[dict[str, Any]]]] = (),
+    headline: Sequence[tuple[str, str]] = (),
+    notes: Sequence[str] = (),
 ) -> Path:
-    """Write ``report_dir/index.html``: the tables of figures of merit, then each figure with
-    its caption. ``figures`` are (file name relative to the report, caption). All text is
-    HTML-escaped, since captions carry file paths that may contain ``<`` or ``&``."""
+    """Write ``report_dir/index.html``: the headline figures (label, text) a reader needs first,
+    notes (what is missing and why), a list of the figures, the tables of figures of merit,
+    then each figure with its caption; and ``report.json`` (``REPORT_JSON``) with the same
+    content. ``figures`` are (file name relative to the report, caption); the first is the
+    report's main figure (the thumbnail of an index of reports). All text is HTML-escaped,
+    since captions carry file paths that may contain ``<`` or ``&``."""
     d = Path(report_dir)
     parts = [
         "<!DOCTYPE html>",
@@ -575,15 +713,170 @@ def write_index(
         f"<style>{_CSS}</style></head><body>",
         f"<h1>{html.escape(str(title))}</h1>",
     ]
+    if headline:
+        parts.append(_headline_html(headline))
+    parts += [f'<p class="note">{html.escape(str(n))}</p>' for n in notes]
+    if len(figures) > 1:
+        links = "".join(f'<li><a href="#fig-{k}">{html.escape(str(caption))}</a></li>'
+                        for k, (_, caption) in enumerate(figures))
+        parts.append(f'<nav><b>figures</b><ol>{links}</ol></nav>')
     for caption, rows in tables:
         parts.append(_table_html(caption, list(rows)))
-    for name, caption in figures:
+    for k, (name, caption) in enumerate(figures):
         src = html.escape(_href(d, str(name)), quote=True)
         alt = html.escape(str(caption), quote=True)
-        parts.append(f'<figure><img src="{src}" alt="{alt}">'
+        parts.append(f'<figure id="fig-{k}"><img src="{src}" alt="{alt}">'
                      f"<figcaption>{html.escape(str(caption))}</figcaption></figure>")
+    parts.append("</body></html>\n")
+    summary = {
+        "title": str(title),
+        "headline": [{"label": str(k), "text": str(v)} for k, v in headline],
+        "notes": [str(n) for n in notes],
+        "figures": [{"file": _href(d, str(name)), "caption": str(caption)} for name, caption in figures],
+        "tables": [{"caption": str(caption), "rows": _jsonable(list(rows))} for caption, rows in tables],
+    }
+    with atomic_output(d / REPORT_JSON, force=True) as tmp:
+        tmp.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+    path = d / "index.html"
+    with atomic_output(path, force=True) as tmp:
+        tmp.write_text("\n".join(parts), encoding="utf-8")
+    return path
+
+
+# -- an index of several reports (the demo's) ---------------------------------------------------
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+
+
+def headline_from_tables(tables: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
+    """Headline of a report that states none (the discrepancy report, discrepancy/results.py),
+    from its tables as ``report.json`` holds them, found by caption: the effects added ("added
+    ..."), those not added ("not added ..." or "considered ..."), each with its status where the
+    table has one, and the holdout RMSE before and after ("the gap"). Others are left out."""
+    def effects(rows: list[dict[str, Any]], heading: str) -> str:
+        """Effect names, each with its status less what the heading already says."""
+        out = []
+        for r in rows:
+            status = str(r.get("status") or "")
+            if status.startswith("added (") and status.endswith(")"):  # "added (new in ...)": under "added"
+                status = status[len("added ("):-1]
+            if status.endswith(heading):  # "considered, not added" under "not added"
+                status = ""
+            out.append(str(r.get("effect")) + (f" ({status})" if status else ""))
+        return ", ".join(out)
+
+    out: list[tuple[str, str]] = []
+    for table in tables:
+        caption, rows = str(table.get("caption", "")), table.get("rows") or []
+        if caption.startswith("added"):
+            out.append(("effects added", effects(rows, "added") or "none"))
+        elif caption.startswith(("not added", "considered")) and rows:
+            out.append(("not added", effects(rows, "not added")))
+        elif caption == "the gap" and rows:
+            before, after = _number(rows[0].get("holdout RMSE before")), _number(rows[0].get("after"))
+            if before is not None and after is not None:
+                out.append(("holdout RMSE before → after", f"{before:.2f} → {after:.2f} rad/s"))
+    return out
+
+
+def read_report(report_dir: PathLike) -> dict[str, Any] | None:
+    """A report's ``report.json`` (None when the folder holds no report of this version)."""
+    path = Path(report_dir) / REPORT_JSON
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+_INDEX_CSS = """.step{display:flex;gap:1.2em;align-items:flex-start;border-top:1px solid #ddd;padding:1em 0}
+.step>a{flex:none}.step img{width:380px}.step h2{margin:0 0 .2em;font-size:1.15em}.sub{color:#555;margin:0 0 .5em}"""
+
+
+def write_reports_index(
+    directory: PathLike,
+    steps: Sequence[tuple[str, str]] | None = None,
+    title: str = "bldc_propulsion reports",
+) -> Path:
+    """Write ``directory/index.html``: one row per report, with a thumbnail of its main figure
+    (linking to the report) and its headline numbers, so that a reader sees every step's result
+    at a glance. ``steps``: (sub-folder, what the step does) in order; default every sub-folder
+    holding a report, by name. A step whose report is missing says so."""
+    d = Path(directory)
+    if steps is None:
+        steps = [(p.name, p.name) for p in sorted(d.iterdir()) if (p / REPORT_JSON).is_file()]
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{html.escape(title)}</title>",
+        f"<style>{_CSS}\n{_INDEX_CSS}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+    ]
+    for folder, what in steps:
+        rep = read_report(d / folder)
+        link = html.escape(quote(f"{folder}/index.html", safe="/"), quote=True)
+        if rep is None:
+            older = (d / folder / "index.html").is_file()  # a report of a version before report.json
+            heading = f'<a href="{link}">{html.escape(what)}</a>' if older else html.escape(what)
+            why = ("its report has no report.json (an older version wrote it): no headline" if older
+                   else f"no report in {folder}/ (the step did not run or failed)")
+            parts.append(f'<section class="step"><div><h2>{heading}</h2><p class="sub">{html.escape(why)}</p>'
+                         "</div></section>")
+            continue
+        figs = rep.get("figures") or []
+        thumb = ""
+        if figs:
+            src = html.escape(quote(f"{folder}/{figs[0]['file']}", safe="/:"), quote=True)
+            alt = html.escape(str(figs[0].get("caption", "")), quote=True)
+            thumb = f'<a href="{link}"><img src="{src}" alt="{alt}" title="{alt}"></a>'
+        headline = [(h["label"], h["text"]) for h in rep.get("headline") or []] \
+            or headline_from_tables(rep.get("tables") or [])
+        parts.append(
+            f'<section class="step">{thumb}<div><h2><a href="{link}">{html.escape(what)}</a></h2>'
+            f'<p class="sub">{html.escape(str(rep.get("title", "")))} · {len(figs)} figure(s)</p>'
+            + (_headline_html(headline) if headline else "") + "</div></section>")
     parts.append("</body></html>\n")
     path = d / "index.html"
     with atomic_output(path, force=True) as tmp:
         tmp.write_text("\n".join(parts), encoding="utf-8")
     return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m bldc_propulsion.training.report demo-index DIR [FOLDER=TEXT ...]``: the index
+    of the reports in DIR (scripts/demo.sh writes demo/index.html with it)."""
+    import argparse
+
+    prog = "python -m bldc_propulsion.training.report demo-index"
+    p = argparse.ArgumentParser(prog=prog, description="write DIR/index.html: a thumbnail and the headline "
+                                                       "numbers of each report in DIR")
+    p.add_argument("directory", metavar="DIR")
+    p.add_argument("steps", nargs="*", metavar="FOLDER=TEXT",
+                   help="the reports in order, each a sub-folder of DIR and what its step does "
+                        "(default: every sub-folder holding a report)")
+    p.add_argument("--title", default="bldc_propulsion reports", help="the page's title")
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] != "demo-index":  # one subcommand for now; the name says what it writes
+        print(f"usage: {prog} DIR [FOLDER=TEXT ...] [--title TITLE]", file=sys.stderr)
+        return 2
+    args = p.parse_intermixed_args(argv[1:])  # --title before or after the steps
+    try:
+        d = Path(args.directory)
+        if not d.is_dir():
+            raise BadInputError(f"{d}: not a directory")
+        steps = []
+        for item in args.steps:
+            folder, sep, what = item.partition("=")
+            if not sep or not folder.strip():
+                raise BadInputError(f"{item!r}: expected FOLDER=TEXT")
+            steps.append((folder.strip(), what.strip() or folder.strip()))
+    except BadInputError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    print(write_reports_index(d, steps or None, title=args.title))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

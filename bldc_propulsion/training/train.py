@@ -14,7 +14,7 @@ from .. import __version__
 from .. import contract as c
 from ..core.features import compute_features, with_measured_start
 from ..errors import BadInputError
-from ..model import NetworkModel
+from ..model import HybridModel, NetworkModel
 from ..priors import AIR_DENSITY_KG_M3, INCH_M, MotorPriors
 from ..recordings import Signals
 from ..specs import split_spec
@@ -28,8 +28,8 @@ def features_of(sig: Signals, names: Sequence[str], params: dict[str, dict[str, 
     already turning (``core.features.with_measured_start``)."""
     pwm_t, pwm = sig.pwm_events
     volt_t, volt = sig.voltage_events
-    params = with_measured_start(names, params or {}, sig.t, sig.speed, pwm_t)
-    return compute_features(sig.t, pwm_t, pwm, volt_t, volt, list(names), params)
+    started = with_measured_start(names, params or {}, sig.t, sig.speed, pwm_t)
+    return compute_features(sig.t, pwm_t, pwm, volt_t, volt, list(names), started)
 
 
 #: Fewest measured thrust samples b is fitted from (with fewer: a stated b, or none).
@@ -141,7 +141,8 @@ def stated_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit 
         candidates.append(hover_thrust(priors, signals))
     b_ct = priors.thrust_coefficient_from_ct()
     if b_ct is not None:
-        inches = priors.propeller_diameter_m / INCH_M  # type: ignore[operator]
+        assert priors.propeller_diameter_m is not None, "b from CT needs the diameter"
+        inches = priors.propeller_diameter_m / INCH_M
         candidates.append(ThrustFit(
             b_ct, None, 0, f"CT {priors.propeller_ct:g}, {inches:g} in",
             f"static thrust T = CT rho n^2 D^4 at rho = {AIR_DENSITY_KG_M3} kg/m^3 (ISA sea level), "
@@ -150,6 +151,7 @@ def stated_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit 
         return None
     used, *others = candidates
     for o in others:
+        assert o.coefficient is not None and used.coefficient is not None, "every candidate has a b"
         used.warnings.append(
             f"{o.source} would give b = {o.coefficient:.4g} N s^2/rad^2 "
             f"({100.0 * (o.coefficient / used.coefficient - 1.0):+.0f} %): not used, {used.source} comes first")
@@ -158,7 +160,7 @@ def stated_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit 
 
 @dataclass
 class TrainOutcome:
-    model: NetworkModel
+    model: NetworkModel | HybridModel  #: a hybrid from fit_physics.train_hybrid
     lm: LMResult
     train: list[Signals]
     validation: list[Signals]
@@ -167,7 +169,8 @@ class TrainOutcome:
     validation_rmse_rad_s: float
 
 
-def stack(signals: Sequence[Signals], names: Sequence[str], params: dict[str, dict[str, float]]) -> tuple[np.ndarray, np.ndarray]:
+def stack(signals: Sequence[Signals], names: Sequence[str],
+          params: dict[str, dict[str, float]]) -> tuple[np.ndarray, np.ndarray]:
     X = np.vstack([features_of(s, names, params) for s in signals])
     y = np.concatenate([s.speed for s in signals])
     ok = np.all(np.isfinite(X), axis=1) & np.isfinite(y)
@@ -198,8 +201,9 @@ def train_model(
     weights of seeds ``seed .. seed + restarts - 1`` (after ``phi0`` when given) and keep the
     network with the least validation cost. ``start_at_zero``: those weights with the output
     layer at 0 (the network's output 0 rad/s): a hybrid's correction starts from the physics
-    alone, so early stopping keeps a network only where it helps on validation. Why restarts: LM finds a local minimum, and which one
-    decides how the network extrapolates between the recordings' operating points; on the
+    alone, so early stopping keeps a network only where it helps on validation. Why restarts: LM
+    finds a local minimum, and which one decides how the network extrapolates between the
+    recordings' operating points; on the
     bundled bags the validation RMSE of single 3-25-1 runs spans 16-30 rad/s over seeds, and the
     validation cost is the unbiased way to choose among them (what trainlm users do by hand).
     ``thrust_coefficient``: the stated b (``stated_thrust``), the model's when ``train`` has no
@@ -294,7 +298,7 @@ def _zero_output(n_in: int, hidden: int, seed: int, b2: float) -> np.ndarray:
     return pack(W1, b1, np.zeros_like(W2), b2)
 
 
-def _source(sig: Signals) -> dict[str, str]:
+def _source(sig: Signals) -> dict[str, str | None]:
     """Provenance of one recording: the path as given, where it was, and its content hash."""
     path, namespace = split_spec(sig.path.split("#", 1)[0], sig.namespace)
     return {"path": sig.path, "abs_path": os.path.abspath(path), "sha256": sig.sha256,

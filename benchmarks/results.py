@@ -1,0 +1,672 @@
+"""The figures the README and docs/results.md quote: each group produced by a script, kept as JSON.
+
+Each group's figures live in ``docs/results/<group>.json`` (the figures, the exact command that
+produced them, the date and the commit), written by that command with ``--json``; this script
+renders ``docs/results.md`` and the README's demo table from those files, so a figure in the
+documentation is always one a script printed (``test/test_results_doc.py`` re-renders both and
+recomputes the demo's figures).
+
+    python benchmarks/results.py                 # render docs/results.md and the README regions
+    python benchmarks/results.py --check         # exit 1 when either is not what the JSON renders to
+    python benchmarks/results.py --update demo   # rerun a group's command (see --list), then render
+
+The demo group is computed here (``scripts/demo.sh``'s commands with ``--json``, a few minutes);
+every other group is a benchmark or experiment run with ``--json docs/results/<group>.json``.
+A group without its JSON is rendered as "not measured yet" with the command to run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import shlex
+import statistics
+import subprocess
+import sys
+import tempfile
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from bldc_propulsion.atomic import OutputKind, atomic_output, check_output  # noqa: E402
+from bldc_propulsion.errors import BadInputError  # noqa: E402
+
+RESULTS_DIR = ROOT / "docs" / "results"
+RESULTS_MD = ROOT / "docs" / "results.md"
+README = ROOT / "README.md"
+EFFECTS = ("battery_voltage", "rotor_lag", "input_delay", "esc_deadband", "spin_down_asymmetry", "motor_heating")
+NOTHING = "(nothing)"
+
+
+# --- the record a producer writes ------------------------------------------------------------------
+def _is_record(p: Path) -> bool:
+    """A JSON file this module wrote (so --json may replace it, and nothing else)."""
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(data, dict) and {"command", "figures"} <= data.keys()
+
+
+RECORD = OutputKind("figures record", "a figures file (.json) written by a benchmark's --json", (".json",),
+                    _is_record)
+
+
+def check_record_path(path: str | None) -> None:
+    """Refuse a --json path before any work (BadInputError, one line): a missing folder, another
+    kind of file; an earlier figures record is replaced (that is what rerunning is for). A
+    benchmark has no CLI error handling of its own, so the line is printed here (exit 2)."""
+    if path is None:
+        return
+    try:
+        check_output(path, RECORD, force=True, option="--json")
+    except BadInputError as exc:
+        print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def _finite(x: Any) -> Any:
+    """JSON without NaN or infinity (not JSON): None instead, recursively."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {str(k): _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def _git(*args: str) -> str:
+    try:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """The command that is running, as a user retypes it: ``python`` + the script relative to the
+    repository root + its options, without ``--json PATH`` (where the figures went)."""
+    argv = list(sys.argv if argv is None else argv)
+    script = Path(argv[0])
+    try:
+        script = script.resolve().relative_to(ROOT)
+    except ValueError:
+        pass
+    rest: list[str] = []
+    skip = False
+    for a in argv[1:]:
+        if skip:
+            skip = False
+        elif a == "--json":
+            skip = True
+        elif not a.startswith("--json="):
+            rest.append(a)
+    return shlex.join(["python", str(script), *rest])
+
+
+def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, command: str | None = None,
+                 seconds: float | None = None) -> None:
+    """Write ``figures`` with what produced them (command, date, commit, CPUs) to ``path``, atomically."""
+    dirty = bool(_git("status", "--porcelain", "--untracked-files=no"))
+    record = {
+        "command": command or command_line(),
+        "date": datetime.date.today().isoformat(),
+        "commit": _git("rev-parse", "--short", "HEAD") or None,
+        "uncommitted_changes": dirty,
+        "cpus": os.cpu_count(),
+        "seconds": None if seconds is None else round(seconds, 1),
+        "figures": _finite(figures),
+    }
+    with atomic_output(path, force=True, kind=RECORD) as tmp:
+        tmp.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+
+
+def read_record(group: str, directory: Path = RESULTS_DIR) -> dict[str, Any] | None:
+    p = directory / f"{group}.json"
+    return json.loads(p.read_text(encoding="utf-8")) if p.is_file() else None
+
+
+# --- the demo group: scripts/demo.sh's commands with --json ------------------------------------------
+DEMO_TRAINING = ("bags/staircase", "bags/triangle", "bags/staircase_half", "bags/triangle_half")
+DEMO_TESTS = ("bags/chirp", "bags/discharge_a")
+
+
+def _cli(*args: str) -> dict[str, Any]:
+    """One ``bldc-propulsion`` command with ``--json``, as the demo runs it (from the root)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-m", "bldc_propulsion.cli", *args, "--json"], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=1800)
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"bldc-propulsion {' '.join(args[:1])} exited {proc.returncode}: {last}")
+    return json.loads(proc.stdout)
+
+
+def _scores(evaluation: dict[str, Any]) -> dict[str, Any]:
+    """evaluate --json of one model: RMSE per recording (rad/s, % of range), bands, thrust RMSE."""
+    out: dict[str, Any] = {}
+    for r in evaluation["recordings"]:
+        out[Path(r["path"]).name] = {
+            "rmse_rad_s": r["rmse_rad_s"], "rmse_percent": r["rmse_percent_of_range"],
+            "speed_range_rad_s": r["speed_range_rad_s"], "thrust_rmse_n": r.get("thrust_rmse_n"),
+            "bands": [{"low_hz": b["low_hz"], "high_hz": b["high_hz"], "rmse_rad_s": b["rmse_rad_s"],
+                       "rmse_percent": b["rmse_percent_of_range"]} for b in r["bands"]],
+        }
+    return out
+
+
+def demo_model(kind: str, tmp: Path) -> dict[str, Any]:
+    """Steps 1, 1b and 3b for one kind: trained on the four training recordings, scored on the
+    unseen chirp and discharge_a (each kind alone: the test recomputes them one by one)."""
+    model = tmp / f"model_{kind}.npz"
+    t = _cli("train", *DEMO_TRAINING, "--validation", "bags/validation", "--kind", kind, "-o", str(model))
+    fig: dict[str, Any] = {"train_rmse_rad_s": t["train_rmse_rad_s"],
+                           "validation_rmse_rad_s": t["validation_rmse_rad_s"],
+                           "thrust_coefficient": t.get("thrust_coefficient")}
+    if kind == "network":
+        fig.update(epochs=t["epochs"], best_epoch=t["best_epoch"], best_seed=t.get("best_seed"),
+                   restarts=len(t.get("restarts") or []))
+    if kind == "physics":
+        const, eff = t["constants"], t["effects"]
+        fig.update(fit=t.get("fit"), kv_rpm_per_v=const["motor_kv_rpm_per_v"], cp=const["propeller_cp"],
+                   throttle_exponent=const.get("esc_throttle_exponent"),
+                   dead_time_ms=1000.0 * eff["input_delay"] * _bench().esc_input_delay_s)
+    fig["scores"] = _scores(_cli("evaluate", "--model", str(model), *DEMO_TESTS))
+    return fig
+
+
+def demo_bench() -> dict[str, Any]:
+    """The simulated bench's true constants, beside the fitted ones."""
+    b = _bench()
+    return {"kv_rpm_per_v": b.motor_kv_rpm_per_v, "cp": b.propeller_cp,
+            "dead_time_ms": 1000.0 * b.esc_input_delay_s, "thrust_coefficient": b.thrust_coefficient}
+
+
+def demo_models(tmp: Path) -> dict[str, Any]:
+    """Steps 1, 1b and 3b: the three kinds, and the bench's truth."""
+    return {**{kind: demo_model(kind, tmp) for kind in ("network", "physics", "hybrid")}, "bench": demo_bench()}
+
+
+def _bench() -> Any:
+    from bldc_propulsion.sim.params import BenchParams
+
+    return BenchParams()
+
+
+def _evidence(data: dict[str, Any]) -> dict[str, Any]:
+    """discrepancy --json: per effect its status (added / structural / considered, not added), the
+    test that decided it (its reduction and p), the share of the residual it removes on the measured
+    data (which only proposes) and on the reference and, where fitted, its value and the holdout."""
+    out: dict[str, Any] = {}
+    for effect, ev in (data.get("evidence") or {}).items():
+        measured = ev.get("measured") or {}
+        acc = ev.get("acceptance") or {}
+        value = ev.get("fitted_value") or {}
+        out[effect] = {
+            "verdict": ev.get("verdict"), "p_value": ev.get("p_value"),
+            "status": ev.get("status"), "label": ev.get("label"), "decided_by": ev.get("decided_by"),
+            "measured_share": measured.get("mse_reduction"),
+            "reference_share": (ev.get("reference") or {}).get("mse_reduction"),
+            "blocks_improved": measured.get("blocks_improved"), "blocks": measured.get("blocks"),
+            "value": value.get("value"), "unit": value.get("unit"), "quantity": value.get("quantity"),
+            "holdout_before_rad_s": acc.get("rmse_before_rad_s"), "holdout_after_rad_s": acc.get("rmse_after_rad_s"),
+            "holdout_p_value": acc.get("p_value"), "accepted": acc.get("accepted"),
+        }
+    return out
+
+
+def demo_discrepancy(tmp: Path) -> dict[str, Any]:
+    """Step 4: a model without battery voltage, trained on full packs, asked about a half-empty one."""
+    model = tmp / "model_no_voltage.npz"
+    _cli("train", "bags/staircase", "bags/triangle", "--validation", "bags/validation_full", "-o", str(model),
+         "--inputs", "pwm,pwm_filtered")
+    d = _cli("discrepancy", "--model", str(model), "--measured", "bags/discharge_a", "--holdout", "bags/discharge_b",
+             "--max-effects", "1")
+    return {"named": d["named"], "added": d.get("added", d["named"]),
+            "structural": [s["effect"] for s in d.get("structural") or []],
+            "holdout_before_rad_s": d["holdout_rmse_before"], "holdout_after_rad_s": d["holdout_rmse_after"],
+            "evidence": _evidence(d)}
+
+
+def demo_physics_discrepancy(tmp: Path) -> dict[str, Any]:
+    """Step 5: the nominal bench physics, every effect off, asked what it lacks."""
+    d = _cli("discrepancy", "--physics", "--measured", "bags/staircase", "bags/validation", "--holdout",
+             "bags/discharge_b", "--max-effects", "4", "-o", str(tmp / "physics_found.json"))
+    base = (d.get("calibrated_base") or {}).get("params") or {}
+    return {"named": d["named"], "added": d.get("added", d["named"]), "holdout_before_rad_s": d["holdout_rmse_before"],
+            "holdout_after_rad_s": d["holdout_rmse_after"],
+            "calibrated_kv_rpm_per_v": base.get("motor_kv_rpm_per_v"), "calibrated_cp": base.get("propeller_cp"),
+            "calibrated_throttle_exponent": base.get("esc_throttle_exponent"),
+            "evidence": _evidence(d)}
+
+
+#: the demo's parts: each is recomputed on its own by the test (``DEMO_PARTS[name](tmp)``)
+DEMO_PARTS: dict[str, Callable[[Path], dict[str, Any]]] = {
+    "models": demo_models, "discrepancy": demo_discrepancy, "physics_discrepancy": demo_physics_discrepancy,
+}
+
+
+def produce_demo(path: Path) -> None:
+    import time
+
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        figures = {name: part(Path(d)) for name, part in DEMO_PARTS.items()}
+    write_record(path, figures, command="python benchmarks/results.py --update demo",
+                 seconds=time.perf_counter() - t0)
+
+
+# --- formatting --------------------------------------------------------------------------------------
+def num(x: float | None, digits: int = 2) -> str:
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
+def pct(share: float | None) -> str:
+    """A share of a residual (0..1) as the console writes it: a percentage."""
+    return "n/a" if share is None else f"{100.0 * share:.1f} %"
+
+
+def pval(p: float | None) -> str:
+    return "n/a" if p is None else f"{p:.2g}"
+
+
+def spread(values: Iterable[float | None], digits: int = 2, unit: str = "") -> str:
+    """median [min, max] of the finite values (what every seeded figure is given as)."""
+    v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+    if not v:
+        return "n/a"
+    u = f" {unit}" if unit else ""
+    if len(v) == 1:  # one bench or seed: no spread to give
+        return f"{v[0]:.{digits}f}{u}"
+    return f"{statistics.median(v):.{digits}f}{u} [{min(v):.{digits}f}, {max(v):.{digits}f}]"
+
+
+def provenance(rec: dict[str, Any]) -> str:
+    commit = rec.get("commit") or "unknown commit"
+    extra = " with uncommitted changes" if rec.get("uncommitted_changes") else ""
+    took = f", {rec['seconds']:.0f} s" if rec.get("seconds") is not None else ""
+    return f"measured {rec['date']} at {commit}{extra} ({rec.get('cpus')} CPUs{took})"
+
+
+# --- renderers: one per group (a record's figures -> markdown lines) ---------------------------------
+KINDS = ("network", "physics", "hybrid")
+
+
+def _band_label(b: dict[str, Any]) -> str:
+    return f"command {b['low_hz']:.1f}-{b['high_hz']:.1f} Hz"
+
+
+def render_demo(f: dict[str, Any]) -> list[str]:
+    m, bench = f["models"], f["models"]["bench"]
+    net, phy = m["network"], m["physics"]
+    lines = [
+        f"Step 1, the paper's 3-25-1 network on the four training recordings ({net['restarts']} LM runs from "
+        f"different initial weights, the best on validation kept: seed {net['best_seed']}, {net['epochs']} epochs, "
+        f"best at {net['best_epoch']}): RMSE {num(net['train_rmse_rad_s'])} rad/s on the training recordings, "
+        f"{num(net['validation_rmse_rad_s'])} rad/s on the validation recording; b = "
+        f"{net['thrust_coefficient']:.4g} N s²/rad² (the simulator's: {bench['thrust_coefficient']:.4g}).",
+        "",
+        f"Step 1b, the bench physics fitted ({phy['fit']}): Kv {phy['kv_rpm_per_v']:.0f} rpm/V, CP "
+        f"{phy['cp']:.4f}, dead time {phy['dead_time_ms']:.0f} ms (the bench's {bench['kv_rpm_per_v']:.0f}, "
+        f"{bench['cp']:.3f}, {bench['dead_time_ms']:.0f} ms). Training / validation RMSE: "
+        + "; ".join(f"{k} {num(m[k]['train_rmse_rad_s'])} / {num(m[k]['validation_rmse_rad_s'])} rad/s"
+                    for k in KINDS) + ".",
+        "",
+        "Step 3b, on recordings no model saw (RMSE in rad/s, in % of the recording's speed range):",
+        "",
+        "| recording | " + " | ".join(KINDS) + " |",
+        "|---|" + "---|" * len(KINDS),
+    ]
+    for rec in ("chirp", "discharge_a"):
+        s = {k: m[k]["scores"][rec] for k in KINDS}
+        lines.append(f"| `bags/{rec}` | " + " | ".join(
+            f"{num(s[k]['rmse_rad_s'])} ({num(s[k]['rmse_percent'])} %)" for k in KINDS) + " |")
+        for i, band in enumerate(s["network"]["bands"]):
+            lines.append(f"| {_band_label(band)} | " + " | ".join(
+                f"{num(s[k]['bands'][i]['rmse_rad_s'])} ({num(s[k]['bands'][i]['rmse_percent'])} %)"
+                for k in KINDS) + " |")
+        lines.append(f"| thrust RMSE, `bags/{rec}` (N) | " + " | ".join(
+            num(s[k]["thrust_rmse_n"], 3) for k in KINDS) + " |")
+    d = f["discrepancy"]
+    lines += ["", "Step 4, a model without battery voltage (trained and validated on full packs) on a half-empty "
+              f"pack: added {_added(d)}; "
+              f"holdout RMSE {num(d['holdout_before_rad_s'])} → {num(d['holdout_after_rad_s'])} rad/s. "
+              "Every candidate (share of the residual removed on held-out blocks):", ""]
+    lines += _evidence_table(d["evidence"], reference=True)
+    p = f["physics_discrepancy"]
+    lines += ["", "Step 5, the nominal bench physics with every effect off (Kv, CP and the throttle exponent "
+              f"calibrated to {num(p['calibrated_kv_rpm_per_v'], 0)} rpm/V, {num(p['calibrated_cp'], 4)} and "
+              f"{num(p['calibrated_throttle_exponent'])}): added {_added(p)}; holdout RMSE "
+              f"{num(p['holdout_before_rad_s'])} → {num(p['holdout_after_rad_s'])} rad/s.", ""]
+    lines += _evidence_table(p["evidence"], reference=False)
+    return lines
+
+
+def _added(x: dict[str, Any]) -> str:
+    """The effects added, each with what it was added as (new in the measured data or structural)."""
+    added = x.get("added", x["named"])
+    return ", ".join(f"{e} ({'new' if e in x['named'] else 'structural'})" for e in added) or "nothing"
+
+
+def _evidence_table(evidence: dict[str, Any], reference: bool) -> list[str]:
+    """One row per candidate in the workflow's vocabulary: its status and the test that decided it."""
+    head = ("| effect | status | deciding test: reduction, p | measured share (proposes) | "
+            + ("reference share | " if reference else "") + "fitted | holdout RMSE |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for effect, e in evidence.items():
+        fitted = (f"{e['quantity']} {e['value']:.4g} {e['unit']}" if e.get("value") is not None else "")
+        hold = (f"{num(e['holdout_before_rad_s'])} → {num(e['holdout_after_rad_s'])} rad/s"
+                if e.get("holdout_before_rad_s") is not None else "")
+        dec = e.get("decided_by") or {}
+        decided = (f"{dec['test']}: {num(dec['reduction_pct'], 1)} %, p {pval(dec['p_value'])}" if dec else "")
+        lines.append(f"| {effect} | {e.get('label') or e['verdict']} | {decided} | {pct(e['measured_share'])} | "
+                     + (f"{pct(e['reference_share'])} | " if reference else "")
+                     + f"{fitted} | {hold} |")
+    return lines
+
+
+def render_demo_readme(f: dict[str, Any]) -> list[str]:
+    """The README's one table: the demo's headline numbers."""
+    m = f["models"]
+    net, phy, bench = m["network"], m["physics"], m["bench"]
+    chirp = {k: m[k]["scores"]["chirp"] for k in KINDS}
+    dis = {k: m[k]["scores"]["discharge_a"] for k in KINDS}
+    fast = {k: chirp[k]["bands"][-1] for k in KINDS}
+    d, p = f["discrepancy"], f["physics_discrepancy"]
+    # step 4's leading candidate (the most of the measured residual): its verdict and both shares
+    lead, ev = max(d["evidence"].items(), key=lambda kv: kv[1].get("measured_share") or -math.inf)
+
+    def added(x: dict[str, Any]) -> str:
+        return ", ".join(f"`{e}`" + ("" if e in x["named"] else " (structural)")
+                         for e in x.get("added", x["named"])) or "nothing"
+
+    rows = [
+        ("1. network (3-25-1): RMSE training / validation",
+         f"{num(net['train_rmse_rad_s'])} / {num(net['validation_rmse_rad_s'])} rad/s"),
+        ("1. b fitted on the load cell (true)",
+         f"{net['thrust_coefficient']:.4g} N s²/rad² ({bench['thrust_coefficient']:.4g})"),
+        ("1b. physics fitted: Kv, CP, dead time (true)",
+         f"{phy['kv_rpm_per_v']:.0f} rpm/V, {phy['cp']:.4f}, {phy['dead_time_ms']:.0f} ms "
+         f"({bench['kv_rpm_per_v']:.0f}, {bench['cp']:.3f}, {bench['dead_time_ms']:.0f})"),
+        ("3b. unseen chirp: network / physics / hybrid",
+         " / ".join(num(chirp[k]["rmse_percent"]) for k in KINDS) + " % of the range ("
+         + " / ".join(num(chirp[k]["rmse_rad_s"]) for k in KINDS) + " rad/s)"),
+        (f"3b. the chirp's {fast['network']['low_hz']:.0f}-{fast['network']['high_hz']:.0f} Hz part",
+         " / ".join(num(fast[k]["rmse_percent"]) for k in KINDS) + " %"),
+        ("3b. unseen half-empty pack (`discharge_a`)", " / ".join(num(dis[k]["rmse_percent"]) for k in KINDS) + " %"),
+        ("3b. thrust RMSE on the chirp", " / ".join(num(chirp[k]["thrust_rmse_n"], 3) for k in KINDS) + " N"),
+        ("4. no voltage, half-empty pack",
+         f"`{lead}` {ev.get('status') or ev['verdict']}: {pct(ev.get('measured_share'))} of the residual "
+         f"({pct(ev.get('reference_share'))} on its training data)"),
+        ("4. added; holdout RMSE", f"{added(d)}; {num(d['holdout_before_rad_s'])} → "
+                                   f"{num(d['holdout_after_rad_s'])} rad/s"),
+        ("5. nominal physics, every effect off: added", added(p)),
+        ("5. holdout RMSE", f"{num(p['holdout_before_rad_s'])} → {num(p['holdout_after_rad_s'])} rad/s"),
+    ]
+    return ["| demo step | result |", "|---|---|", *(f"| {a} | {b} |" for a, b in rows)]
+
+
+def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
+    """A confusion table (true effect x first named) from a run list, and the holdout reduction."""
+    runs = f["runs"]
+    cases = [e for e in [*EFFECTS, "control"] if any(r[key] == e for r in runs)]
+    cols = [*EFFECTS, NOTHING]
+    short = {"battery_voltage": "battery", "spin_down_asymmetry": "spin-down", "motor_heating": "heating",
+             "esc_deadband": "deadband", "input_delay": "delay", "rotor_lag": "lag", NOTHING: "nothing"}
+    lines = ["| true \\ first named | " + " | ".join(short[c] for c in cols) + " | right |",
+             "|---|" + "---|" * (len(cols) + 1)]
+    for case in cases:
+        mine = [r for r in runs if r[key] == case]
+        want = NOTHING if case == "control" else case
+        lines.append(f"| {case} | " + " | ".join(str(sum(r['first'] == c for r in mine)) for c in cols)
+                     + f" | {sum(r['first'] == want for r in mine)}/{len(mine)} |")
+    right = sum(r["first"] == (NOTHING if r[key] == "control" else r[key]) for r in runs)
+    false = sum(len(r["named"]) for r in runs if r[key] == "control")
+    seeds = sorted({r["seed"] for r in runs})
+    lines += ["", f"Named right first: **{right}/{len(runs)}**; false names on the controls: {false}; "
+              + (f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else f"seed {seeds[0]}")
+              + ". Holdout RMSE reduction, median [min, max] over seeds:", ""]
+    for case in cases:
+        red = [100.0 * (1.0 - r["after"] / r["before"]) for r in runs
+               if r[key] == case and r.get("before") and r.get("after") is not None]
+        ratio = [r["strength"] / r["truth"] for r in runs
+                 if r[key] == case and r.get("strength") is not None and r.get("truth")]
+        within = f", {sum(abs(x - 1.0) <= 0.3 for x in ratio)}/{len(ratio)} within 30 %" if ratio else ""
+        lines.append(f"- {case}: {spread(red, 1, '%')}"
+                     + (f"; fitted strength / truth {spread(ratio)}{within}" if ratio else ""))
+    return lines
+
+
+def render_foreign(f: dict[str, Any], path: str) -> list[str]:
+    """bench_foreign.py's runs of one path (a run of both paths holds the other's too)."""
+    return render_confusion({"runs": [r for r in f["runs"] if r["path"] == path]}, key="case")
+
+
+def render_accuracy(f: dict[str, Any]) -> list[str]:
+    cols = f["columns"]
+    lines = ["| kind | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
+    order = sorted(f["results"], key=lambda k: (KINDS.index(k) if k in KINDS else len(KINDS), k))  # floor last
+    for kind in order:
+        rows = f["results"][kind]
+        lines.append(f"| {kind} | " + " | ".join(spread(r.get(c) for _, r in rows) for c in cols) + " |")
+    benches = [label for label, _ in next(iter(f["results"].values()))]
+    lines += ["", "RMSE in % of each recording's speed range" + (", median [min, max] over the benches" if
+              len(benches) > 1 else "") + f"; bench{'es' if len(benches) > 1 else ''}: {', '.join(benches)}. "
+              "The floor is the decoded speed's own error against the simulator's truth."]
+    if rows := f["results"].get("hybrid"):  # issue 13's goal, on every bench
+        within = sum(r["chirp"] < 1.5 and r["low charge"] < 1.5 for _, r in rows)
+        lines += ["", f"Goal, hybrid chirp and low charge < 1.5 % on every bench: {within} of {len(rows)} benches "
+                  + ("(met)." if within == len(rows) else "(**not met**).")]
+    return lines
+
+
+def render_real(f: dict[str, Any]) -> list[str]:
+    """The thrust law per log and, when the splits were run, every kind on each held-out part."""
+    lines: list[str] = []
+    if law := f.get("thrust_law"):
+        lines += ["| log | rows | b, N s²/rad² | CT | b below / above the median speed |", "|---|---|---|---|---|"]
+        lines += [f"| `{r['log']}` | {r['rows']} | {r['b']:.3g} | {r['ct']:.3f} | "
+                  f"{r['b_low']:.2g} / {r['b_high']:.2g} |" for r in law]
+        med = statistics.median(r["b"] for r in law)
+        lines += ["", f"b median {med:.3g} N s²/rad², {100 * (min(r['b'] for r in law) / med - 1):+.1f} % to "
+                  f"{100 * (max(r['b'] for r in law) / med - 1):+.1f} % of it across the six logs."]
+    if splits := f.get("splits"):
+        lines += [""] if lines else []
+        lines += [f"`{f['log']}` cut in {1 + max(r['split'] for r in splits)} parts in time; each part is the test "
+                  "of models trained and validated on the others. RMSE in % of the log's speed range "
+                  f"({f['log_range_rad_s']:.0f} rad/s):", "",
+                  "| test part | kind | RMSE | Kv, rpm/V (rated 1900) | b / direct fit on the part |",
+                  "|---|---|---|---|---|"]
+        for r in splits:
+            if r.get("refused"):  # train's one line: what it refused, up to the first ";"
+                why = r["refused"].split("error: ", 1)[-1].split(";", 1)[0]
+                lines.append(f"| {r['split']} | {r['kind']} | refused: {why} | | |")
+                continue
+            ratio = r["b"] / r["b_direct"] if r.get("b") and r.get("b_direct") else None
+            lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
+                         f"{num(ratio, 3)} |")
+    return lines
+
+
+def render_speed(f: dict[str, Any]) -> list[str]:
+    """A benchmark's figures as printed: what, value, unit, goal (CPU time of one process)."""
+    lines = ["| what | measured | goal |", "|---|---|---|"]
+    for r in f["figures"]:
+        lines.append(f"| {r['what']} | {r['value']:.2f} {r['unit']} | {r['goal']} |")
+    return lines
+
+
+@dataclass(frozen=True)
+class Group:
+    """One group of figures: where they come from and how they are shown."""
+
+    name: str
+    title: str
+    command: str  #: what produces docs/results/<name>.json (``--update`` runs it)
+    render: Callable[[dict[str, Any]], list[str]]
+    about: str  #: one sentence: what is measured, and how long it takes
+
+
+GROUPS: dict[str, Group] = {g.name: g for g in [
+    Group("demo", "The demo on the bundled bags", "python benchmarks/results.py --update demo", render_demo,
+          "`scripts/demo.sh`'s steps 1-5 with `--json` (deterministic; a few minutes)."),
+    Group("accuracy", "Accuracy of the three kinds on randomized benches",
+          "taskset -c 1 python benchmarks/bench_accuracy.py --json docs/results/accuracy.json", render_accuracy,
+          "Five benches drawn by `sim.random_bench` (seeds 0-4): train on staircases and ramps at seven charges, "
+          "test on a 0.05-3 Hz chirp and a 25 % pack (about 4 minutes on one core)."),
+    Group("accuracy_paper", "The network at the paper's size",
+          "python benchmarks/bench_accuracy.py --seeds nominal --kinds network --size paper "
+          "--json docs/results/accuracy_paper.json", render_accuracy,
+          "The 3-25-1 network on 62,000 training patterns, the nominal bench (about a minute)."),
+    Group("thrust_law", "The thrust law on real logs (`../shared/real/esc_test`)",
+          "python benchmarks/bench_real.py --thrust-law-only --json docs/results/thrust_law.json", render_real,
+          "b of T = b ω² fitted on each of the six logs (one DALPROP T7056 propeller, six ESC + motor pairs; "
+          "seconds)."),
+    Group("real", "Every kind on a real log (`../shared/real/esc_test`, the F80 log)",
+          "python benchmarks/bench_real.py --jobs 1 --json docs/results/real.json",
+          lambda f: render_real({k: v for k, v in f.items() if k != "thrust_law"}),  # the thrust law: its group
+          "Every kind on the F80 log cut in three parts in time (about 4 minutes; it prints the thrust law too)."),
+    Group("cores", "Speed of the cores", "python benchmarks/bench_cores.py --json docs/results/cores.json",
+          render_speed, "CPU time of the tachometer decoder, the battery filter and one estimator update per model "
+          "kind, best of several runs (seconds; CPU time, so other load disturbs it little)."),
+    Group("confusion_network", "Discrepancy, network path: the confusion table",
+          "python experiments/confusion_table.py --seeds 10 --jobs 2 --json docs/results/confusion_network.json",
+          render_confusion, "Every hidden effect and a control on benches drawn from each seed (about 25 minutes)."),
+    Group("confusion_physics", "Discrepancy, physics path: the confusion table",
+          "python experiments/physics_confusion.py --seeds 20 --jobs 2 --json docs/results/confusion_physics.json",
+          render_confusion, "Every hidden effect and a control on benches drawn from each seed (about 30 minutes)."),
+    Group("foreign_physics", "Discrepancy on a bench written by someone else, physics path",
+          "python benchmarks/bench_foreign.py --seeds 2 --jobs 1 --path physics "
+          "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
+          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about 8 minutes)."),
+    Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
+          "python benchmarks/bench_foreign.py --seeds 2 --jobs 1 --path network "
+          "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
+          "`benchmarks/foreign_bench/`'s randomized benches (about 4 minutes)."),
+]}
+
+
+# --- rendering the documents ---------------------------------------------------------------------------
+HEADER = """# Current figures
+
+Rendered by `python benchmarks/results.py` from `docs/results/<group>.json`; each JSON file was written
+by the command its section names (with the date and commit), and `test/test_results_doc.py` checks
+that this page is what the JSON renders to and recomputes the demo's figures. Earlier figures and
+what changed them: [CHANGELOG.md](../CHANGELOG.md).
+"""
+
+
+def render_results_md(directory: Path = RESULTS_DIR) -> str:
+    parts = [HEADER]
+    for g in GROUPS.values():
+        parts.append(f"## {g.title}\n")
+        parts.append(f"{g.about}\n")
+        rec = read_record(g.name, directory)
+        if rec is None:
+            parts.append(f"Not measured yet: run `{g.command}`, then `python benchmarks/results.py`.\n")
+            continue
+        parts.append(f"Command: `{rec['command']}`; {provenance(rec)}.\n")
+        parts.append("\n".join(g.render(rec["figures"])) + "\n")
+    return "\n".join(parts)
+
+
+#: README regions: marker name -> (group, renderer)
+README_REGIONS: dict[str, tuple[str, Callable[[dict[str, Any]], list[str]]]] = {
+    "demo": ("demo", render_demo_readme),
+}
+
+
+def region_markers(name: str) -> tuple[str, str]:
+    return f"<!-- results:{name}:begin -->", f"<!-- results:{name}:end -->"
+
+
+def render_readme(text: str, directory: Path = RESULTS_DIR) -> str:
+    """The README with every results region replaced by its rendering (the rest untouched)."""
+    for name, (group, renderer) in README_REGIONS.items():
+        begin, end = region_markers(name)
+        if text.count(begin) != 1 or text.count(end) != 1:
+            raise BadInputError(f"README.md: needs one {begin} and one {end}")
+        head, rest = text.split(begin, 1)
+        _, tail = rest.split(end, 1)
+        rec = read_record(group, directory)
+        body = (render_lines_with_source(rec, renderer) if rec is not None
+                else [f"Not measured yet: run `{GROUPS[group].command}`."])
+        text = head + begin + "\n" + "\n".join(body) + "\n" + end + tail
+    return text
+
+
+def render_lines_with_source(rec: dict[str, Any], renderer: Callable[[dict[str, Any]], list[str]]) -> list[str]:
+    """A region's rendering and, under it, the command that produced it and where the rest is."""
+    return [*renderer(rec["figures"]), "",
+            f"(`{rec['command']}`, {rec['date']};",
+            "every figure and its command: [docs/results.md](docs/results.md).)"]
+
+
+def render_all(check: bool) -> int:
+    """Write (or with ``check`` compare) docs/results.md and the README; 1 if a check failed."""
+    wanted = {RESULTS_MD: render_results_md(), README: render_readme(README.read_text(encoding="utf-8"))}
+    stale = [p for p, text in wanted.items() if not p.is_file() or p.read_text(encoding="utf-8") != text]
+    if check:
+        for p in stale:
+            print(f"{p.relative_to(ROOT)}: not what docs/results/*.json renders to (run python benchmarks/results.py)",
+                  file=sys.stderr)
+        return 1 if stale else 0
+    for p in stale:
+        p.write_text(wanted[p], encoding="utf-8")
+        print(f"wrote {p.relative_to(ROOT)}")
+    return 0
+
+
+def update(name: str) -> None:
+    g = GROUPS[name]
+    if name == "demo":
+        produce_demo(RESULTS_DIR / "demo.json")
+        return
+    argv = shlex.split(g.command)
+    argv[argv.index("python")] = sys.executable
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    out = RESULTS_DIR / f"{name}.json"
+    before = out.stat().st_mtime_ns if out.exists() else None
+    proc = subprocess.run(argv, cwd=ROOT, env=env)
+    written = out.exists() and out.stat().st_mtime_ns != before
+    if proc.returncode != 0 and not written:
+        raise BadInputError(f"--update {name}: `{g.command}` exited {proc.returncode} and wrote no figures")
+    if proc.returncode != 0:  # bench_real.py exits 1 when a goal is missed: its figures still stand
+        print(f"--update {name}: `{g.command}` exited {proc.returncode} (a goal missed?); its figures were written",
+              file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--update", nargs="+", metavar="GROUP", default=[],
+                    help=f"rerun these groups' commands first (groups: {', '.join(GROUPS)})")
+    ap.add_argument("--check", action="store_true", help="render nothing; exit 1 if a document is stale")
+    ap.add_argument("--list", action="store_true", help="print each group's command and stop")
+    args = ap.parse_args(argv)
+    if args.list:
+        for g in GROUPS.values():
+            print(f"{g.name:18s} {g.command}")
+        return 0
+    unknown = [n for n in args.update if n not in GROUPS]
+    if unknown:
+        raise BadInputError(f"--update: unknown group(s) {', '.join(unknown)} (groups: {', '.join(GROUPS)})")
+    RESULTS_DIR.mkdir(parents=True, exist_ok=True)
+    for name in args.update:
+        update(name)
+    return render_all(args.check)
+
+
+if __name__ == "__main__":
+    try:
+        sys.exit(main())
+    except BadInputError as exc:
+        print(f"results: error: {exc}", file=sys.stderr)
+        sys.exit(2)

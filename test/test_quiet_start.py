@@ -1,0 +1,106 @@
+"""quiet_start: the one start-up signal handler of the command line (exit 130) and the node
+executables (exit 0), on small child processes that signal themselves (no ROS, no numpy)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from bldc_propulsion import quiet_start
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def child(code: str, ignore_sigint: bool = False) -> subprocess.CompletedProcess:
+    def preexec() -> None:  # a test run started in the background inherits an ignored SIGINT
+        signal.signal(signal.SIGINT, signal.SIG_IGN if ignore_sigint else signal.SIG_DFL)
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
+                          env=env, timeout=60, preexec_fn=preexec)
+
+
+def test_started_as_a_program_or_a_module(monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["/opt/ros/bin/tachometer", "--ros-args"])
+    assert quiet_start.started_as({"tachometer"})
+    assert not quiet_start.started_as({"battery_filter"})
+    monkeypatch.setattr(sys, "argv", ["/x/tachometer_node.py"])
+    monkeypatch.setattr(sys, "orig_argv", ["python3", "-m", "pkg.tachometer_node", "--ros-args"])
+    assert quiet_start.started_as({"tachometer"}, {"pkg.tachometer_node"})
+    assert not quiet_start.started_as({"tachometer"}, {"pkg.other"})
+    monkeypatch.setattr(sys, "orig_argv", ["python3", "-c", "-m"])  # no module after -m
+    assert not quiet_start.started_as({"tachometer"}, {"pkg.tachometer_node"})
+
+
+@pytest.mark.parametrize("status,signame", [(130, "SIGINT"), (0, "SIGINT"), (0, "SIGTERM")])
+def test_a_signal_at_start_up_leaves_at_once_with_the_status_and_nothing_printed(status, signame):
+    proc = child(f"""
+        import os, signal, time
+        from bldc_propulsion import quiet_start
+        quiet_start.install({status}, (signal.SIGINT, signal.SIGTERM))
+        assert quiet_start.active(signal.{signame})
+        os.kill(os.getpid(), signal.{signame})
+        time.sleep(5)
+        print("still running")
+    """)
+    assert (proc.returncode, proc.stdout, proc.stderr) == (status, "", "")
+
+
+def test_an_ignored_sigint_stays_ignored():
+    proc = child("""
+        import os, signal
+        from bldc_propulsion import quiet_start
+        quiet_start.install(130)
+        assert not quiet_start.active(signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+        print("still running")
+    """, ignore_sigint=True)
+    assert (proc.returncode, proc.stdout.strip()) == (0, "still running"), proc.stderr
+
+
+def test_after_end_sigint_is_a_keyboard_interrupt_again():
+    """The command line ends the start-up window before it stages outputs: they must see
+    KeyboardInterrupt to remove their staging files."""
+    proc = child("""
+        import os, signal, time
+        from bldc_propulsion import quiet_start
+        quiet_start.install(130)
+        quiet_start.end(signal.SIGINT)
+        assert not quiet_start.active(signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            print("interrupted")
+    """)
+    assert (proc.returncode, proc.stdout.strip()) == (0, "interrupted"), proc.stderr
+
+
+def test_end_leaves_a_handler_someone_else_installed():
+    proc = child("""
+        import signal
+        from bldc_propulsion import quiet_start
+        quiet_start.install(0, (signal.SIGTERM,))
+        mine = lambda *_: None
+        signal.signal(signal.SIGTERM, mine)  # as nodes.common.stop_on_signals takes it over
+        quiet_start.end(signal.SIGTERM)
+        assert signal.getsignal(signal.SIGTERM) is mine
+    """)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_importing_it_pulls_nothing_heavy():
+    proc = child("""
+        import sys
+        import bldc_propulsion.quiet_start, bldc_propulsion.nodes
+        heavy = sorted(m for m in ("numpy", "scipy", "rclpy", "rosbags") if m in sys.modules)
+        assert not heavy, heavy
+    """)
+    assert proc.returncode == 0, proc.stderr

@@ -1,0 +1,189 @@
+"""The figures the README and docs/results.md quote cannot go stale (issue 31, item 1).
+
+1. Rendering the committed ``docs/results/*.json`` reproduces docs/results.md and the README's
+   results regions byte for byte (so nobody edits a figure by hand).
+2. The demo's figures are recomputed by the code that wrote them (``benchmarks/results.py
+   --update demo``: the demo's commands on the bundled bags) and compared with the JSON. The runs
+   are deterministic, so the comparison is exact up to 1e-9 relative (a float's JSON round trip).
+3. Every number with a unit in the README's prose comes from a rendered region, or is listed in
+   ``ALLOWED`` with the reason it cannot go stale.
+
+The expensive groups (confusion tables over many seeds, the accuracy benches, the real logs'
+splits) are produced by their scripts with ``--json``; only their rendering is checked here.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import re
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_results():
+    """benchmarks/results.py (a script, not a package module), loaded by path."""
+    spec = importlib.util.spec_from_file_location("bench_results", ROOT / "benchmarks" / "results.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+results = _load_results()
+
+
+# --- 1. the documents are the JSON's rendering ------------------------------------------------------
+def test_docs_results_md_is_what_the_json_renders_to():
+    assert (ROOT / "docs" / "results.md").read_text(encoding="utf-8") == results.render_results_md(), \
+        "docs/results.md differs from its rendering: run python benchmarks/results.py"
+
+
+def test_readme_regions_are_what_the_json_renders_to():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert results.render_readme(text) == text, "README.md's results region is stale: run python benchmarks/results.py"
+
+
+def test_the_demo_group_is_measured_and_its_command_is_the_update():
+    rec = results.read_record("demo")
+    assert rec is not None, "docs/results/demo.json is missing: run python benchmarks/results.py --update demo"
+    assert rec["command"] == "python benchmarks/results.py --update demo"
+    assert re.fullmatch(r"\d{4}-\d{2}-\d{2}", rec["date"]) and rec["commit"]
+
+
+def test_a_group_not_measured_says_which_command_to_run(tmp_path):
+    (tmp_path / "demo.json").write_text((ROOT / "docs" / "results" / "demo.json").read_text(encoding="utf-8"))
+    text = results.render_results_md(tmp_path)
+    for name, group in results.GROUPS.items():
+        if name != "demo":
+            assert f"Not measured yet: run `{group.command}`" in text
+
+
+def test_the_confusion_rendering_counts_right_on_a_hand_made_run_list():
+    runs = [  # two seeds of rotor_lag (one named right, one nothing) and a control with a false name
+        {"effect": "rotor_lag", "seed": 0, "named": ["rotor_lag"], "first": "rotor_lag", "before": 10.0, "after": 5.0},
+        {"effect": "rotor_lag", "seed": 1, "named": [], "first": "(nothing)", "before": 8.0, "after": 8.0},
+        {"effect": "control", "seed": 0, "named": ["input_delay"], "first": "input_delay", "before": 4.0,
+         "after": 3.0},
+    ]
+    text = "\n".join(results.render_confusion({"runs": runs}))
+    assert "| rotor_lag | 0 | 1 | 0 | 0 | 0 | 0 | 1 | 1/2 |" in text
+    assert "| control | 0 | 0 | 1 | 0 | 0 | 0 | 0 | 0/1 |" in text
+    assert "Named right first: **1/3**; false names on the controls: 1" in text
+    assert "- rotor_lag: 25.0 % [0.0, 50.0]" in text  # median of 50 % and 0 %
+
+
+def test_a_benchmarks_json_path_is_checked_before_any_work(tmp_path):
+    import subprocess
+
+    for bad, why in ((tmp_path / "no" / "x.json", "does not exist"), (ROOT / "README.md", "must end in .json")):
+        proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_real.py"), "--thrust-law-only",
+                               "--json", str(bad)], capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert proc.returncode == 2 and why in proc.stderr and len(proc.stderr.splitlines()) == 1, proc.stderr
+        assert proc.stdout == ""  # nothing computed
+
+
+# --- 2. the demo's figures, recomputed ---------------------------------------------------------------
+def _same(got: Any, want: Any, where: str = "") -> list[str]:
+    """Where ``got`` differs from ``want`` (floats within 1e-9 relative), as readable lines."""
+    if isinstance(want, dict) and isinstance(got, dict):
+        out = [f"{where}.{k}: missing" for k in want if k not in got]
+        return out + [d for k in want if k in got for d in _same(got[k], want[k], f"{where}.{k}")]
+    if isinstance(want, list) and isinstance(got, list) and len(want) == len(got):
+        return [d for i, (g, w) in enumerate(zip(got, want, strict=True)) for d in _same(g, w, f"{where}[{i}]")]
+    if isinstance(want, float) and isinstance(got, (int, float)) and not isinstance(got, bool):
+        return [] if math.isclose(got, want, rel_tol=1e-9, abs_tol=1e-12) else [f"{where}: {got!r} != {want!r}"]
+    return [] if got == want else [f"{where}: {got!r} != {want!r}"]
+
+
+@pytest.fixture(scope="module")
+def demo() -> dict[str, Any]:
+    rec = results.read_record("demo")
+    if rec is None:
+        pytest.fail("docs/results/demo.json is missing: run python benchmarks/results.py --update demo")
+    return rec["figures"]
+
+
+def test_the_demo_group_runs_what_scripts_demo_sh_runs():
+    """The figures are the demo's only while its commands are the demo's."""
+    demo_sh = " ".join((ROOT / "scripts" / "demo.sh").read_text(encoding="utf-8").replace("\\\n", " ").split())
+    assert " ".join(results.DEMO_TRAINING) + " --validation bags/validation" in demo_sh
+    assert " ".join(results.DEMO_TESTS) in demo_sh
+    for fragment in ("train bags/staircase bags/triangle --validation bags/validation_full",
+                     "--inputs pwm,pwm_filtered",
+                     "--measured bags/discharge_a --holdout bags/discharge_b --max-effects 1",
+                     "--physics --measured bags/staircase bags/validation --holdout bags/discharge_b --max-effects 4"):
+        assert fragment in demo_sh, fragment
+
+
+@pytest.mark.parametrize("kind", ["network", "physics", "hybrid"])
+def test_the_demos_models_and_their_scores_are_recomputed(demo, kind, tmp_path):
+    """Steps 1, 1b and 3b: each kind trained as the demo trains it, scored on chirp and discharge_a."""
+    assert _same(results.demo_model(kind, tmp_path), demo["models"][kind], kind) == []
+
+
+def test_the_demos_bench_truth_is_the_simulators():
+    assert _same(results.demo_bench(), results.read_record("demo")["figures"]["models"]["bench"]) == []
+
+
+@pytest.mark.parametrize("part", ["discrepancy", "physics_discrepancy"])
+def test_the_demos_discrepancy_steps_are_recomputed(demo, part, tmp_path):
+    """Steps 4 and 5: what is named, every candidate's verdict and shares, the holdout before/after."""
+    assert _same(results.DEMO_PARTS[part](tmp_path), demo[part], part) == []
+
+
+# --- 3. no figure in the README's prose but rendered ones --------------------------------------------
+UNITS = (r"%|rad/s|rpm/V|rpm|ms|µs|s|min|minutes?|hours?|MB|GB|kHz|Hz|mV|V|N|A|W|Ω|kg m²|N s²/rad²|"
+         r"in|cores?|CPUs?")
+NUMBER_WITH_UNIT = re.compile(r"(?<![\w.^/-])\d[\d,]*(?:\.\d+)?"  # a number, maybe a range "3-5" or "1.5 .. 2"
+                              rf"(?:\s?(?:-|–|\.\.)\s?\d+(?:\.\d+)?)?\s?(?:{UNITS})(?![\w/²])")
+
+#: numbers with a unit that are not measured figures: each with why it cannot go stale
+ALLOWED = {
+    "270 MB": "the size of the ROS 2 Jazzy wheels scripts/venv.sh installs (its comment says so)",
+    "15 minutes": "how long scripts/test.sh takes on 2 cores: an order of magnitude for the reader",
+    "2 cores": "the machine the order of magnitude above is for",
+    "1 Hz": "the diagnostics period, nodes/params.DIAGNOSTICS_PERIOD_S (checked below)",
+}
+
+
+def readme_prose(text: str) -> str:
+    """The README without code blocks, inline code, the rendered regions and the walkthrough (whose
+    commands and figures its own test checks, test_cli_simulate.py)."""
+    text = re.sub(r"```.*?```", "", text, flags=re.S)
+    text = re.sub(r"<!-- (results:\w+|walkthrough):begin -->.*?<!-- \1:end -->", "", text, flags=re.S)
+    return re.sub(r"`[^`\n]*`", "", text)
+
+
+def test_every_number_with_a_unit_in_the_readme_is_rendered_or_allowed():
+    found = NUMBER_WITH_UNIT.findall(readme_prose((ROOT / "README.md").read_text(encoding="utf-8")))
+    assert [f for f in found if " ".join(f.split()) not in ALLOWED] == []
+    assert set(ALLOWED) <= {" ".join(f.split()) for f in found}, "an allowed figure is no longer quoted: drop it"
+
+
+def test_the_readme_is_a_manual_not_a_notebook():
+    """Issue 31: at most 250 lines, none over 120 characters, no session numbers or commit hashes."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    lines = text.splitlines()
+    assert len(lines) <= 250
+    assert [ln for ln in lines if len(ln) > 120] == []
+    assert not re.search(r"\bsession \d+|\b[0-9a-f]{7}\b(?![\w.-])", readme_prose(text))
+    for marker in ("<!-- walkthrough:begin -->", "<!-- walkthrough:end -->"):
+        assert text.count(marker) == 1
+
+
+def test_the_allowed_constants_are_the_codes():
+    from bldc_propulsion.nodes.params import DIAGNOSTICS_PERIOD_S
+
+    assert DIAGNOSTICS_PERIOD_S == 1.0  # "1 Hz" in the README
+    assert "about 270 MB" in (ROOT / "scripts" / "venv.sh").read_text(encoding="utf-8")
+
+
+def test_the_figure_check_catches_a_hand_written_figure():
+    prose = readme_prose("The chirp RMSE is 1.00 rad/s (0.20 %), in 36 ms.\n```\n9 s\n```\n`7 Hz`\n")
+    assert NUMBER_WITH_UNIT.findall(prose) == ["1.00 rad/s", "0.20 %", "36 ms"]
