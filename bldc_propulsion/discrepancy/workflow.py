@@ -124,13 +124,21 @@ def proposals(ev: dict[str, Evidence], first: str | None, min_effect: float) -> 
 def added_as(ev: Evidence) -> str:
     """'new' or 'structural' for an effect the deciding test added: the step-3 (or the
     identification's) verdict when it was one of them, else by the shares it removes (classify's
-    rule without the measured data's significance, which no longer decides)."""
+    rule without the measured data's significance, which no longer decides). The reference's
+    share is compared with the smaller of the measured data's two: the correction fitted on the
+    measured data alone is the like of the reference's (fitted on the reference alone), and the
+    pooled fit's share on the measured data can exceed it by what the pooling adds; an effect the
+    measured data alone do not show, which the holdout still confirms, improves the model wherever
+    it runs: structural."""
     if ev.verdict in ("new", "structural"):
         return ev.verdict
     if ev.verdict.startswith("not new"):  # the response is the reference's: the model's own lack
         return "structural"
-    m, r = ev.measured.fraction, ev.reference.fraction if ev.reference is not None else None
-    return "structural" if r is not None and m > 0 and max(r, 0.0) >= STRUCTURAL_RATIO * m else "new"
+    if ev.reference is None:
+        return "new"
+    m = min(ev.measured.fraction, ev.measured_alone.fraction)
+    # new in the measured data only where the measured data alone show it and the reference less
+    return "new" if m > 0 and max(ev.reference.fraction, 0.0) < STRUCTURAL_RATIO * m else "structural"
 
 
 def decide(kind: ModelKind, name: str, trial: Trial, scores: Scores, hold: Sequence[Signals], hold_cur: DataSet,
