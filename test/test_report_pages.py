@@ -19,13 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _truth_bags import write_bag
 from bldc_propulsion import cli
-from bldc_propulsion import contract as c
-from bldc_propulsion.bagio import BagWriter
 from bldc_propulsion.model import load_model
 from bldc_propulsion.recordings import load_signals
-from bldc_propulsion.sim import simulate
-from bldc_propulsion.sim.record import _streams
 from bldc_propulsion.training import report
 from bldc_propulsion.training.evaluate import predict_speed
 from bldc_propulsion.training.train import features_of
@@ -33,20 +30,6 @@ from bldc_propulsion.training.train import features_of
 ROOT = Path(__file__).resolve().parents[1]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 SMALL = ("--hidden", "3", "--max-epochs", "8", "--restarts", "1")
-
-
-def write_bag(path: Path, profile: str, seed: int, *, thrust: bool, duration_s: float = 6.0) -> Path:
-    """A small bench recording: PWM, battery/adc, rotor/speed (the simulator's truth, so no
-    tachometer to decode) and /thrust/measured only with ``thrust``."""
-    res = simulate(profile, duration_s, seed)
-    keep = {c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TRUTH_SPEED} | ({c.TOPIC_THRUST_MEASURED} if thrust else set())
-    streams = [(c.TOPIC_ROTOR_SPEED if topic == c.TOPIC_TRUTH_SPEED else topic, t, v)
-               for topic, t, v in _streams(res) if topic in keep]
-    events = sorted((float(t[i]), k, i) for k, (_, t, _) in enumerate(streams) for i in range(len(t)))
-    with BagWriter(path) as bag:
-        for t, k, i in events:
-            bag.write_float64(streams[k][0], t, float(streams[k][2][i]))
-    return path
 
 
 def run_cli(capsys: pytest.CaptureFixture[str], *args: object) -> dict:

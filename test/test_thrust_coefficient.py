@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from _models import good_model
+from _truth_bags import write_bag
 from bldc_propulsion import cli
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import BagWriter, open_recording
@@ -30,7 +31,6 @@ from bldc_propulsion.priors import add_prior_arguments, priors_from_args
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.replay import replay_bag
 from bldc_propulsion.sim import BenchParams, simulate
-from bldc_propulsion.sim.record import _streams
 from bldc_propulsion.training.evaluate import THRUST_NO_COEFFICIENT
 from bldc_propulsion.training.train import (
     AIRBORNE_SPEED_FRACTION,
@@ -150,20 +150,6 @@ def test_the_core_predicts_speed_and_no_thrust_without_b():
 
 
 # --- recordings, replay, evaluate and train through the CLI -------------------------------------
-
-def write_bag(path: Path, profile: str, seed: int, *, thrust: bool, duration_s: float = 6.0) -> Path:
-    """A small bench recording: PWM, battery/adc, rotor/speed (the truth, so no tachometer to
-    decode), and /thrust/measured only with ``thrust``."""
-    res = simulate(profile, duration_s, seed)
-    keep = {c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TRUTH_SPEED} | ({c.TOPIC_THRUST_MEASURED} if thrust else set())
-    streams = [(c.TOPIC_ROTOR_SPEED if topic == c.TOPIC_TRUTH_SPEED else topic, t, v)
-               for topic, t, v in _streams(res) if topic in keep]
-    events = sorted((float(t[i]), k, i) for k, (_, t, _) in enumerate(streams) for i in range(len(t)))
-    with BagWriter(path) as bag:
-        for t, k, i in events:
-            bag.write_float64(streams[k][0], t, float(streams[k][2][i]))
-    return path
-
 
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory) -> dict[str, Path]:
