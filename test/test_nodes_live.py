@@ -179,7 +179,11 @@ def test_live_nodes_publish_what_replay_writes(recordings, tmp_path):
     nearest = ref[np.argmin(np.abs(ref - live[bad]))] if not ok else 0.0
     assert ok, (f"rotor/speed #{bad} = {live[bad]} is not a speed replay measured (nearest "
                 f"{nearest}); timing {diagnostics_values(rec)}")
-    assert 0.99 * len(ref) <= len(live) <= len(ref), (len(live), len(ref))
+    # At most 1 % fewer, or as many more as the breaks the decoder reported (a loaded machine:
+    # each late batch it refuses to bridge costs the revolution in progress)
+    timing = diagnostics_values(rec)
+    breaks = sum(int(timing[k]) for k in ("late_breaks", "lost_in_transport", "clock_resyncs"))
+    assert 0.99 * len(ref) - 2 * breaks <= len(live) <= len(ref), (len(live), len(ref), timing)
     assert len(rec.values(c.TOPIC_ROTOR_RPM)) == len(live)
 
     # battery/voltage: same samples filtered the same way, at the same rate
@@ -209,7 +213,13 @@ def test_live_nodes_publish_what_replay_writes(recordings, tmp_path):
           f"{np.mean(same > 0.01 * span):.1%} over 1 % of the range; within one grid time: "
           f"max {err.max():.4f} rad/s (range {span:.0f} rad/s)")
     assert np.median(same) < 0.001 * span
-    assert err.max() < 0.01 * span
+    # An input that reached the node more than output_delay_s after its time (a loaded machine)
+    # leaves the grid times before its arrival predicted from the previous value, where replay
+    # uses it: the node counts them, and only then may points differ by more than 1 % of the
+    # range, up to what a stale voltage can move a prediction (the pack's sag on a step, ~4 %).
+    late = int(diagnostics_values(rec, "thrust_estimator: input")["inputs_after_their_grid_time"])
+    print(f"inputs after their grid time: {late}")
+    assert err.max() < (0.01 if late == 0 else 0.05) * span, (late, np.sort(err)[-10:])
 
 
 FAULTS = {
@@ -307,7 +317,7 @@ def check_speeds(rec: Recorder, d: Path, min_fraction: float) -> None:
                 f"intact recording; neighbours {live[max(0, bad - 3):bad + 3]}")
 
 
-def diagnostics_values(rec: Recorder) -> dict[str, str]:
-    timing = [s for s in rec.statuses() if s.name.endswith("tachometer: input")]
+def diagnostics_values(rec: Recorder, status: str = "tachometer: input") -> dict[str, str]:
+    timing = [s for s in rec.statuses() if s.name.endswith(status)]
     assert timing, [s.name for s in rec.statuses()]
     return {kv.key: kv.value for kv in timing[-1].values}

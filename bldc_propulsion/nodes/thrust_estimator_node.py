@@ -89,6 +89,7 @@ class ThrustEstimatorNode(Node):
         self.output_delay_s = params['output_delay_s']
         self.last_pwm_s: float | None = None
         self.stale_ticks = 0  #: grid times not predicted because the command was stale
+        self.late_inputs = 0  #: inputs timed at or before a grid time already published
 
         self.spin_direction = check_spin_direction(
             params['spin_direction'], f'{self.get_fully_qualified_name()}: parameter spin_direction')
@@ -117,6 +118,7 @@ class ThrustEstimatorNode(Node):
 
     def on_pwm(self, msg: Float64, info: dict | None) -> None:
         t, _lost = self.pwm_stream.place(arrival(self.now_s(), info))
+        self.count_late(t)
         self.publish_until(t)
         if self.command_stale(t) and self.core.measured_speed_at(t) is not None:
             self.core.restart_physics()  # the rotor did something unknown meanwhile: measured
@@ -126,11 +128,13 @@ class ThrustEstimatorNode(Node):
 
     def on_speed(self, msg: Float64, info: dict | None) -> None:
         t, _lost = self.speed_stream.place(arrival(self.now_s(), info))
+        self.count_late(t)
         self.publish_until(t)
         self.core.update_speed(t, msg.data)
 
     def on_voltage(self, msg: BatteryState) -> None:
         t = stamp_s(msg.header.stamp)
+        self.count_late(t)
         self.publish_until(t)
         self.core.update_voltage(t, msg.voltage)
 
@@ -155,6 +159,13 @@ class ThrustEstimatorNode(Node):
             self.thrust_out.refresh()
             self.wrench_out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
+
+    def count_late(self, t: float) -> None:
+        """Count an input timed at or before a grid time already published (it arrived more
+        than output_delay_s after its time): that prediction used the previous value, where
+        ``replay`` uses this one."""
+        if t <= self.ticks.next_s - self.ticks.period_s:
+            self.late_inputs += 1
 
     def command_stale(self, t: float) -> bool:
         return (self.pwm_timeout_s > 0.0 and self.last_pwm_s is not None
@@ -182,7 +193,8 @@ class ThrustEstimatorNode(Node):
         timing = counters(pwm_lost=self.pwm_stream.lost_messages,
                           pwm_publisher_restarts=self.pwm_stream.publisher_restarts,
                           stale_command_ticks=self.stale_ticks,
-                          output_ticks_skipped=self.ticks.skipped)
+                          output_ticks_skipped=self.ticks.skipped,
+                          inputs_after_their_grid_time=self.late_inputs)
         now = self.now_s()
         if self.command_stale(now) and self.last_pwm_s is not None:  # stale implies a pwm came once
             statuses.append(CoreStatus(
