@@ -8,7 +8,7 @@ package_name = "bldc_propulsion"
 
 # `ros2 run bldc_propulsion <name>`: every subcommand of the `bldc-propulsion` entry point,
 # plus the rclpy nodes.
-SUBCOMMANDS = ["info", "simulate", "train", "evaluate", "replay", "discrepancy", "import-csv", "import-log"]
+SUBCOMMANDS = ["info", "simulate", "train", "evaluate", "replay", "discrepancy", "health", "import-csv", "import-log"]
 NODES = {
     "battery_filter": "bldc_propulsion.nodes.battery_filter_node:main",
     "tachometer": "bldc_propulsion.nodes.tachometer_node:main",

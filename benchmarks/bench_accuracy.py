@@ -44,10 +44,10 @@ import numpy as np
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.model import Model
+from bldc_propulsion.physics.params import BenchParams
 from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.sim import random_bench as rb
 from bldc_propulsion.sim import simulate
-from bldc_propulsion.sim.params import BenchParams
 from bldc_propulsion.sim.record import write_sim_bag
 from bldc_propulsion.training.evaluate import BANDS_HZ, band_errors, evaluate
 from bldc_propulsion.training.fit_physics import train_hybrid, train_physics

@@ -20,11 +20,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from _tachsignal import make_signal  # noqa: E402
 from bldc_propulsion.contract import EFFECTS, INPUT_PHYSICS_SPEED  # noqa: E402
 from bldc_propulsion.core.battery_filter import BatteryFilter  # noqa: E402
-from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
-from bldc_propulsion.core.plant_stream import PlantStream  # noqa: E402
+from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerDecoder  # noqa: E402
-from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel  # noqa: E402
-from bldc_propulsion.sim import BenchParams, simulate  # noqa: E402
+from bldc_propulsion.model import HybridModel, NetworkModel  # noqa: E402
+from bldc_propulsion.physics.fallback import fallback_model  # noqa: E402
+from bldc_propulsion.physics.params import BenchParams  # noqa: E402
+from bldc_propulsion.physics.plant_model import PlantModel  # noqa: E402
+from bldc_propulsion.physics.stream import PlantStream  # noqa: E402
+from bldc_propulsion.sim import simulate  # noqa: E402
 
 #: what was printed, for --json: a label -> (value, unit, goal or "")
 FIGURES: dict[str, tuple[float, str, str]] = {}

@@ -3,7 +3,7 @@
 For each seed (a bench from ``benchmarks.foreign_bench.draw``) and each case (a hidden effect,
 or the control): the case's bags in a temporary directory, then the workflow exactly as a user
 with no CONFIG runs it. Physics path: the package's nominal physics with every effect off
-(``physics.load_config(None)``) through ``run_physics_workflow``. Network path: a baseline
+(``physics.config.load_config(None)``) through ``run_physics_workflow``. Network path: a baseline
 network trained on the reference (test/test_discrepancy.py's inputs, size and epochs), then
 ``run_workflow``. Prints per path the table (true effect x first named; controls: false names),
 the holdout RMSE reduction per effect (median [min, max]) and, for the physics path, the named
@@ -46,8 +46,8 @@ COMPARABLE = ("input_delay", "esc_deadband", "spin_down_asymmetry", "motor_heati
 
 def one_run(path: str, case: str, seed: int) -> dict:
     """One case on the bench of ``seed`` through one path; what the table needs."""
-    from bldc_propulsion.discrepancy import physics as ph
     from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow, run_workflow
+    from bldc_propulsion.physics import config as pc
     from bldc_propulsion.recordings import load_signals
 
     bench = draw_bench(seed)
@@ -57,7 +57,7 @@ def one_run(path: str, case: str, seed: int) -> dict:
         t_bags = time.perf_counter() - t0
         sig = {role: [load_signals(p) for p in paths] for role, paths in bags.items()}
         if path == "physics":
-            model = ph.load_config(None)
+            model = pc.load_config(None)
             data = run_physics_workflow(model, sig["measured"], sig["reference"], sig["holdout"],
                                         Options(max_effects=2), lambda m: None).data
         else:

@@ -196,7 +196,7 @@ def demo_models(tmp: Path) -> dict[str, Any]:
 
 
 def _bench() -> Any:
-    from bldc_propulsion.sim.params import BenchParams
+    from bldc_propulsion.physics.params import BenchParams
 
     return BenchParams()
 

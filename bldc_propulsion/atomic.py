@@ -3,9 +3,10 @@ nothing is half-written.
 
 The rule, for every command and every output option (``-o``, ``--report``), in one place
 (``check_outputs``): the parent directory exists and is writable; the name fits the kind of
-output (a model ``.npz``, a physics CONFIG ``.json``, a recording as a bag directory or a
-``.mcap`` file, a report directory); it is not one of the command's inputs (nor inside one,
-nor holding one); and an existing path is replaced only with ``--force`` and only when it is
+output (an ``OutputKind``: a model ``.npz``, a physics CONFIG ``.json``, a recording as a bag
+directory or a ``.mcap`` file, a report directory; a file format's kind is defined with its
+reader, ``model.MODEL`` and ``physics.config.CONFIG``); it is not one of the command's inputs
+(nor inside one, nor holding one); and an existing path is replaced only with ``--force`` and only when it is
 the same kind of output written by this tool (a recording carrying this tool's mark in its
 rosbag2 metadata by a recording, a model by a model, a report folder this tool made by a report;
 an empty directory takes a report, with or without --force, as there is nothing in it to lose).
@@ -160,48 +161,43 @@ def _mcap_rosbag2_metadata(p: Path) -> str | None:
     return None
 
 
-def recording_marked(p: Path) -> bool:
-    """The recording at ``p`` carries RECORDING_MARK in its rosbag2 metadata: this tool wrote it."""
-    key, value = RECORDING_MARK
+def recording_custom_data(p: Path) -> dict[str, object]:
+    """The rosbag2 ``custom_data`` of the recording at ``p`` (a bag directory's metadata.yaml, or
+    a single MCAP file's rosbag2 metadata record); {} when it has none or cannot be read."""
     if p.is_dir():
         try:
             text: str | None = (p / "metadata.yaml").read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError):
-            return False
+            return {}
     else:
         text = _mcap_rosbag2_metadata(p)
-    return text is not None and _custom_data(text).get(key) == value
+    return {} if text is None else _custom_data(text)
 
 
-def _loads(loader: Callable[[Path], object]) -> Callable[[Path], bool]:
+def recording_marked(p: Path) -> bool:
+    """The recording at ``p`` carries RECORDING_MARK in its rosbag2 metadata: this tool wrote it."""
+    key, value = RECORDING_MARK
+    return recording_custom_data(p).get(key) == value
+
+
+def recognised_by(load: Callable[[Path], object]) -> Callable[[Path], bool]:
+    """``OutputKind.holds`` of a file format: a file that ``load`` reads without a BadInputError.
+    The module that owns a format defines its kind with its own reader (``model.MODEL``,
+    ``physics.config.CONFIG``), so that this module needs none of them."""
     def holds(p: Path) -> bool:
         if not p.is_file():
             return False
         try:
-            loader(p)
+            load(p)
         except BadInputError:
             return False
         return True
     return holds
 
 
-def _model_loader(p: Path) -> object:
-    from .model import KINDS, load_model  # late: model imports this module
-
-    return load_model(p, kinds=KINDS)
-
-
-def _config_loader(p: Path) -> object:
-    from .discrepancy.physics import load_config  # late: heavy, and imports this module
-
-    return load_config(str(p))
-
-
 RECORDING = OutputKind("recording", "a recording (a bag directory or a .mcap file)", (),
                        lambda p: _is_recording(p) and recording_marked(p))
 #: A recording may also be a single .mcap file: ``name_fits`` is special-cased for it.
-MODEL = OutputKind("model", "a model file (.npz)", (".npz",), _loads(_model_loader))
-CONFIG = OutputKind("physics CONFIG", "a physics CONFIG file (.json)", (".json",), _loads(_config_loader))
 
 
 def _empty_dir(p: Path) -> bool:

@@ -20,12 +20,12 @@ import os
 import struct
 import types
 from collections import defaultdict
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rosbags.rosbag2 import Reader, Writer
@@ -34,9 +34,12 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.stores.ros2_jazzy import sensor_msgs__msg__BatteryState as BatteryStateMsg
 
 from . import contract as c
-from .atomic import RECORDING, RECORDING_MARK, atomic_output
+from .atomic import RECORDING, RECORDING_MARK, atomic_output, recording_custom_data
 from .errors import BagError, one_line
 from .specs import split_spec
+
+if TYPE_CHECKING:
+    from .sim.faults import Fault
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 _CDR_LE = b"\x00\x01\x00\x00"  # CDR encapsulation header, little endian
@@ -426,6 +429,16 @@ class Recording:
         finally:
             self.namespace = saved
 
+    @property
+    def faults(self) -> list[Fault]:
+        """The faults the simulator injected into this recording, by onset (its rosbag2
+        custom_data ``faults``): the truth a health monitor is judged against; [] when there
+        were none or another tool wrote the recording."""
+        from .sim.faults import FAULTS_KEY, parse_faults  # late: the simulator imports scipy
+
+        text = recording_custom_data(self.path).get(FAULTS_KEY) or ""
+        return parse_faults(str(text), f"{self.path}: metadata custom_data {FAULTS_KEY}:")
+
 
 @dataclass
 class Bulk:
@@ -697,7 +710,8 @@ class BagWriter:
 
     MCAP with zstd chunk compression by default (what ``ros2 bag record`` writes in Jazzy,
     compressed so that 20 kHz tachometer data stays small); ``storage='sqlite3'`` for the
-    older format. Times are seconds relative to ``t0_ns``.
+    older format. Times are seconds relative to ``t0_ns``. ``custom_data`` goes into the
+    rosbag2 metadata beside the recording mark (the simulator's faults: ``Recording.faults``).
     """
 
     def __init__(
@@ -707,6 +721,7 @@ class BagWriter:
         force: bool = False,
         t0_ns: int = SIM_EPOCH_NS,
         storage: str = "mcap",
+        custom_data: Mapping[str, str] | None = None,
     ) -> None:
         if storage not in ("mcap", "sqlite3"):
             raise BagError(f"{path}: unknown storage {storage!r} (mcap or sqlite3)")
@@ -714,6 +729,7 @@ class BagWriter:
         self.force = force
         self.t0_ns = int(t0_ns)
         self.storage = storage
+        self.custom_data = dict(custom_data or {})
         self._conns: dict[str, Any] = {}
         self._stage: contextlib.AbstractContextManager[Path] | None = None
         self._writer: Writer | None = None
@@ -742,6 +758,8 @@ class BagWriter:
             self._bag_dir = tmp.with_name(tmp.stem + ".bag") if self.single_file else tmp
             self._writer = Writer(self._bag_dir, version=9, storage_plugin=plugin)
             self._writer.set_custom_data(*RECORDING_MARK)  # what lets --force replace it later
+            for key, value in self.custom_data.items():
+                self._writer.set_custom_data(key, value)
             if self.storage == "mcap":
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()

@@ -136,6 +136,7 @@ main_train = _entry("train")
 main_evaluate = _entry("evaluate")
 main_replay = _entry("replay")
 main_discrepancy = _entry("discrepancy")
+main_health = _entry("health")
 main_import_csv = _entry("import-csv")
 main_import_log = _entry("import-log")
 

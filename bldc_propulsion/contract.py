@@ -90,6 +90,35 @@ INPUT_PHYSICS_SPEED = "physics_speed"
 PAPER_PWM_TAU_S = 0.25  #: time constant of the paper's PWM input filter
 PAPER_HIDDEN = 25
 
+# --- The paper's battery voltage filter, eq. (1): H(z) = gain (z + 1) / (z - pole) at rate_hz ---
+PAPER_FILTER_GAIN = 4.9975e-4
+PAPER_FILTER_POLE = 0.9995
+PAPER_FILTER_RATE_HZ = 1000.0
+
+
+def paper_filter_prototype(gain: float = PAPER_FILTER_GAIN, pole: float = PAPER_FILTER_POLE,
+                           rate_hz: float = PAPER_FILTER_RATE_HZ) -> tuple[float, float]:
+    """(K, tau_s) of the continuous K / (tau s + 1) whose Tustin form at rate_hz is gain (z+1)/(z-pole).
+
+    Tustin maps K/(tau s + 1) to K/(c+1) (z+1) / (z - (c-1)/(c+1)) with c = 2 tau / T, so
+    c = (1 + pole) / (1 - pole) and K = gain (c + 1). The paper's numbers give K = 1.999,
+    tau = 1.9995 s.
+    """
+    T = 1.0 / rate_hz
+    c = (1.0 + pole) / (1.0 - pole)
+    return gain * (c + 1.0), c * T / 2.0
+
+
+#: The paper's divider ratio (battery volts per ADC volt, 1.999) and low-pass time constant
+#: (1.9995 s): the battery filter's defaults, and the lag a physics model's voltage input has.
+PAPER_DIVIDER_RATIO, PAPER_FILTER_TAU_S = paper_filter_prototype()
+
+# --- Model kinds (a model file's ``kind``; ``train --kind``) ---
+NETWORK = "network"  #: the paper's n-H-1 network
+PHYSICS = "physics"  #: the plant's constants and effect strengths
+HYBRID = "hybrid"  #: the physics speed plus a network's correction
+MODEL_KINDS: tuple[str, ...] = (NETWORK, PHYSICS, HYBRID)
+
 RAD_S_TO_RPM = 60.0 / (2.0 * 3.141592653589793)
 
 

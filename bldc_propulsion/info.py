@@ -51,7 +51,7 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
 
 def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
-    from .recordings import decode_speed, load_signals, read_speed, read_voltage
+    from .recordings import decode_speed, read_speed, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()
@@ -112,27 +112,36 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
                 attempt(key, read)
         replay_inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
         out["motors_elsewhere"] = motors = rec.motors_elsewhere()
-    usable: dict[str, Any] = {}
-    usable["replay"] = True if replay_inputs else "none of /pwm, /battery/adc, /tachometer/adc is recorded"
-    if motors:  # a vehicle's recording read at the root: every command needs --namespace
-        reason = f"the motor topics are under {', '.join('/' + n for n in motors)}: give --namespace {motors[0]}"
-        usable.update(train=reason, evaluate=reason, discrepancy=reason, replay=reason)
-    else:
-        try:
-            sig = load_signals(path, namespace=namespace)
-        except BadInputError as exc:
-            reason = one_line(exc).removeprefix(f"{path}: ")
-            usable.update(train=reason, evaluate=reason, discrepancy=reason)
-        else:
-            usable.update(evaluate=True, discrepancy=True)
-            speed_ok = np.isfinite(sig.speed)
-            usable["train"] = (True if np.ptp(sig.pwm) > 0 and speed_ok.any() and np.ptp(sig.speed[speed_ok]) > 0
-                               else "the PWM or the measured speed does not vary")
+    usable = _usable(path, namespace, bool(replay_inputs), motors)
     out["usable_for"] = [k for k in ("train", "evaluate", "discrepancy", "replay") if usable[k] is True]
     out["not_usable"] = {k: v for k, v in usable.items() if v is not True}
     out["problems"] = problems
     out["resolution"] = _resolution(**{f"{k}_dt": v for k, v in out["sample_interval_s"].items()})
     return out
+
+
+def _usable(path: str, namespace: str | None, replay_inputs: bool, motors: list[str]) -> dict[str, Any]:
+    """Each command: True when it can use the recording, else why not (loaded exactly as the
+    commands load it, so the reason is theirs)."""
+    from .recordings import load_signals
+
+    usable: dict[str, Any] = {}
+    usable["replay"] = True if replay_inputs else "none of /pwm, /battery/adc, /tachometer/adc is recorded"
+    if motors:  # a vehicle's recording read at the root: every command needs --namespace
+        reason = f"the motor topics are under {', '.join('/' + n for n in motors)}: give --namespace {motors[0]}"
+        usable.update(train=reason, evaluate=reason, discrepancy=reason, replay=reason)
+        return usable
+    try:
+        sig = load_signals(path, namespace=namespace)
+    except BadInputError as exc:
+        reason = one_line(exc).removeprefix(f"{path}: ")
+        usable.update(train=reason, evaluate=reason, discrepancy=reason)
+    else:
+        usable.update(evaluate=True, discrepancy=True)
+        speed_ok = np.isfinite(sig.speed)
+        usable["train"] = (True if np.ptp(sig.pwm) > 0 and speed_ok.any() and np.ptp(sig.speed[speed_ok]) > 0
+                           else "the PWM or the measured speed does not vary")
+    return usable
 
 
 def _num(x: float | None, fmt: str) -> str:

@@ -1,7 +1,8 @@
 """The speed model of every kind and its .npz file: ``network`` (the paper's n-H-1 network, tanh
-hidden layer, linear output), ``physics`` (the plant's constants and effect strengths,
-``plant.py``) and ``hybrid`` (the physics model's speed plus a network trained on what it gets
-wrong, the physics speed among its inputs).
+hidden layer, linear output), ``physics`` (the plant's constants and effect strengths:
+``physics.plant_model.PlantModel``, which owns its arrays and their checks) and ``hybrid`` (the
+physics model's speed plus a network trained on what it gets wrong, the physics speed among its
+inputs).
 
 File format (``format_version`` 2; version 1 files, network models without ``kind``, still load):
 
@@ -30,9 +31,7 @@ completely; every problem is a ``ModelError("<path>: <field>: <what is wrong>")`
 
 from __future__ import annotations
 
-import enum
 import json
-import math
 import os
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
@@ -42,59 +41,38 @@ from typing import Any, ClassVar, NoReturn
 import numpy as np
 
 from . import contract as c
-from .atomic import MODEL, atomic_output, describe_path
+from .atomic import OutputKind, atomic_output, describe_path, recognised_by
+from .core.features import feature_class, make_features
 from .errors import ModelError, one_line
-from .plant import PLANT_FIELDS, PlantParams, plant_problem, strength_problem
+from .physics.fallback import NOMINAL_THRUST_COEFFICIENT
+from .physics.plant_model import PHYSICS_KEYS, Fail, PlantModel, check_physics_arrays, thrust_or_none, thrust_problem
+from .physics.plant_model import check_floats as _check_floats
+from .physics.plant_model import check_names as _check_names
 
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
-NETWORK, PHYSICS, HYBRID = "network", "physics", "hybrid"
-KINDS = (NETWORK, PHYSICS, HYBRID)
 #: The input of a hybrid's network that is the physics part's predicted speed (rad/s).
 PHYSICS_SPEED = c.INPUT_PHYSICS_SPEED
-#: b of a 12x4.5 propeller, CT rho D^4 / (4 pi^2) with CT ~ 0.105: rough; the estimator's
-#: first-principles fallback only (a trained model's b is measured, stated, or absent)
-NOMINAL_THRUST_COEFFICIENT = 2.8e-5
-
-
-class _FromCT(enum.Enum):
-    FROM_CT = "from the propeller's CT"
-
-
-#: ``PlantModel``'s default b: its constants' CT (``PlantParams.thrust_coefficient``), distinct
-#: from None (no b), so that ``dataclasses.replace`` of a model without b keeps it without b.
-FROM_CT = _FromCT.FROM_CT
-#: FROM_CT typed as the field it is the default of: ``__post_init__`` replaces it, so what a
-#: PlantModel holds (and the estimator's SpeedModel reads) is a float or None.
-_B_FROM_CT: Any = FROM_CT
-
-
-def _thrust_or_none(b: float | None) -> float | None:
-    """b as a float, None when the model has none (None or NaN, as the file stores it)."""
-    return None if b is None or math.isnan(float(b)) else float(b)
-
 
 _FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s")
 _COMMON_KEYS = ("format_version", "kind", "thrust_coefficient", "metadata_json")
 _NETWORK_KEYS = ("input_names", "input_min", "input_max", "output_min", "output_max",
                  "W1", "b1", "W2", "b2", "pwm_tau_s")
-_PHYSICS_KEYS = ("physics_names", "physics_values", "effect_names", "effect_strengths", "supply_v",
-                 "supply_tau_s")
 #: The arrays of a file of each kind.
 KEYS: dict[str, tuple[str, ...]] = {
-    NETWORK: _COMMON_KEYS + _NETWORK_KEYS,
-    PHYSICS: _COMMON_KEYS + _PHYSICS_KEYS,
-    HYBRID: _COMMON_KEYS + _NETWORK_KEYS + _PHYSICS_KEYS,
+    c.NETWORK: _COMMON_KEYS + _NETWORK_KEYS,
+    c.PHYSICS: _COMMON_KEYS + PHYSICS_KEYS,
+    c.HYBRID: _COMMON_KEYS + _NETWORK_KEYS + PHYSICS_KEYS,
 }
 #: A network model's arrays (what every version 1 file holds, but ``kind``).
-REQUIRED_KEYS: tuple[str, ...] = KEYS[NETWORK]
+REQUIRED_KEYS: tuple[str, ...] = KEYS[c.NETWORK]
 
 
 @dataclass
 class NetworkModel:
     """Weights and scaling of the speed network (SI units: inputs as features.py makes them, rad/s)."""
 
-    kind: ClassVar[str] = NETWORK
+    kind: ClassVar[str] = c.NETWORK
     input_names: tuple[str, ...]
     input_min: np.ndarray
     input_max: np.ndarray
@@ -110,7 +88,7 @@ class NetworkModel:
 
     def __post_init__(self) -> None:
         self.input_names = tuple(str(n) for n in self.input_names)
-        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)
+        self.thrust_coefficient = thrust_or_none(self.thrust_coefficient)
         for k in ("input_min", "input_max", "W1", "b1", "W2"):
             setattr(self, k, np.array(getattr(self, k), dtype=float))
         for k in _FLOAT_KEYS_SCALAR:
@@ -174,92 +152,12 @@ def _common_arrays(kind: str, thrust_coefficient: float | None, metadata: dict[s
 
 
 @dataclass
-class PlantModel:
-    """A ``physics`` model: the plant's constants, every effect's strength and the stiff-supply
-    voltage (what ``discrepancy --physics`` fits); driven by PWM and the filtered battery voltage
-    (``plant.motor_response``, ``core.plant_stream.PlantStream``)."""
-
-    kind: ClassVar[str] = PHYSICS
-    params: PlantParams  #: a BenchParams is cut down to its plant constants
-    effects: dict[str, float]  #: every contract effect
-    supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
-    #: b (N s^2/rad^2); FROM_CT (default): the constants' CT gives it; None: no b (speed only)
-    thrust_coefficient: float | None = _B_FROM_CT
-    metadata: dict[str, Any] = field(default_factory=dict)
-    #: time constant (s) of the filter the voltage input comes through: the battery filter's
-    #: (None), 0 for a supply measured directly (plant.Supply)
-    supply_tau_s: float | None = None
-
-    def __post_init__(self) -> None:
-        self.params = PlantParams(**{n: float(getattr(self.params, n)) for n in PLANT_FIELDS})
-        self.effects = {str(k): float(v) for k, v in dict(self.effects).items()}
-        self.supply_v = float(self.supply_v)
-        if self.supply_tau_s is None:
-            from .core.battery_filter import BatteryFilterConfig  # late: core imports this module
-
-            self.supply_tau_s = BatteryFilterConfig().tau_s
-        self.supply_tau_s = float(self.supply_tau_s)
-        if isinstance(self.thrust_coefficient, _FromCT):
-            self.thrust_coefficient = self.params.thrust_coefficient
-        self.thrust_coefficient = _thrust_or_none(self.thrust_coefficient)
-        if not isinstance(self.metadata, dict):
-            raise ModelError("model: metadata must be a dict")
-        _check(self._arrays(), "model")
-
-    def _arrays(self) -> dict[str, np.ndarray]:
-        return {**_common_arrays(self.kind, self.thrust_coefficient, self.metadata),
-                **self._physics_arrays()}
-
-    def _physics_arrays(self) -> dict[str, np.ndarray]:
-        return {
-            "physics_names": np.array(PLANT_FIELDS, dtype=np.str_),
-            "physics_values": np.array([getattr(self.params, n) for n in PLANT_FIELDS], dtype=np.float64),
-            "effect_names": np.array(list(self.effects), dtype=np.str_),
-            "effect_strengths": np.array(list(self.effects.values()), dtype=np.float64),
-            "supply_v": np.array(self.supply_v, dtype=np.float64),
-            "supply_tau_s": np.array(self.supply_tau_s, dtype=np.float64),
-        }
-
-    @classmethod
-    def _of(cls, a: Mapping[str, np.ndarray], thrust_coefficient: float | None,
-            metadata: dict[str, Any]) -> PlantModel:
-        """From validated arrays."""
-        return cls(PlantParams(**dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"]), strict=True))),
-                   dict(zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]), strict=True)),
-                   float(a["supply_v"]), thrust_coefficient, metadata, float(a["supply_tau_s"]))
-
-    # --- what the estimator and evaluate run (core/estimator.SpeedModel): one input, the speed
-    @property
-    def input_names(self) -> tuple[str, ...]:
-        return (PHYSICS_SPEED,)
-
-    @property
-    def input_min(self) -> np.ndarray:
-        return np.array([-np.inf])  # nothing to clip: the physics holds everywhere it is valid
-
-    @property
-    def input_max(self) -> np.ndarray:
-        return np.array([np.inf])
-
-    def feature_params(self) -> dict[str, dict[str, float]]:
-        """The ``physics_speed`` input's parameters: this model (core/plant_stream.STREAM_DEFAULTS)."""
-        from .core.plant_stream import stream_params  # late: core imports this module
-
-        assert self.supply_tau_s is not None, "__post_init__ resolves None"
-        return {PHYSICS_SPEED: stream_params(self.params, self.effects, self.supply_v, self.supply_tau_s)}
-
-    def forward(self, X_raw: np.ndarray) -> np.ndarray:
-        """Speed (rad/s): the ``physics_speed`` input itself."""
-        return np.asarray(X_raw, dtype=float)[..., 0]
-
-
-@dataclass
 class HybridModel:
     """A ``hybrid`` model: the physics model's speed plus ``network``'s output, a correction
     trained on what the physics gets wrong; ``PHYSICS_SPEED`` is among the network's inputs.
     Thrust coefficient and metadata are the network part's."""
 
-    kind: ClassVar[str] = HYBRID
+    kind: ClassVar[str] = c.HYBRID
     plant: PlantModel
     network: NetworkModel
 
@@ -277,7 +175,7 @@ class HybridModel:
         return self.network.metadata
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        return {**self.network._arrays(), **self.plant._physics_arrays(), "kind": np.array(HYBRID, dtype=np.str_)}
+        return {**self.network._arrays(), **self.plant.physics_arrays(), "kind": np.array(c.HYBRID, dtype=np.str_)}
 
     # --- what the estimator and evaluate run: the network's inputs; physics_speed is not clipped
     @property
@@ -313,9 +211,6 @@ class HybridModel:
 Model = NetworkModel | PlantModel | HybridModel
 
 
-Fail = Callable[[str], NoReturn]
-
-
 def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) -> tuple[str, dict[str, Any]]:
     """Validate the arrays of a model of any kind; ModelError(f"{where}: ...") on the first
     problem. Returns the kind and the metadata.
@@ -330,13 +225,14 @@ def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) ->
     b = a["thrust_coefficient"]
     if b.dtype.kind != "f" or b.shape != ():
         fail(f"thrust_coefficient must be a scalar float, got {b.dtype} shape {b.shape}")
-    if not (np.isnan(b) or (np.isfinite(b) and float(b) >= 0)):  # NaN: no b
-        fail(f"thrust_coefficient must be >= 0 and finite, or NaN for none (got {float(b)!r})")
+    why = thrust_problem(float(b))  # NaN: no b
+    if why:
+        fail(why)
     meta = _check_metadata(a, fail)
-    if kind != PHYSICS:
+    if kind != c.PHYSICS:
         _check_network(a, kind, meta, check_names, fail)
-    if kind != NETWORK:
-        _check_physics(a, fail)
+    if kind != c.NETWORK:
+        check_physics_arrays(a, fail)
     return kind, meta
 
 
@@ -349,35 +245,13 @@ def _check_kind(a: Mapping[str, np.ndarray], fail: Fail) -> str:
         fail(f"format_version {int(fv)} is not supported (this program reads "
              f"{', '.join(map(str, READABLE_VERSIONS))})")
     if int(fv) == 1:
-        return NETWORK
+        return c.NETWORK
     kind = a["kind"]
     if kind.shape != () or kind.dtype.kind != "U":
         fail(f"kind must be a scalar unicode string, got {kind.dtype} shape {kind.shape}")
-    if str(kind) not in KINDS:
-        fail(f"kind '{kind}' is not known (known: {', '.join(KINDS)})")
+    if str(kind) not in c.MODEL_KINDS:
+        fail(f"kind '{kind}' is not known (known: {', '.join(c.MODEL_KINDS)})")
     return str(kind)
-
-
-def _check_floats(a: Mapping[str, np.ndarray], shapes: Mapping[str, tuple[int, ...]], fail: Fail) -> None:
-    for k, shape in shapes.items():
-        arr = a[k]
-        if arr.dtype.kind != "f":
-            fail(f"{k} must be a float array, got dtype {arr.dtype}")
-        if arr.shape != shape:
-            fail(f"{k} must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            fail(f"{k} contains NaN or inf")
-
-
-def _check_names(a: Mapping[str, np.ndarray], key: str, fail: Fail) -> list[str]:
-    """A non-empty 1-D unicode array of distinct names."""
-    names = a[key]
-    if names.ndim != 1 or names.dtype.kind != "U" or len(names) == 0:
-        fail(f"{key} must be a non-empty 1-D unicode array, got {names.dtype} shape {names.shape}")
-    out = [str(x) for x in names]
-    if len(set(out)) != len(out):
-        fail(f"{key} repeat a name: {', '.join(out)}")
-    return out
 
 
 def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
@@ -398,14 +272,12 @@ def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
 
 def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any], check_names: bool,
                    fail: Fail) -> None:
-    from .core.features import feature_class, make_features  # late: features needs no model
-
     name_list = _check_names(a, "input_names", fail)
     features = [nm for nm in name_list if nm != PHYSICS_SPEED]
     if check_names:
-        if kind == HYBRID and PHYSICS_SPEED not in name_list:
+        if kind == c.HYBRID and PHYSICS_SPEED not in name_list:
             fail(f"input_names: a hybrid's network must take {PHYSICS_SPEED} (has {', '.join(name_list)})")
-        if kind == NETWORK and PHYSICS_SPEED in name_list:
+        if kind == c.NETWORK and PHYSICS_SPEED in name_list:
             fail(f"input_names: {PHYSICS_SPEED} is the physics part's speed: only a hybrid model has it")
         for nm in features:
             try:
@@ -452,33 +324,6 @@ def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any],
             fail(str(exc))
 
 
-def _check_physics(a: Mapping[str, np.ndarray], fail: Fail) -> None:
-    """Every plant constant and effect strength, by name, within its physical range."""
-    for names_key, values_key, known in (("physics_names", "physics_values", PLANT_FIELDS),
-                                         ("effect_names", "effect_strengths", c.EFFECTS)):
-        names = _check_names(a, names_key, fail)
-        unknown = [n for n in names if n not in known]
-        if unknown:
-            fail(f"{names_key}: '{unknown[0]}' is not known (known: {', '.join(known)})")
-        missing = [n for n in known if n not in names]
-        if missing:
-            fail(f"{names_key}: missing {', '.join(missing)}")
-        _check_floats(a, {values_key: (len(names),)}, fail)
-    params = dict(zip(map(str, a["physics_names"]), map(float, a["physics_values"]), strict=True))
-    bad = plant_problem(PlantParams(**params))
-    if bad:
-        fail(f"physics_values: {bad[0]} {bad[1]}")
-    for name, value in zip(map(str, a["effect_names"]), map(float, a["effect_strengths"]), strict=True):
-        why = strength_problem(name, value)
-        if why:
-            fail(f"effect_strengths: {name} {why}")
-    _check_floats(a, {"supply_v": (), "supply_tau_s": ()}, fail)
-    if not float(a["supply_v"]) > 0:
-        fail(f"supply_v {float(a['supply_v'])!r} must be a voltage > 0")
-    if not float(a["supply_tau_s"]) >= 0:
-        fail(f"supply_tau_s {float(a['supply_tau_s'])!r} must be >= 0")
-
-
 #: Share of the time outside the training range from which commands warn (below: a blip, e.g.
 #: the filtered voltage at a recording's first sample).
 RANGE_WARN_FRACTION = 0.01
@@ -519,7 +364,7 @@ def range_report(model: Model, X: np.ndarray, where: str) -> RangeReport:
                        {n: float(f) for n, f in zip(model.input_names, per, strict=True) if f > 0})
 
 
-def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> Model:
+def load_model(path: str | os.PathLike[str], kinds: Collection[str] = c.MODEL_KINDS) -> Model:
     """Read and validate a model file (never unpickles anything); ModelError unless its kind is
     one of ``kinds`` (the uses that only take networks say so)."""
     p = Path(path)
@@ -561,10 +406,10 @@ def load_model(path: str | os.PathLike[str], kinds: Collection[str] = KINDS) -> 
     kind, meta = _check(arrays, str(p))
     if kind not in kinds:
         raise ModelError(f"{p}: kind {kind}: a {' or '.join(kinds)} model is needed here")
-    thrust = _thrust_or_none(float(arrays["thrust_coefficient"]))
+    thrust = thrust_or_none(float(arrays["thrust_coefficient"]))
     try:
-        plant = PlantModel._of(arrays, thrust, meta) if kind != NETWORK else None
-        if plant is not None and kind == PHYSICS:
+        plant = PlantModel.of_arrays(arrays, thrust, meta) if kind != c.NETWORK else None
+        if plant is not None and kind == c.PHYSICS:
             return plant
         network = NetworkModel(
             input_names=tuple(str(x) for x in arrays["input_names"]),
@@ -590,23 +435,35 @@ def _keys_of(files: Collection[str], read: Callable[[str], np.ndarray]) -> tuple
     without ``kind``. A version or kind that cannot be used: only those, for ``_check`` to say
     what is wrong with them."""
     if "format_version" not in files:
-        return KEYS[NETWORK]
+        return KEYS[c.NETWORK]
     fv = read("format_version")
     if fv.shape != () or fv.dtype.kind not in "iu" or int(fv) not in READABLE_VERSIONS:
         return ("format_version",)
     if int(fv) == 1:
-        return tuple(k for k in KEYS[NETWORK] if k != "kind")
+        return tuple(k for k in KEYS[c.NETWORK] if k != "kind")
     if "kind" not in files:
-        return KEYS[NETWORK]
+        return KEYS[c.NETWORK]
     kind = read("kind")
-    if kind.shape != () or kind.dtype.kind != "U" or str(kind) not in KINDS:
+    if kind.shape != () or kind.dtype.kind != "U" or str(kind) not in c.MODEL_KINDS:
         return ("format_version", "kind")
     return KEYS[str(kind)]
 
 
+#: A model file as an output (``atomic.check_outputs``): an existing one is what ``load_model``
+#: reads, of any kind.
+MODEL = OutputKind("model", "a model file (.npz)", (".npz",), recognised_by(load_model))
+
+
+def _arrays(model: Model) -> dict[str, np.ndarray]:
+    """The arrays of ``model``'s file: the physics part's are ``PlantModel.physics_arrays``."""
+    if isinstance(model, PlantModel):
+        return {**_common_arrays(c.PHYSICS, model.thrust_coefficient, model.metadata), **model.physics_arrays()}
+    return model._arrays()
+
+
 def save_model(model: Model, path: str | os.PathLike[str], force: bool = False) -> None:
     """Write the model atomically; refuses an existing file unless ``force`` (OutputExistsError)."""
-    arrays = model._arrays()
+    arrays = _arrays(model)
     _check(arrays, "model")
     with atomic_output(path, force=force, kind=MODEL) as tmp:
         # a file object: np.savez would append ".npz" to a bare temporary name

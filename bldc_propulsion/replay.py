@@ -36,13 +36,14 @@ from . import contract as c
 from .atomic import RECORDING, check_output
 from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
-from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator, fallback_model
+from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
 from .core.tach_output import SpeedOutput
 from .core.tachometer import TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
 from .core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
 from .model import RangeReport, load_model
 from .nodes.params import BATTERY_FILTER, TACHOMETER, THRUST_ESTIMATOR, diagnostic_name, hardware_id
+from .physics.fallback import fallback_model
 from .stamped_writer import StampedWriter
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default

@@ -1,4 +1,4 @@
-"""The identification rules alone (identify.py) on the confusion table's recordings.
+"""The identification rules alone (identify/) on the confusion table's recordings.
 
 For each hidden effect of the dynamic family (and heating and the control) and each seed: the
 recordings of experiments/confusion_table.py's scenario (reference without the effect, measured

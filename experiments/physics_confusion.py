@@ -50,9 +50,10 @@ def one_run(effect: str, seed: int, control: bool, bench_kind: str, tmp: str, or
     import test_discrepancy as T
     from bldc_propulsion.discrepancy import physics as ph
     from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
+    from bldc_propulsion.physics import config as pc
+    from bldc_propulsion.physics.params import BenchParams
     from bldc_propulsion.recordings import load_signals
     from bldc_propulsion.sim import random_bench as rb
-    from bldc_propulsion.sim.params import BenchParams
 
     bench = rb.DRAWS[bench_kind](seed) if bench_kind != "nominal" else None
     strength = rb.draw_strength(effect, seed) if bench_kind != "nominal" else 1.0
@@ -73,18 +74,18 @@ def one_run(effect: str, seed: int, control: bool, bench_kind: str, tmp: str, or
     ref = bags(ref_spec, "r", 4000, off)
     meas = bags(meas_spec, "m", 5000, on)
     hold = bags(hold_spec, "h", 6000, on)
-    params = ph.load_config(None).params
+    params = pc.load_config(None).params
     if oracle and bench is not None:  # the drawn bench's every constant as the CONFIG: a ceiling
         params = dataclasses.replace(bench, sim_step_s=params.sim_step_s)
-    model = ph.PhysicsModel(params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
+    model = pc.PhysicsConfig(params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
     t0 = time.perf_counter()
     data = run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
     fitted = data["evidence"].get(effect, {}).get("fitted_parameters", {}) if not control else {}
-    truth = rb.model_strength(effect, strength, bench or ph.load_config(None).params)
+    truth = rb.model_strength(effect, strength, bench or pc.load_config(None).params)
     value = data["evidence"].get(effect, {}).get("fitted_value") or {} if effect in data["named"] else {}
     shown = true_shown = float("nan")  # what the recordings identify (plant.spin_up_time_constant_s)
     if "time_constant_ms" in value or "warm_speed_loss_percent" in value:
-        from bldc_propulsion import plant
+        from bldc_propulsion.physics import plant
 
         b = bench or BenchParams()
         if effect == "rotor_lag":  # at the model's speed (the time constant depends on it)

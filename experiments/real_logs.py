@@ -22,8 +22,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bldc_propulsion.discrepancy.physics import CALIBRATED  # noqa: E402
-from bldc_propulsion.sim import BenchParams  # noqa: E402
+from bldc_propulsion.physics.config import CALIBRATED  # noqa: E402
+from bldc_propulsion.physics.params import BenchParams  # noqa: E402
 
 LOGS = ("rcbenchmark_steps_90percent", "rcbenchmark_step_coastdown_16v_10in")
 

@@ -9,15 +9,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from bldc_propulsion.core.battery_filter import (
-    PAPER_DC_GAIN,
-    PAPER_TAU_S,
-    BatteryFilter,
-    BatteryFilterConfig,
-    _tustin_step,
-    discretise,
-    paper_prototype,
-)
+from bldc_propulsion.contract import PAPER_DIVIDER_RATIO, PAPER_FILTER_TAU_S, paper_filter_prototype
+from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig, _tustin_step, discretise
 from bldc_propulsion.core.status import OK, WARN
 from bldc_propulsion.errors import BadInputError
 
@@ -33,20 +26,20 @@ def modulated_adc(n, fs=1000.0, seed=0):
 
 
 def test_prototype_from_paper_coefficients():
-    K, tau = paper_prototype()
+    K, tau = paper_filter_prototype()
     assert K == pytest.approx(1.999, abs=1e-12)
     assert tau == pytest.approx(1.9995, abs=1e-12)
     # the unit-gain low-pass at 1 kHz, times 1.999, is the paper's H(z)
-    b, a = discretise(PAPER_TAU_S, 1000.0)
-    np.testing.assert_allclose(b * PAPER_DC_GAIN, PAPER_B, rtol=1e-12)
+    b, a = discretise(PAPER_FILTER_TAU_S, 1000.0)
+    np.testing.assert_allclose(b * PAPER_DIVIDER_RATIO, PAPER_B, rtol=1e-12)
     np.testing.assert_allclose(a, PAPER_A, rtol=1e-12)
     assert b.sum() / a.sum() == pytest.approx(1.0, abs=1e-12)  # lowpass part: unit DC gain
 
 
 def test_closed_form_step_equals_scipy_bilinear():
     for dt in (1e-4, 1e-3, 3.7e-3, 0.05):
-        b, a = discretise(PAPER_TAU_S, 1.0 / dt)
-        b0, b1, a1 = _tustin_step(PAPER_TAU_S, dt)
+        b, a = discretise(PAPER_FILTER_TAU_S, 1.0 / dt)
+        b0, b1, a1 = _tustin_step(PAPER_FILTER_TAU_S, dt)
         np.testing.assert_allclose([b0, b1, a1], [b[0], b[1], a[1]], rtol=1e-12)
 
 
@@ -107,7 +100,7 @@ def test_rediscretised_500hz_matches_1khz_step_response():
     # both follow the continuous 1 - exp(-t/tau); Tustin treats the jump as a ramp over one
     # sample, so the two differ by at most ~dt/(2 tau) right after the step
     np.testing.assert_allclose(y2, common, atol=3e-4)
-    cont = 1.0 - np.exp(-(t2 - 0.5 / 500.0) / PAPER_TAU_S)
+    cont = 1.0 - np.exp(-(t2 - 0.5 / 500.0) / PAPER_FILTER_TAU_S)
     np.testing.assert_allclose(y2[1:], cont[1:], atol=1e-3)
     # smooth input: the two discretisations agree to second order
     t_a = np.arange(0, 8.0, 1e-3)
@@ -117,7 +110,7 @@ def test_rediscretised_500hz_matches_1khz_step_response():
     yb = BatteryFilter(BatteryFilterConfig(sample_rate_hz=500.0, divider_ratio=1.0)).process(t_b, u(t_b))
     np.testing.assert_allclose(yb, ya[::2], atol=2e-6)
     # reusing the 1 kHz coefficients at 500 Hz (the mistake the rediscretisation avoids) is far off
-    b, a = discretise(PAPER_TAU_S, 1000.0)
+    b, a = discretise(PAPER_FILTER_TAU_S, 1000.0)
     wrong, _ = signal.lfilter(b, a, np.where(t2 > 0, 1.0, 0.0), zi=[0.0])
     assert np.max(np.abs(wrong - y2)) > 0.1
 

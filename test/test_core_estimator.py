@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bldc_propulsion.core.estimator import PhysicsModel, ThrustEstimator, fallback_model
+from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.core.features import (
     FEATURES,
     Feature,
@@ -19,6 +19,7 @@ from bldc_propulsion.core.features import (
 from bldc_propulsion.core.status import OK, WARN
 from bldc_propulsion.errors import BadInputError, ModelError
 from bldc_propulsion.model import NetworkModel
+from bldc_propulsion.physics.fallback import FallbackModel, fallback_model
 
 NAMES = ("battery_voltage", "pwm", "pwm_filtered")
 
@@ -238,7 +239,7 @@ def test_fallback_model_is_plausible():
     assert est.predict(5.0).speed_rad_s < full.speed_rad_s  # a lower battery gives less speed
     st = est.status()[0]
     assert st.level == WARN and "fallback" in st.message
-    assert isinstance(fallback_model(), PhysicsModel)
+    assert isinstance(fallback_model(), FallbackModel)
 
 
 def test_status_waiting_and_counters():
@@ -299,10 +300,10 @@ def test_every_registered_feature_batch_equals_streaming():
 
 
 def test_fallback_forward_one_is_forward_bit_for_bit():
-    """The estimator's per-prediction fallback (plain floats) = PhysicsModel.forward (numpy)."""
+    """The estimator's per-prediction fallback (plain floats) = FallbackModel.forward (numpy)."""
     import struct
 
-    from bldc_propulsion.core.estimator import fallback_model
+    from bldc_propulsion.physics.fallback import fallback_model
 
     m = fallback_model()
     rng = np.random.default_rng(0)

@@ -219,7 +219,7 @@ def test_hidden_effect_is_named_first_and_the_gap_shrinks(effect, bags_dir):
 def test_input_delay_removes_the_delays_share_of_the_holdout_error(bags_dir):
     """What adding the dead time can do: close the gap between the base model's holdout error
     and its error on the same holdout command simulated without the delay (its own floor)."""
-    from bldc_propulsion.discrepancy.base import rmse as _rmse
+    from bldc_propulsion.discrepancy.dataset import rmse as _rmse
     from bldc_propulsion.discrepancy.network import run_model
 
     s = scenario("input_delay", bags_dir)

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
-from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy import residuals as rs
 from bldc_propulsion.discrepancy import scoring as sc
 from bldc_propulsion.discrepancy.workflow import Options, classify, run_physics_workflow
+from bldc_propulsion.physics import config as pc
+from bldc_propulsion.physics import fit as pf
 from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -77,12 +78,12 @@ def test_speed_noise_is_the_measurement_noise_of_one_revolution(per_rev):
 
 
 def test_a_motor_that_is_not_physical_is_flagged_and_blocks():
-    model = dataclasses.replace(ph.load_config(None), supply_v=12.0)
-    assert ph.LOADED_SPEED_RANGE[0] < ph.loaded_speed_share(model) < ph.LOADED_SPEED_RANGE[1]
-    assert ph.loaded_speed_flag(model, "fit") is None
+    model = dataclasses.replace(pc.load_config(None), supply_v=12.0)
+    assert pf.LOADED_SPEED_RANGE[0] < pf.loaded_speed_share(model) < pf.LOADED_SPEED_RANGE[1]
+    assert pf.loaded_speed_flag(model, "fit") is None
     # Kv 1e6 rpm/V: the back-EMF no longer sets the speed
     wild = model.with_constants([1.0e6, *list(model.constants().values())[1:]])
-    flag = ph.loaded_speed_flag(wild, "calibration on the measured data")
+    flag = pf.loaded_speed_flag(wild, "calibration on the measured data")
     assert flag is not None and flag.blocks and flag.value < 0.05
     assert "not physical" in flag.text() and "1e+06" in flag.text()
 
@@ -98,8 +99,8 @@ def test_the_base_has_the_rotors_inertia_whatever_the_config(reference):
     """Inertia off in the CONFIG (every other effect on, as the bench has them): the reference fit
     switches it on and finds the bench's (strength 1: the CONFIG is the nominal bench), with the
     dead time it trades with, and the reference is explained; another recording names nothing."""
-    assert ph.BASE_EFFECTS == ("rotor_lag",)
-    config = ph.PhysicsModel(ph.load_config(None).params, {**{n: 1.0 for n in c.EFFECTS}, "rotor_lag": 0.0})
+    assert pf.BASE_EFFECTS == ("rotor_lag",)
+    config = pc.PhysicsConfig(pc.load_config(None).params, {**{n: 1.0 for n in c.EFFECTS}, "rotor_lag": 0.0})
     data = run_physics_workflow(config, reference[:1], reference[1:], [], Options(max_effects=1),
                                 lambda m: None).data
     strengths = data["reference_fit"]["strengths"]
@@ -119,7 +120,7 @@ def test_a_reference_the_base_cannot_explain_names_nothing(reference):
         st, sv = s.speed_events
         return dataclasses.replace(s, speed=s.speed + bump(s.t), speed_events=(st, sv + bump(st)))
 
-    data = run_physics_workflow(ph.load_config(None), reference[:1], [wobble(s) for s in reference[1:]], [],
+    data = run_physics_workflow(pc.load_config(None), reference[:1], [wobble(s) for s in reference[1:]], [],
                                 Options(max_effects=1), lambda m: None).data
     assert data["no_verdict"].startswith("the reference is not explained"), data["no_verdict"]
     assert "rad/s RMS" in data["no_verdict"] and "own noise" in data["no_verdict"]

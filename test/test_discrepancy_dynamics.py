@@ -1,4 +1,4 @@
-"""The dynamic family told apart by what physically identifies each (identify.py):
+"""The dynamic family told apart by what physically identifies each (identify/):
 
 - dead time: the onset of the response to a rising command step moves, its shape does not;
 - rotor lag (inertia): the rising steps' time constant at the same speed grows;
@@ -21,6 +21,7 @@ import pytest
 
 from bldc_propulsion.discrepancy import identify as idf
 from bldc_propulsion.discrepancy import scoring as sc
+from bldc_propulsion.discrepancy.base import Proposal
 from bldc_propulsion.discrepancy.results import Evidence
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import random_bench as rb
@@ -151,7 +152,7 @@ def _holds(start: float, seed: int, n: int = 30, heating: float = 0.0) -> idf.Ho
     """Settled holds of a known static map: speed = (V / 11.5) (900 d - 150 d^2) - heating theta d
     rad/s with d = throttle(level, start) (0 below the start level: the rotor at rest), 1 rad/s
     noise, supplies 10.5-12.5 V, thermal states 0-0.5."""
-    from bldc_propulsion.plant import throttle
+    from bldc_propulsion.physics.plant import throttle
     rng = np.random.default_rng(seed)
     lv = rng.uniform(0.0505, 0.1, n)
     v, th = rng.uniform(10.5, 12.5, n), rng.uniform(0.0, 0.5, n)
@@ -188,7 +189,7 @@ def test_clustered_standard_error_of_a_mean_by_hand():
     g, n = 3, len(y)
     sums = np.array([u[cluster == k].sum() for k in range(g)])
     expected = np.sqrt(g / (g - 1) * np.sum(sums ** 2) / n ** 2)
-    assert idf._clustered_se(A, u, cluster, np.array([1.0])) == pytest.approx(expected, rel=1e-12)
+    assert idf.heating._clustered_se(A, u, cluster, np.array([1.0])) == pytest.approx(expected, rel=1e-12)
     textbook = np.sqrt(np.sum(u ** 2) / (n - 1) / n)
     assert expected > 1.5 * textbook
 
@@ -209,9 +210,9 @@ def test_onset_errs_early_for_any_rotor_shape_and_moves_with_a_dead_time(tau):
         return [1.0 - np.exp(-x / tau), (w - 0.3) / 0.7]
 
     for y, y_later in zip(rises(0.03), rises(0.05), strict=True):
-        onset = idf._onset(t, y)
+        onset = idf.steps._onset(t, y)
         assert 0.03 - 0.1 * tau - 0.01 <= onset <= 0.03 + 0.001, onset
-        assert idf._onset(t, y_later) - onset == pytest.approx(0.02, abs=0.001)
+        assert idf.steps._onset(t, y_later) - onset == pytest.approx(0.02, abs=0.001)
 
 
 def _evidence(effect: str, verdict: str, fraction: float, p_value: float) -> Evidence:
@@ -235,7 +236,8 @@ def test_a_start_level_proposed_by_the_scores_yields_to_the_response_that_change
     ref = _signals(bags, "r", "steps", (7100, 7101), "rotor_lag", 1.0, 113)
     meas = _signals(bags, "m", "steps", (7200, 7201), "rotor_lag", 2.0, 113)
     ev = _scores_propose_the_start_level()
-    out = idf.refine(ev, "esc_deadband", [], meas, ref, 20.0, 10.0, {}, 0.01, 0.10, lambda m: None)
+    out = idf.refine(Proposal(ev, "esc_deadband", []), idf.Identification(meas, ref, 0.01, 0.10), (20.0, 10.0),
+                     lambda m: None)
     assert out.best == "rotor_lag" and ev["rotor_lag"].verdict == "new", ev["rotor_lag"].dynamics
     assert out.params is not None and out.params["tau_s"] > 0.02
     assert ev["esc_deadband"].verdict == "new"  # the scores' verdict, not the proposal
@@ -243,7 +245,8 @@ def test_a_start_level_proposed_by_the_scores_yields_to_the_response_that_change
     ref = _signals(bags, "r", "lowsteps", (7300, 7301), "input_delay", 1.0, 122)
     meas = _signals(bags, "m", "lowsteps", (7400, 7401), "input_delay", 1.0, 122)
     ev = _scores_propose_the_start_level()
-    out = idf.refine(ev, "esc_deadband", [], meas, ref, 20.0, 10.0, {}, 0.01, 0.10, lambda m: None)
+    out = idf.refine(Proposal(ev, "esc_deadband", []), idf.Identification(meas, ref, 0.01, 0.10), (20.0, 10.0),
+                     lambda m: None)
     assert out.best is None, ev["esc_deadband"].dynamics
     assert ev["esc_deadband"].verdict == "not new (identified dynamics unchanged)"
 
@@ -255,8 +258,8 @@ def test_heating_threshold_is_a_share_of_the_fitted_full_drive_speed(tmp_path):
     heating at strength 1 is named, and the same extra loss is named on a motor at 600 rad/s but
     not at 1000 rad/s (hand-computed: 0.83 % of each)."""
     from bldc_propulsion import contract as c
-    from bldc_propulsion import plant
-    from bldc_propulsion.sim import BenchParams
+    from bldc_propulsion.physics import plant
+    from bldc_propulsion.physics.params import BenchParams
 
     ref = [load_signals(_bag(tmp_path, "r", "load", 40, {"motor_heating": 0.0}, 1.0, 120.0))]
     meas = [load_signals(_bag(tmp_path, "m", "load", 50, {"motor_heating": 1.0}, 1.0, 180.0))]

@@ -1,7 +1,7 @@
 """Physics fits that are no basis for a verdict, and one number per fitted quantity.
 
 - A fitted constant or strength at a bound of its range, or implausibly far from the CONFIG
-  (physics.PLAUSIBLE_FACTOR), is flagged: a "warning:" line naming the constant, the fitted value,
+  (physics.fit.PLAUSIBLE_FACTOR), is flagged: a "warning:" line naming the constant, the fitted value,
   the CONFIG's value and the range; ``fit_flags`` in --json; a table in the report. A trial fit so
   flagged is not added, however much it helps (known truth: recordings of a motor with 0.4x the
   CONFIG's Kv; rotor_lag, which the model really lacks, is fitted with that Kv).
@@ -27,7 +27,9 @@ from bldc_propulsion.commands import discrepancy as cmd
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.results import kept_text
 from bldc_propulsion.discrepancy.workflow import MAX_TRIALS
-from bldc_propulsion.sim import BenchParams, params_with_overrides
+from bldc_propulsion.physics import config as pc
+from bldc_propulsion.physics import fit as pf
+from bldc_propulsion.physics.params import BenchParams, params_with_overrides
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_discrepancy import _bag, cli  # noqa: E402
@@ -36,19 +38,19 @@ DURATION_S = 20.0
 ALL_BUT_LAG = {**{name: 1.0 for name in c.EFFECTS}, "rotor_lag": 0.0}
 
 
-def _fit(model: ph.PhysicsModel, free: tuple[str, ...] = ()) -> ph.Fit:
-    consts = np.array(list(ph.load_config(None).constants().values()))
-    return ph.Fit(model, np.zeros(1), np.zeros((1, len(ph.CALIBRATED) + len(free))), 0.0, consts,
-                  ph.LOG_RANGE_BASE.copy(), free)
+def _fit(model: pc.PhysicsConfig, free: tuple[str, ...] = ()) -> pf.Fit:
+    consts = np.array(list(pc.load_config(None).constants().values()))
+    return pf.Fit(model, np.zeros(1), np.zeros((1, len(pc.CALIBRATED) + len(free))), 0.0, consts,
+                  pf.LOG_RANGE_BASE.copy(), free)
 
 
 def test_fit_flags_name_the_constant_its_value_the_config_and_the_range():
-    nominal = ph.load_config(None)
+    nominal = pc.load_config(None)
     cfg = dataclasses.replace(nominal, source="bench.json")  # a CONFIG the user gave
     kv, cp, bend, rs = cfg.constants().values()
-    top = ph.STRENGTH_MAX["rotor_lag"]
+    top = pf.STRENGTH_MAX["rotor_lag"]
     far = cfg.with_constants([3.0 * kv, 1.9 * cp, 2.0 * bend, rs]).with_effect("rotor_lag", top)
-    flags = {f.quantity: f for f in ph.fit_flags(_fit(far, ("rotor_lag",)), cfg, "test fit")}
+    flags = {f.quantity: f for f in pf.fit_flags(_fit(far, ("rotor_lag",)), cfg, "test fit")}
     # Kv 3x the CONFIG's: implausible; CP 1.9x: inside the factor 2; rotor_lag and the throttle
     # map's exponent (range a factor 2 either way) at their upper bounds
     assert set(flags) == {"motor_kv_rpm_per_v", "rotor_lag strength", "esc_throttle_exponent"}
@@ -60,11 +62,11 @@ def test_fit_flags_name_the_constant_its_value_the_config_and_the_range():
     assert flags["rotor_lag strength"].at_bound and f"0-{top:g}" in flags["rotor_lag strength"].text()
     assert kv_flag.blocks and flags["rotor_lag strength"].blocks
     # the factor is one constant, either way
-    assert ph.implausible(kv / (ph.PLAUSIBLE_FACTOR * 1.01), kv) and not ph.implausible(kv / ph.PLAUSIBLE_FACTOR, kv)
-    assert ph.fit_flags(_fit(cfg), cfg, "test fit") == []
+    assert pf.implausible(kv / (pf.PLAUSIBLE_FACTOR * 1.01), kv) and not pf.implausible(kv / pf.PLAUSIBLE_FACTOR, kv)
+    assert pf.fit_flags(_fit(cfg), cfg, "test fit") == []
     # without a CONFIG (the nominal bench stands for an unknown motor) the same Kv is flagged, and
     # only a bound is held against the verdict
-    loose = {f.quantity: f for f in ph.fit_flags(_fit(far, ("rotor_lag",)), nominal, "test fit")}
+    loose = {f.quantity: f for f in pf.fit_flags(_fit(far, ("rotor_lag",)), nominal, "test fit")}
     assert "no CONFIG given" in loose["motor_kv_rpm_per_v"].text() and not loose["motor_kv_rpm_per_v"].blocks
     assert loose["rotor_lag strength"].blocks
 
@@ -134,7 +136,7 @@ def test_a_named_effect_has_one_fitted_value_everywhere(two_bags, tmp_path):
     page = html.unescape((report / "index.html").read_text())
     assert data["named"] == ["rotor_lag", "input_delay"], data["considered_not_added"]
     first_fit = data["iterations"][0]["parameters"]["strength"]
-    saved = ph.load_config(str(out))
+    saved = pc.load_config(str(out))
     for name, quantity, unit in (("rotor_lag", "rotor inertia", "kg m^2"), ("input_delay", "dead time", "ms")):
         ev = data["evidence"][name]
         value, strength = ev["fitted_value"], ev["fitted_value"]["strength"]

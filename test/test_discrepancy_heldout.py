@@ -14,9 +14,9 @@ import pytest
 
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import acceptance as acc
-from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
 from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.physics import config as pc
 from bldc_propulsion.recordings import load_signals
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -37,7 +37,7 @@ def bags(tmp_path_factory) -> dict[str, list[str]]:
 
 
 def _physics(paths: list[str], hold: list[str], **kw) -> dict:
-    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, "rotor_lag": 0.0})
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**ALL_ON, "rotor_lag": 0.0})
     return run_physics_workflow(model, [load_signals(p) for p in paths], [], [load_signals(p) for p in hold],
                                 Options(**kw), lambda m: None).data
 

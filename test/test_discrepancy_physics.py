@@ -19,14 +19,17 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
-from bldc_propulsion import plant
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
 from bldc_propulsion.errors import BadInputError
+from bldc_propulsion.physics import config as pc
+from bldc_propulsion.physics import fit as pf
+from bldc_propulsion.physics import plant
+from bldc_propulsion.physics.params import BenchParams, params_with_overrides
+from bldc_propulsion.physics.plant import motor_response
 from bldc_propulsion.recordings import load_signals
-from bldc_propulsion.sim import BenchParams, params_with_overrides, simulate
 from bldc_propulsion.sim import random_bench as rb
-from bldc_propulsion.sim.bench import motor_response
+from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -52,14 +55,14 @@ def recordings(d: Path, effect: str, effects: dict[str, float] | None = None) ->
                         for k, (kd, soc, dur) in enumerate(hold_spec)]}
 
 
-def physics_run(model: ph.PhysicsModel, paths: dict[str, list[str]], **kw) -> dict:
+def physics_run(model: pc.PhysicsConfig, paths: dict[str, list[str]], **kw) -> dict:
     opts = Options(max_effects=kw.pop("max_effects", 1), **kw)
     return run_physics_workflow(model, [load_signals(p) for p in paths["measured"]], [],
                                 [load_signals(p) for p in paths["holdout"]], opts, lambda m: None).data
 
 
 # --- the model is the simulator --------------------------------------------------------------------
-@pytest.mark.parametrize("step_s, max_err", [(0.001, 0.5), (ph.PHYSICS_STEP_S, 5.0)])
+@pytest.mark.parametrize("step_s, max_err", [(0.001, 0.5), (pc.PHYSICS_STEP_S, 5.0)])
 def test_motor_response_reproduces_the_simulator(step_s, max_err):
     res = simulate("steps", 20.0, 3, pwm=command("steps", 20.0, 3))
     p = dataclasses.replace(BenchParams(), sim_step_s=step_s)
@@ -79,8 +82,8 @@ def test_calibration_recovers_changed_kv_cp_throttle_map_and_pack_resistance(tmp
     res = simulate("steps", 30.0, 4, params=true, pwm=command("steps", 30.0, 4))
     write_sim_bag(res, tmp_path / "bag")
     s = load_signals(tmp_path / "bag")
-    model = ph.PhysicsModel(ph.load_config(None).params, dict(ALL_ON)).with_supply([s])
-    fit = ph.calibrate_base(model, ph.Data.of([s], "measured"))
+    model = pc.PhysicsConfig(pc.load_config(None).params, dict(ALL_ON)).with_supply([s])
+    fit = pf.calibrate_base(model, pf.Data.of([s]))
     got = fit.model.constants()
     assert got["motor_kv_rpm_per_v"] == pytest.approx(true.motor_kv_rpm_per_v, rel=0.03)
     assert got["propeller_cp"] == pytest.approx(true.propeller_cp, rel=0.05)
@@ -91,25 +94,25 @@ def test_calibration_recovers_changed_kv_cp_throttle_map_and_pack_resistance(tmp
     # a start a rounding error away from the anchor calibrates the same (scipy's trust radius
     # starts at ||x0||: unshifted, it was 1e-16 here and the constants never moved)
     anchor = np.array(list(model.constants().values())) * (1.0 + 1e-15)
-    again = ph.calibrate(model, ph.Data.of([s], "measured"), anchor, ph.LOG_RANGE_BASE).model.constants()
+    again = pf.calibrate(model, pf.Data.of([s]), anchor, pf.LOG_RANGE_BASE).model.constants()
     for name, value in got.items():
         assert again[name] == pytest.approx(value, rel=1e-3)
     # held (as after a reference fit): the map stays the model's, straight, and Kv and CP make up
     # for it as best they can (a worse fit), with no column to refit per fold and no fit flag
-    held = ph.calibrate_base(model, ph.Data.of([s], "measured"), hold=ph.HELD_AFTER_REFERENCE)
+    held = pf.calibrate_base(model, pf.Data.of([s]), hold=pf.HELD_AFTER_REFERENCE)
     assert held.model.params.esc_throttle_exponent == 1.0 and held.log_range[2] == 0.0
     assert held.model.params.battery_series_resistance_ohm == nominal.battery_series_resistance_ohm
     assert not held.J[:, 2:4].any() and held.J[:, :2].any() and held.sse > 1.5 * fit.sse
-    assert [f.quantity for f in ph.fit_flags(held, model, "held")] == []
+    assert [f.quantity for f in pf.fit_flags(held, model, "held")] == []
     # with battery_voltage off the model does not use R_s: it stays the CONFIG's, not fitted, and
     # no flag (a zero column let the solver walk it to its bound, where a later fit found it)
     stiff = model.with_effect("battery_voltage", 0.0)
-    off = ph.calibrate_base(stiff, ph.Data.of([s], "measured"))
+    off = pf.calibrate_base(stiff, pf.Data.of([s]))
     assert off.model.params.battery_series_resistance_ohm == nominal.battery_series_resistance_ohm
     assert not off.J[:, 3].any() and off.J[:, :3].any()
-    assert "battery_series_resistance_ohm" not in [f.quantity for f in ph.fit_flags(off, stiff, "off")]
-    assert "battery_series_resistance_ohm" in ph.inert_constants(stiff, ph.Data.of([s], "measured"))
-    assert ph.inert_constants(stiff, ph.Data.of([s], "measured"), ("battery_voltage",)) == set()
+    assert "battery_series_resistance_ohm" not in [f.quantity for f in pf.fit_flags(off, stiff, "off")]
+    assert "battery_series_resistance_ohm" in pf.inert_constants(stiff, pf.Data.of([s]))
+    assert pf.inert_constants(stiff, pf.Data.of([s]), ("battery_voltage",)) == set()
 
 
 def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
@@ -120,10 +123,10 @@ def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
     res = simulate("steps", 30.0, 6, params=true, pwm=command("steps", 30.0, 6))
     write_sim_bag(res, tmp_path / "bag")
     s = load_signals(tmp_path / "bag")
-    model = ph.PhysicsModel(ph.load_config(None).params, dict(ALL_ON)).with_supply([s])
-    fit = ph.fit_reference(model, ph.Data.of([s], "reference"))
+    model = pc.PhysicsConfig(pc.load_config(None).params, dict(ALL_ON)).with_supply([s])
+    fit = pf.fit_reference(model, pf.Data.of([s]))
     # within a grid step (5 ms of the 40 ms per unit strength) of the truth
-    assert fit.model.effects["input_delay"] == pytest.approx(1.5, abs=ph.PHYSICS_STEP_S / nominal.esc_input_delay_s)
+    assert fit.model.effects["input_delay"] == pytest.approx(1.5, abs=pc.PHYSICS_STEP_S / nominal.esc_input_delay_s)
 
 
 def test_rotor_lag_is_reported_as_the_time_constant_the_recordings_show(tmp_path):
@@ -137,8 +140,8 @@ def test_rotor_lag_is_reported_as_the_time_constant_the_recordings_show(tmp_path
     res = simulate("steps", 30.0, 6, params=true, pwm=command("steps", 30.0, 6))
     write_sim_bag(res, tmp_path / "bag")
     s = load_signals(tmp_path / "bag")
-    model = ph.PhysicsModel(ph.load_config(None).params, dict(ALL_ON)).with_supply([s])
-    fit = ph.fit_reference(model, ph.Data.of([s], "reference"))
+    model = pc.PhysicsConfig(pc.load_config(None).params, dict(ALL_ON)).with_supply([s])
+    fit = pf.fit_reference(model, pf.Data.of([s]))
     strength = fit.model.effects["rotor_lag"]
     value = ph.fitted_value("rotor_lag", strength, fit.model.params, fit.model.supply_v)
     truth = 1000.0 * plant.spin_up_time_constant_s(true, {"rotor_lag": 1.0}, value["at_speed_rad_s"])
@@ -159,31 +162,31 @@ def test_heating_is_fitted_with_the_motors_thermal_time_constant(tmp_path, monke
     res = simulate("high_load", 180.0, 2, params=true)
     write_sim_bag(res, tmp_path / "bag")
     s = load_signals(tmp_path / "bag")
-    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, "motor_heating": 0.5}).with_supply([s])
-    data = ph.Data.of([s], "measured")
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**ALL_ON, "motor_heating": 0.5}).with_supply([s])
+    data = pf.Data.of([s])
     anchor = np.array(list(model.constants().values()))
-    fit = ph.calibrate(model, data, anchor, ph.LOG_RANGE_BASE, ("motor_heating",))
+    fit = pf.calibrate(model, data, anchor, pf.LOG_RANGE_BASE, ("motor_heating",))
     truth = rb.model_strength("motor_heating", 1.0, true, nominal)
     assert truth == pytest.approx(2.0)
     assert fit.model.effects["motor_heating"] == pytest.approx(truth, rel=0.1)
     tau = ph.fitted_value("motor_heating", 1.0, fit.model.params)["thermal_time_constant_s"]
     assert tau == pytest.approx(true.motor_thermal_capacity_j_per_k * true.motor_thermal_resistance_k_per_w, rel=0.3)
     assert fit.companion_anchor == {"motor_thermal_resistance_k_per_w": nominal.motor_thermal_resistance_k_per_w}
-    assert fit.J.shape[1] == len(ph.CALIBRATED) + 2 and fit.J[:, -1].any()  # refitted per fold too
+    assert fit.J.shape[1] == len(pc.CALIBRATED) + 2 and fit.J[:, -1].any()  # refitted per fold too
     assert f"thermal time constant {tau:.0f} s" in ph.describe("motor_heating", 1.0, fit.model)
     # what the recordings show on any split: the full-drive speed lost once warm, the bench's
     value = ph.fitted_value("motor_heating", fit.model.effects["motor_heating"], fit.model.params, fit.model.supply_v)
     cold, warm = plant.full_drive_speeds(true, {**{n: 0.0 for n in c.EFFECTS}, "motor_heating": 1.0}, model.supply_v)
     assert value["warm_speed_loss_percent"] == pytest.approx(100.0 * (1.0 - warm / cold), rel=0.15)
-    monkeypatch.setattr(ph, "COMPANIONS", {})
-    held = ph.calibrate(model, data, anchor, ph.LOG_RANGE_BASE, ("motor_heating",))
+    monkeypatch.setattr(pf, "COMPANIONS", {})
+    held = pf.calibrate(model, data, anchor, pf.LOG_RANGE_BASE, ("motor_heating",))
     assert held.model.effects["motor_heating"] < 1.5 and held.sse > 2.0 * fit.sse
 
 
 # --- hidden effects --------------------------------------------------------------------------------
 @pytest.mark.parametrize("effect", c.EFFECTS)
 def test_hidden_effect_is_named_first_and_the_gap_shrinks(effect, bags_dir):
-    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, effect: 0.0})
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**ALL_ON, effect: 0.0})
     data = physics_run(model, recordings(bags_dir, effect))
     assert data["named"] == [effect], data["evidence"]
     assert data["holdout_rmse_after"] <= 0.7 * data["holdout_rmse_before"], (
@@ -202,7 +205,7 @@ def test_control_names_nothing(bags_dir):
     paths = {"measured": [_bag(sub, f"m{k}_{kd}", kd, 700 + k, off) for k, kd in
                           enumerate(["steps", "lowsteps", "updown"])],
              "holdout": [_bag(sub, "h0_steps", "steps", 800, off)]}
-    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, **off})
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**ALL_ON, **off})
     data = physics_run(model, paths, max_effects=3)
     assert data["named"] == [], data["evidence"]
     assert data["holdout_rmse_after"] == data["holdout_rmse_before"]
@@ -222,7 +225,7 @@ def test_nominal_bench_names_the_biggest_missing_effect_first(bags_dir):
     paths = {"measured": [_bag(sub, f"m{k}_{kd}", kd, 700 + k, {}) for k, kd in
                           enumerate(["steps", "lowsteps", "updown"])],
              "holdout": [_bag(sub, "h0_steps", "steps", 800, {})]}
-    data = physics_run(ph.load_config(None), paths)
+    data = physics_run(pc.load_config(None), paths)
     assert data["named"] == ["rotor_lag"], data["evidence"]
     assert data["holdout_rmse_after"] <= 0.5 * data["holdout_rmse_before"]
 
@@ -237,7 +240,7 @@ def test_reference_tells_new_from_structural(reference_has_it, verdict, bags_dir
     sub = bags_dir / "rotor_lag"
     ref = [load_signals(_bag(sub, f"reference{k}_{reference_has_it}", "steps", 900 + k,
                              {} if reference_has_it else {"rotor_lag": 0.0})) for k in range(2)]
-    model = ph.PhysicsModel(ph.load_config(None).params, {**ALL_ON, "rotor_lag": 0.0})
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**ALL_ON, "rotor_lag": 0.0})
     data = run_physics_workflow(model, [load_signals(p) for p in paths["measured"]], ref,
                                 [load_signals(p) for p in paths["holdout"]], Options(max_effects=1),
                                 lambda m: None).data
@@ -253,18 +256,18 @@ def test_reference_tells_new_from_structural(reference_has_it, verdict, bags_dir
 
 # --- config files and the command line -------------------------------------------------------------
 def test_config_defaults_and_errors(tmp_path):
-    base = ph.load_config(None)
-    assert all(v == 0.0 for v in base.effects.values()) and base.params.sim_step_s == ph.PHYSICS_STEP_S
+    base = pc.load_config(None)
+    assert all(v == 0.0 for v in base.effects.values()) and base.params.sim_step_s == pc.PHYSICS_STEP_S
     cfg = tmp_path / "c.json"
     cfg.write_text(json.dumps({"params": {"propeller_cp": 0.05}, "effects": {"rotor_lag": 0.5}}))
-    m = ph.load_config(str(cfg))
+    m = pc.load_config(str(cfg))
     assert m.params.propeller_cp == 0.05 and m.effects["rotor_lag"] == 0.5 and m.effects["input_delay"] == 0.0
     for text, word in [("{", "not valid JSON"), ('{"effects": {"warp_drive": 1}}', "warp_drive"),
                        ('{"params": {"motor_kv": 1}}', "motor_kv"), ('{"effects": {"rotor_lag": -1}}', "rotor_lag"),
                        ('{"colour": 1}', "colour"), ('[1]', "JSON object")]:
         cfg.write_text(text)
         with pytest.raises(BadInputError, match=word) as exc:
-            ph.load_config(str(cfg))
+            pc.load_config(str(cfg))
         assert str(cfg) in str(exc.value) and "\n" not in str(exc.value)
 
 
@@ -300,7 +303,7 @@ def test_cli_json_output_and_round_trip(bags_dir, tmp_path):
     assert data["named"] == ["rotor_lag"] and data["model"] == str(out)
     assert data["evidence"]["rotor_lag"]["p_value"] < 0.01
     # the written config reads back as CONFIG: the fitted model itself
-    back = ph.load_config(str(out))
+    back = pc.load_config(str(out))
     assert back.config() == data["physics"]
     assert back.effects["rotor_lag"] == pytest.approx(data["evidence"]["rotor_lag"]["fitted_parameters"]["strength"])
     # an existing output is refused without --force, and left as it was

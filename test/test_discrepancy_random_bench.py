@@ -20,6 +20,7 @@ from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.physics_kind import PhysicsKind
 from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow
+from bldc_propulsion.physics import config as pc
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import random_bench as rb
 
@@ -44,7 +45,7 @@ def _run(d: Path, effect: str, hidden_in_measured: bool) -> tuple[dict, float]:
 
 def workflow(effect: str, meas: list, ref: list, hold: list) -> dict:
     """The physics path with the nominal bench, every effect on but ``effect``, as the model."""
-    model = ph.PhysicsModel(ph.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
+    model = pc.PhysicsConfig(pc.load_config(None).params, {**{e: 1.0 for e in c.EFFECTS}, effect: 0.0})
     return run_physics_workflow(model, meas, ref, hold, Options(max_effects=2), lambda m: None).data
 
 
@@ -113,6 +114,6 @@ def test_a_slow_drift_in_hot_recordings_is_not_named_heating(bags):
     assert data["named"] == [], data["iterations"]
     heating = data["evidence"]["motor_heating"]
     assert heating["verdict"] == "not significant" and heating["measured"]["mse_reduction"] < 0, heating
-    kind = PhysicsKind(ph.load_config(None))
-    kind.meas_data, kind.ref_data = ph.Data.of(meas, "measured"), ph.Data.of(ref, "reference")
+    kind = PhysicsKind(pc.load_config(None))
+    kind.meas_data, kind.ref_data = ph.blocked(meas, "measured"), ph.blocked(ref, "reference")
     assert "the reference's" in (kind.contradicted("motor_heating") or "")

@@ -14,9 +14,11 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import open_recording
 from bldc_propulsion.core.estimator import ThrustEstimator
-from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel, save_model
+from bldc_propulsion.model import HybridModel, NetworkModel, save_model
+from bldc_propulsion.physics.params import BenchParams
+from bldc_propulsion.physics.plant_model import PlantModel
 from bldc_propulsion.recordings import Signals, load_signals
-from bldc_propulsion.sim import BenchParams, simulate
+from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 
@@ -171,7 +173,8 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
 
 
 def load_model_kind(path):
-    from bldc_propulsion.model import PHYSICS, load_model
+    from bldc_propulsion.contract import PHYSICS
+    from bldc_propulsion.model import load_model
 
     return load_model(path, kinds=(PHYSICS,))
 
@@ -193,7 +196,8 @@ def test_cli_train_kind_hybrid_starts_from_the_physics(bench_bags, tmp_path):
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
     assert data["kind"] == "hybrid" and data["inputs"][0] == c.INPUT_PHYSICS_SPEED
-    from bldc_propulsion.model import HYBRID, load_model
+    from bldc_propulsion.contract import HYBRID
+    from bldc_propulsion.model import load_model
 
     m = load_model(out, kinds=(HYBRID,))
     physics_val = m.metadata["physics"]["candidates"][0]["validation_rmse_rad_s"]

@@ -11,21 +11,11 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
+from bldc_propulsion.contract import HYBRID, MODEL_KINDS, NETWORK, PHYSICS
 from bldc_propulsion.errors import ModelError
-from bldc_propulsion.model import (
-    HYBRID,
-    KINDS,
-    NETWORK,
-    PHYSICS,
-    PHYSICS_SPEED,
-    HybridModel,
-    NetworkModel,
-    PlantModel,
-    load_model,
-    save_model,
-)
-from bldc_propulsion.plant import PLANT_FIELDS, PlantParams
-from bldc_propulsion.sim import BenchParams
+from bldc_propulsion.model import PHYSICS_SPEED, HybridModel, NetworkModel, load_model, save_model
+from bldc_propulsion.physics.params import PLANT_FIELDS, BenchParams, PlantParams
+from bldc_propulsion.physics.plant_model import PlantModel
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _models import good_model  # noqa: E402
@@ -68,7 +58,7 @@ def test_version_1_file_loads_as_the_network_it_was(tmp_path):
     assert isinstance(back, NetworkModel) and back.kind == "network"
     X = np.random.default_rng(0).uniform([9, 0.05, 0.05], [13, 0.1, 0.1], (50, 3))
     np.testing.assert_array_equal(back.forward(X), m.forward(X))
-    assert load_model(p, kinds=KINDS).input_names == m.input_names
+    assert load_model(p, kinds=MODEL_KINDS).input_names == m.input_names
 
 
 def test_network_file_says_its_kind_and_version(tmp_path):
@@ -86,7 +76,7 @@ def test_physics_model_round_trip(tmp_path):
     a = arrays_in(p)
     assert str(a["kind"]) == PHYSICS and "W1" not in a
     assert tuple(a["physics_names"]) == PLANT_FIELDS and a["physics_values"].dtype == np.float64
-    back = load_model(p, kinds=KINDS)
+    back = load_model(p, kinds=MODEL_KINDS)
     assert isinstance(back, PlantModel)
     assert back.params == m.params and type(back.params) is PlantParams
     assert back.params.motor_kv_rpm_per_v == 650.0 and back.params.sim_step_s == 0.005
@@ -99,7 +89,7 @@ def test_hybrid_model_round_trip(tmp_path):
     m = hybrid_model()
     p = tmp_path / "hyb.npz"
     save_model(m, p)
-    back = load_model(p, kinds=KINDS)
+    back = load_model(p, kinds=MODEL_KINDS)
     assert isinstance(back, HybridModel) and back.kind == HYBRID
     assert back.plant.params == m.plant.params and back.plant.effects == m.plant.effects
     np.testing.assert_array_equal(back.network.W1, m.network.W1)
@@ -155,7 +145,7 @@ def _with_value(a: dict[str, np.ndarray], key: str, name: str, value: float) -> 
 def test_bad_physics_file_is_one_line_naming_file_and_field(tmp_path, change, message):
     p = write(tmp_path / "bad.npz", change(_physics_arrays(tmp_path)))
     with pytest.raises(ModelError) as info:
-        load_model(p, kinds=KINDS)
+        load_model(p, kinds=MODEL_KINDS)
     text = str(info.value)
     assert text.startswith(f"{p}: ") and message in text and "\n" not in text
 
@@ -165,15 +155,15 @@ def test_hybrid_network_inputs_must_match(tmp_path):
     a = arrays_in(tmp_path / "h.npz")
     p = write(tmp_path / "bad.npz", {**a, "input_names": np.array([c.INPUT_BATTERY_VOLTAGE, c.INPUT_PWM])})
     with pytest.raises(ModelError, match=rf"^{p}: input_names: a hybrid's network must take physics_speed"):
-        load_model(p, kinds=KINDS)
+        load_model(p, kinds=MODEL_KINDS)
     q = write(tmp_path / "net.npz", {k: v for k, v in {**a, "kind": np.array("network")}.items()
                                     if k not in ("physics_names", "physics_values", "effect_names",
                                                  "effect_strengths", "supply_v")})
     with pytest.raises(ModelError, match=rf"^{q}: input_names: physics_speed is the physics part's speed"):
-        load_model(q, kinds=KINDS)
+        load_model(q, kinds=MODEL_KINDS)
     r = write(tmp_path / "nophys.npz", {**a, "physics_names": a["physics_names"][:3]})
     with pytest.raises(ModelError, match=rf"^{r}: physics_names"):
-        load_model(r, kinds=KINDS)
+        load_model(r, kinds=MODEL_KINDS)
     with pytest.raises(ModelError, match="a hybrid's network must take physics_speed"):
         HybridModel(plant_model(), good_model())
 

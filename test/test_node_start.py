@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from bldc_propulsion.core.battery_filter import PAPER_TAU_S, discretise
+from bldc_propulsion.contract import PAPER_FILTER_TAU_S
+from bldc_propulsion.core.battery_filter import discretise
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("tau_s,rate_hz", list(itertools.product(
-    (PAPER_TAU_S, 1e-3, 0.25, 2.0, 37.5, 900.0), (0.5, 50.0, 999.0, 1000.0, 1234.5, 20000.0, 1e6))))
+    (PAPER_FILTER_TAU_S, 1e-3, 0.25, 2.0, 37.5, 900.0), (0.5, 50.0, 999.0, 1000.0, 1234.5, 20000.0, 1e6))))
 def test_discretise_is_scipy_bilinear(tau_s, rate_hz):
     """Equal to scipy's to the last bit or two, whatever scipy's version (their arithmetic
     differs); bit for bit with scipy 1.17, the one the figures were made with (below)."""
@@ -40,7 +41,7 @@ def test_discretise_gives_the_bytes_scipy_1_17_gave():
         500.0: (["0x1.0614174a48f22p-11"] * 2, ["0x1.0000000000000p+0", "-0x1.ff7cf5f45adb8p-1"]),
     }
     for rate_hz, (b_hex, a_hex) in recorded.items():
-        b, a = discretise(PAPER_TAU_S, rate_hz)
+        b, a = discretise(PAPER_FILTER_TAU_S, rate_hz)
         assert [float(x).hex() for x in b] == b_hex
         assert [float(x).hex() for x in a] == a_hex
 
@@ -73,7 +74,7 @@ def test_the_tachometer_does_not_import_the_estimator_or_the_model():
     code = ("import sys, bldc_propulsion.core.tachometer, bldc_propulsion.core.status, "
             "bldc_propulsion.core.tach_output; "
             "sys.exit([m for m in ('bldc_propulsion.core.estimator', 'bldc_propulsion.model', "
-            "'bldc_propulsion.plant') if m in sys.modules] or 0)")
+            "'bldc_propulsion.physics.plant') if m in sys.modules] or 0)")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -12,9 +12,10 @@ rclpy = require_rclpy()
 from rclpy.parameter import Parameter  # noqa: E402
 
 from bldc_propulsion import contract as c  # noqa: E402
-from bldc_propulsion.model import PlantModel, save_model  # noqa: E402
+from bldc_propulsion.model import save_model  # noqa: E402
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode  # noqa: E402
-from bldc_propulsion.sim import BenchParams  # noqa: E402
+from bldc_propulsion.physics.params import BenchParams  # noqa: E402
+from bldc_propulsion.physics.plant_model import PlantModel  # noqa: E402
 
 
 @pytest.fixture()

@@ -10,16 +10,17 @@ import sys
 import numpy as np
 import pytest
 
-from bldc_propulsion import plant as pl
 from bldc_propulsion.contract import EFFECTS, PWM_FULL, PWM_STOP
 from bldc_propulsion.errors import BadInputError
-from bldc_propulsion.sim import BenchParams
+from bldc_propulsion.physics import params as pp
+from bldc_propulsion.physics import plant as pl
+from bldc_propulsion.physics.params import BenchParams
 
 ALL_OFF = {name: 0.0 for name in EFFECTS}
 
 
 def test_plant_imports_nothing_of_the_simulator() -> None:
-    code = ("import sys, bldc_propulsion.plant; "
+    code = ("import sys, bldc_propulsion.physics.plant; "
             "print(sorted(m for m in sys.modules if m.startswith('bldc_propulsion.sim')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
@@ -27,11 +28,11 @@ def test_plant_imports_nothing_of_the_simulator() -> None:
 
 def test_bench_params_are_plant_params_plus_battery_and_sensors() -> None:
     b = BenchParams()
-    assert isinstance(b, pl.PlantParams)
-    for name in pl.PLANT_FIELDS:
-        assert getattr(b, name) == getattr(pl.PlantParams(), name)
-    assert not any(n.startswith(("tach_", "adc_")) for n in pl.PLANT_FIELDS)
-    assert [n for n in pl.PLANT_FIELDS if n.startswith("battery_")] == ["battery_series_resistance_ohm"]
+    assert isinstance(b, pp.PlantParams)
+    for name in pp.PLANT_FIELDS:
+        assert getattr(b, name) == getattr(pp.PlantParams(), name)
+    assert not any(n.startswith(("tach_", "adc_")) for n in pp.PLANT_FIELDS)
+    assert [n for n in pp.PLANT_FIELDS if n.startswith("battery_")] == ["battery_series_resistance_ohm"]
 
 
 @pytest.mark.parametrize("exponent", [1.0, 0.8, 1.25])
@@ -47,8 +48,8 @@ def test_throttle_map_one_float_equals_the_array(threshold: float, exponent: flo
 
 
 def test_dead_time_and_start_level_scale_with_the_effects() -> None:
-    p = pl.PlantParams()
-    eff = pl.resolve_effects({"input_delay": 0.5, "esc_deadband": 2.0})
+    p = pp.PlantParams()
+    eff = pp.resolve_effects({"input_delay": 0.5, "esc_deadband": 2.0})
     assert pl.dead_time_s(p, eff) == pytest.approx(0.020)
     assert pl.start_level(p, eff) == pytest.approx(0.060)
     # a frame at 1.000 s reaches the ESC at 1.020 s
@@ -59,7 +60,7 @@ def test_dead_time_and_start_level_scale_with_the_effects() -> None:
 
 def test_steady_state_is_the_hand_computed_torque_balance() -> None:
     """No inertia, no friction, cold winding: kq w^2 = kt (V - ke w) / R, solved by hand."""
-    p = dataclasses.replace(pl.PlantParams(), motor_no_load_current_a=0.0, battery_series_resistance_ohm=0.0)
+    p = dataclasses.replace(pp.PlantParams(), motor_no_load_current_a=0.0, battery_series_resistance_ohm=0.0)
     step = pl.make_step(p, ALL_OFF, 0.0)
     w, w_next, i, _ = step(0.0, p.ambient_temperature_c, 1.0, 12.0)
     ke, kq, r = p.back_emf_constant_v_s_per_rad, p.torque_coefficient, p.winding_resistance_ohm + p.esc_resistance_ohm
@@ -71,7 +72,7 @@ def test_steady_state_is_the_hand_computed_torque_balance() -> None:
 
 
 def test_rotor_with_inertia_approaches_the_steady_state_with_its_time_constant() -> None:
-    p = pl.PlantParams()
+    p = pp.PlantParams()
     eff = {**ALL_OFF, "rotor_lag": 1.0}
     w_ss = pl.make_step(p, ALL_OFF, 0.0)(0.0, 25.0, 0.6, 12.0)[0]
     step = pl.make_step(p, eff, 0.0)
@@ -86,7 +87,7 @@ def test_spin_up_time_constant_is_the_small_step_response() -> None:
     """``spin_up_time_constant_s`` (the linearised rotor) against the plant stepped at 1 ms: a small
     duty step from a settled speed reaches 63.2 % of its rise in one time constant. At 1.5x the
     nominal inertia on another winding, so the check is not of the nominal numbers."""
-    p = dataclasses.replace(pl.PlantParams(), winding_resistance_ohm=0.35)
+    p = dataclasses.replace(pp.PlantParams(), winding_resistance_ohm=0.35)
     eff = {**ALL_OFF, "rotor_lag": 1.5}
     steady = pl.make_step(p, ALL_OFF, 0.0)
     w0, w1 = (steady(0.0, 25.0, d, 12.0)[0] for d in (0.5, 0.51))
@@ -120,7 +121,7 @@ def test_full_drive_speeds_are_where_the_simulated_winding_levels_off() -> None:
 
 
 def test_without_braking_the_current_never_goes_negative() -> None:
-    p = pl.PlantParams()
+    p = pp.PlantParams()
     for braking_removed, brakes in ((0.0, True), (1.0, False)):
         step = pl.make_step(p, {**ALL_OFF, "rotor_lag": 1.0, "spin_down_asymmetry": braking_removed}, 0.0)
         _, _, i, _ = step(500.0, 25.0, 0.1, 12.0)  # fast rotor, little drive: back-EMF wins
@@ -137,18 +138,18 @@ def test_without_braking_the_current_never_goes_negative() -> None:
     ("sim_step_s", 0.01, "too coarse"),
 ])
 def test_unphysical_constants_are_named(field: str, value: float, needle: str) -> None:
-    p = dataclasses.replace(pl.PlantParams(), **{field: value})
-    name, why = pl.plant_problem(p)
+    p = dataclasses.replace(pp.PlantParams(), **{field: value})
+    name, why = pp.plant_problem(p)
     assert name == field and needle in why
     with pytest.raises(BadInputError, match=rf"^--param {field}: .*{needle}"):
-        pl.check_plant(p)
-    assert pl.plant_problem(pl.PlantParams()) is None
+        pp.check_plant(p)
+    assert pp.plant_problem(pp.PlantParams()) is None
 
 
 def test_strengths_are_checked_by_one_rule() -> None:
-    assert pl.strength_problem("rotor_lag", 2.0) is None
-    assert "unknown effect" in pl.strength_problem("wobble", 1.0)
-    assert ">= 0" in pl.strength_problem("rotor_lag", -1.0)
-    assert "[0, 1]" in pl.strength_problem("spin_down_asymmetry", 1.5)
+    assert pp.strength_problem("rotor_lag", 2.0) is None
+    assert "unknown effect" in pp.strength_problem("wobble", 1.0)
+    assert ">= 0" in pp.strength_problem("rotor_lag", -1.0)
+    assert "[0, 1]" in pp.strength_problem("spin_down_asymmetry", 1.5)
     with pytest.raises(BadInputError, match=r"^--effect rotor_lag='x': not a number"):
-        pl.resolve_effects({"rotor_lag": "x"})
+        pp.resolve_effects({"rotor_lag": "x"})

@@ -1,4 +1,4 @@
-"""The plant as a stream (core/plant_stream.py) against its batch path and the simulator's truth."""
+"""The plant as a stream (physics/stream.py) against its batch path and the simulator's truth."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig
-from bldc_propulsion.core.plant_stream import LATE_S, PlantStream
-from bldc_propulsion.plant import motor_response
-from bldc_propulsion.sim import BenchParams, SimResult, simulate
+from bldc_propulsion.physics.params import BenchParams
+from bldc_propulsion.physics.plant import motor_response
+from bldc_propulsion.physics.stream import LATE_S, PlantStream
+from bldc_propulsion.sim import SimResult, simulate
 from bldc_propulsion.sim import random_bench as rb
 
 PWM, VOLTAGE, PREDICT = 0, 1, 2

@@ -1,9 +1,9 @@
 """The physics fit starts from the user's motor and refuses what the data cannot support.
 
-- ``priors.physics_start``: the nominal bench resized to a stated Kv, propeller and pack, checked
+- ``physics.sizing.physics_start``: the nominal bench resized to a stated Kv, propeller and pack, checked
   against numbers computed by hand from its stated relations (CT ~ sqrt(P/D), momentum theory for
   CP, winding resistance ~ V^2/P, ...), and the nominal bench stated as itself is the nominal bench.
-- ``physics.start_model``: a CONFIG wins over a stated prior where both give a constant, and says so.
+- ``physics.config.start_model``: a CONFIG wins over a stated prior where both give a constant, and says so.
 - ``train --kind physics`` on a simulated bench of another motor class (``draw_far_bench``): with
   its true Kv and propeller stated, the fitted Kv is the bench's (within 30 %, not at a bound);
   without them the fit starts from the 12 in bench and a warning says so.
@@ -26,19 +26,20 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
-from bldc_propulsion.discrepancy import physics as ph
 from bldc_propulsion.discrepancy.identify import Heating
-from bldc_propulsion.priors import (
+from bldc_propulsion.physics import config as pc
+from bldc_propulsion.physics import fit as pf
+from bldc_propulsion.physics.params import BenchParams
+from bldc_propulsion.physics.sizing import (
     CP_RANGE_FACTOR,
-    INCH_M,
     KV_RANGE_FACTOR,
-    MotorPriors,
     figure_of_merit,
     physics_start,
     propeller_cp_from_ct,
     propeller_ct_from_geometry,
 )
-from bldc_propulsion.sim import BenchParams, simulate
+from bldc_propulsion.priors import INCH_M, MotorPriors
+from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.random_bench import draw_far_bench
 from bldc_propulsion.sim.record import write_sim_bag
 
@@ -118,7 +119,7 @@ def test_a_config_wins_where_it_and_a_prior_both_give_a_constant(tmp_path):
     cfg = tmp_path / "bench.json"
     cfg.write_text(json.dumps({"params": {"motor_kv_rpm_per_v": 800.0}}))
     priors = MotorPriors(motor_kv_rpm_per_v=1900.0, propeller_diameter_m=7 * INCH_M, propeller_pitch_m=5.6 * INCH_M)
-    model, notes, warnings = ph.start_model(str(cfg), priors, 15.5)
+    model, notes, warnings = pc.start_model(str(cfg), priors, 15.5)
     assert model.params.motor_kv_rpm_per_v == 800.0 and model.source == str(cfg)
     assert model.params.propeller_diameter_m == pytest.approx(7 * INCH_M)  # not in the CONFIG: the prior's
     assert warnings == [f"--motor-kv 1900: --physics {cfg} sets motor_kv_rpm_per_v 800, which wins over the "
@@ -127,30 +128,30 @@ def test_a_config_wins_where_it_and_a_prior_both_give_a_constant(tmp_path):
     assert model.basis("propeller_cp") == ("stated (--prop-diameter-in 7 --prop-pitch-in 5.6)", True)
     assert model.basis("motor_kv_rpm_per_v") == ("CONFIG", True)
     # neither: the nominal bench, and the one line that says so
-    nominal, _, warned = ph.start_model(None, MotorPriors(), 12.0)
-    assert nominal.params.motor_kv_rpm_per_v == 710.0 and warned == [ph.NOMINAL_START_WARNING]
+    nominal, _, warned = pc.start_model(None, MotorPriors(), 12.0)
+    assert nominal.params.motor_kv_rpm_per_v == 710.0 and warned == [pc.NOMINAL_START_WARNING]
     assert warned[0].startswith("no --motor-kv/--prop-diameter-in: starting from the simulator's 12 in bench")
 
 
 def test_a_kv_far_from_the_stated_one_is_flagged_against_it():
     priors = MotorPriors(motor_kv_rpm_per_v=1900.0)
-    start, _, _ = ph.start_model(None, priors, 15.5)
+    start, _, _ = pc.start_model(None, priors, 15.5)
     consts = np.array(list(start.constants().values()))
-    anchor, span = ph.base_window(start)
+    anchor, span = pf.base_window(start)
     assert anchor[0] == pytest.approx(1900.0) and span[0] == pytest.approx(math.log(KV_RANGE_FACTOR))
-    fit = ph.Fit(start.with_constants([1900.0 * KV_RANGE_FACTOR, *consts[1:]]), np.zeros(1),
-                 np.zeros((1, len(ph.CALIBRATED))), 0.0, anchor, span)
-    (flag,) = [f for f in ph.fit_flags(fit, start, "test fit") if f.quantity == "motor_kv_rpm_per_v"]
+    fit = pf.Fit(start.with_constants([1900.0 * KV_RANGE_FACTOR, *consts[1:]]), np.zeros(1),
+                 np.zeros((1, len(pc.CALIBRATED))), 0.0, anchor, span)
+    (flag,) = [f for f in pf.fit_flags(fit, start, "test fit") if f.quantity == "motor_kv_rpm_per_v"]
     assert flag.at_bound and flag.stated and flag.blocks
     assert flag.text() == (f"test fit: motor_kv_rpm_per_v fitted {1900 * KV_RANGE_FACTOR:.4g} vs stated "
                            f"(--motor-kv 1900) 1900 (at a bound of its range {1900 / KV_RANGE_FACTOR:.4g}-"
                            f"{1900 * KV_RANGE_FACTOR:.4g})")
     # Kv 1e6 on the nominal bench (no priors): at the bound of its range, never silent
-    nominal = ph.load_config(None)
-    a, s = ph.base_window(nominal)
-    far = ph.Fit(nominal.with_constants([710e3, *list(nominal.constants().values())[1:]]), np.zeros(1),
-                 np.zeros((1, len(ph.CALIBRATED))), 0.0, a, s)
-    (kv,) = [f for f in ph.fit_flags(far, nominal, "test fit") if f.quantity == "motor_kv_rpm_per_v"]
+    nominal = pc.load_config(None)
+    a, s = pf.base_window(nominal)
+    far = pf.Fit(nominal.with_constants([710e3, *list(nominal.constants().values())[1:]]), np.zeros(1),
+                 np.zeros((1, len(pc.CALIBRATED))), 0.0, a, s)
+    (kv,) = [f for f in pf.fit_flags(far, nominal, "test fit") if f.quantity == "motor_kv_rpm_per_v"]
     assert kv.at_bound and kv.blocks and "nominal (no CONFIG given)" in kv.text()
 
 
@@ -196,8 +197,8 @@ def test_another_motor_class_with_its_priors_gives_its_kv(far_bags, tmp_path):
     proc = _train(far_bags, tmp_path / "without.npz")
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
-    assert data["warnings"][0] == ph.NOMINAL_START_WARNING
-    assert f"warning: {ph.NOMINAL_START_WARNING}" in proc.stderr.splitlines()
+    assert data["warnings"][0] == pc.NOMINAL_START_WARNING
+    assert f"warning: {pc.NOMINAL_START_WARNING}" in proc.stderr.splitlines()
 
 
 @pytest.fixture(scope="module")

@@ -21,9 +21,10 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _tachsignal import make_signal  # noqa: E402
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig  # noqa: E402
-from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model  # noqa: E402
+from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
 from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder  # noqa: E402
 from bldc_propulsion.model import NetworkModel  # noqa: E402
+from bldc_propulsion.physics.fallback import fallback_model  # noqa: E402
 
 FAST = settings(max_examples=40, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])

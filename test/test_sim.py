@@ -11,16 +11,9 @@ from scipy.signal import lfilter, lfilter_zi
 
 from bldc_propulsion.contract import EFFECTS, PWM_FRAME_HZ, PWM_FULL, PWM_STOP
 from bldc_propulsion.errors import BadInputError
-from bldc_propulsion.plant import motor_response
-from bldc_propulsion.sim import (
-    EFFECT_DOCS,
-    PROFILES,
-    BenchParams,
-    SimResult,
-    make_profile,
-    params_with_overrides,
-    simulate,
-)
+from bldc_propulsion.physics.params import BenchParams, params_with_overrides
+from bldc_propulsion.physics.plant import motor_response
+from bldc_propulsion.sim import EFFECT_DOCS, PROFILES, SimResult, make_profile, simulate
 from bldc_propulsion.sim.profiles import ARMING_S
 from bldc_propulsion.sim.random_bench import model_strength
 

@@ -34,12 +34,12 @@ from std_msgs.msg import Float32MultiArray, Float64  # noqa: E402
 from _models import good_model  # noqa: E402
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import TYPESTORE, open_recording  # noqa: E402
-from bldc_propulsion.core.estimator import fallback_model  # noqa: E402
 from bldc_propulsion.core.tach_output import revolution_middle  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 from bldc_propulsion.model import save_model  # noqa: E402
 from bldc_propulsion.nodes.tachometer_node import TachometerNode  # noqa: E402
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode  # noqa: E402
+from bldc_propulsion.physics.fallback import fallback_model  # noqa: E402
 from bldc_propulsion.recordings import load_signals  # noqa: E402
 from bldc_propulsion.replay import replay_bag  # noqa: E402
 from bldc_propulsion.sim import simulate  # noqa: E402

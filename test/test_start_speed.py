@@ -13,15 +13,19 @@ import numpy as np
 import pytest
 
 from bldc_propulsion import contract as c
-from bldc_propulsion import plant as pl
 from bldc_propulsion.core import features as F
 from bldc_propulsion.core.estimator import MEASURED_SPEED_MAX_AGE_S, START_WINDOW_S, ThrustEstimator
-from bldc_propulsion.core.features import measured_start_speed, start_params
-from bldc_propulsion.discrepancy import physics as ph
+from bldc_propulsion.core.features import start_params
 from bldc_propulsion.discrepancy.network import slice_signals
-from bldc_propulsion.model import HybridModel, NetworkModel, PlantModel
+from bldc_propulsion.model import HybridModel, NetworkModel
+from bldc_propulsion.physics import config as pc
+from bldc_propulsion.physics import params as pp
+from bldc_propulsion.physics import plant as pl
+from bldc_propulsion.physics.params import BenchParams
+from bldc_propulsion.physics.plant import measured_start_speed
+from bldc_propulsion.physics.plant_model import PlantModel
 from bldc_propulsion.recordings import Signals, load_signals
-from bldc_propulsion.sim import BenchParams, SimResult, simulate
+from bldc_propulsion.sim import SimResult, simulate
 from bldc_propulsion.sim.record import write_sim_bag
 from bldc_propulsion.training.evaluate import predict_speed
 from bldc_propulsion.training.train import features_of
@@ -161,7 +165,7 @@ def test_discrepancy_physics_starts_from_the_measured_speed(run, full):
     """The discrepancy workflow's physics (its own batch path on the gridded voltage) too: a fit
     on a cut recording is not bent by a spin-up that never happened."""
     sig = cut_signals(full, CUT_S)
-    model = ph.PhysicsModel(dataclasses.replace(BenchParams(), sim_step_s=0.005), EFFECTS, 12.0)
+    model = pc.PhysicsConfig(dataclasses.replace(BenchParams(), sim_step_s=0.005), EFFECTS, 12.0)
     want = truth(run, sig.t)
     err0, rmse = head_errors(model.predict(sig), want, sig.t)
     assert abs(err0) < 0.02 * want[0] and rmse < 6.0  # (Data.residual, the fits' residual, is this)
@@ -173,7 +177,7 @@ def motor_response_at_rest(params, effects, pwm_events, supply, t_out, v_ref, su
     """``plant.motor_response`` as it was before it took a start speed (the reference): the rotor
     at rest at the first command, PWM_STOP before it, no supply current filtered yet."""
     assert initial_speed == 0.0  # a recording from rest asks for no start speed
-    eff = pl.resolve_effects(effects)
+    eff = pp.resolve_effects(effects)
     cmd_t, cmd = (np.asarray(a, dtype=float) for a in pwm_events)
     t0 = min(float(cmd_t[0]), float(t_out[0]))
     dt = params.sim_step_s
@@ -200,10 +204,10 @@ def test_recording_from_rest_is_predicted_bit_for_bit_as_before(make, run, full,
     model = make()
     assert measured_start_speed(full.t, full.speed, full.pwm_events[0][0]) == 0.0
     now = predict_speed(model, full)
-    plant = ph.PhysicsModel(dataclasses.replace(BenchParams(), sim_step_s=0.005), EFFECTS, 12.0)
+    plant = pc.PhysicsConfig(dataclasses.replace(BenchParams(), sim_step_s=0.005), EFFECTS, 12.0)
     now_ph = plant.predict(full)
     monkeypatch.setattr(F, "motor_response", motor_response_at_rest)
-    monkeypatch.setattr(ph, "motor_response", motor_response_at_rest)
+    monkeypatch.setattr(pc, "motor_response", motor_response_at_rest)
     assert np.array_equal(now, predict_speed(model, full), equal_nan=True)
     assert np.isfinite(now).mean() > 0.95 and np.nanmax(now) > 400.0
     assert np.array_equal(now_ph, plant.predict(full))

@@ -24,13 +24,16 @@ from _truth_bags import write_bag
 from bldc_propulsion import cli
 from bldc_propulsion import contract as c
 from bldc_propulsion.bagio import BagWriter, open_recording
-from bldc_propulsion.core.estimator import NO_THRUST_MESSAGE, ThrustEstimator, fallback_model
+from bldc_propulsion.core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
 from bldc_propulsion.core.status import WARN
-from bldc_propulsion.model import NOMINAL_THRUST_COEFFICIENT, PlantModel, load_model, save_model
+from bldc_propulsion.model import load_model, save_model
+from bldc_propulsion.physics.fallback import NOMINAL_THRUST_COEFFICIENT, fallback_model
+from bldc_propulsion.physics.params import BenchParams
+from bldc_propulsion.physics.plant_model import PlantModel
 from bldc_propulsion.priors import add_prior_arguments, priors_from_args
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.replay import replay_bag
-from bldc_propulsion.sim import BenchParams, simulate
+from bldc_propulsion.sim import simulate
 from bldc_propulsion.training.evaluate import THRUST_NO_COEFFICIENT
 from bldc_propulsion.training.train import (
     AIRBORNE_SPEED_FRACTION,

@@ -1,7 +1,7 @@
 """A propulsion bench simulated from a textbook model, written apart from the package's own
 simulator (issue 30: judge the discrepancy workflow on a bench whose structure it did not write).
 
-Nothing here comes from ``bldc_propulsion.sim`` or ``bldc_propulsion.plant``: the structure is a
+Nothing here comes from ``bldc_propulsion.sim`` or ``bldc_propulsion.physics``: the structure is a
 textbook's (Thevenin pack with two RC branches, DC-equivalent BLDC with inductance, propeller
 coefficients that drift with Reynolds number, a phototransistor that is a low-pass), so the
 package's model cannot match it term for term, as it cannot match a real bench.

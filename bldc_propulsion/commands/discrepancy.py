@@ -10,7 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 from .. import contract as c
-from ..atomic import CONFIG, MODEL, REPORT, check_outputs
+from ..atomic import REPORT, check_outputs
 
 # The workflow (scipy, rosbags) is imported inside the functions that run it, so that `--help`
 # stays quick; its decision thresholds, the options' defaults, come from a module that imports nothing.
@@ -137,7 +137,8 @@ def _has_namespace(path: str, namespace: str | None) -> bool:
 
 def run(args: argparse.Namespace) -> CommandResult:
     from ..discrepancy.workflow import Options, check_effect_names, run_workflow
-    from ..model import NETWORK, load_model, save_model
+    from ..model import MODEL, load_model, save_model
+    from ..physics.config import CONFIG
     from ..training.evaluate import input_range
 
     check_effect_names(args.effects)
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> CommandResult:
         raise BadInputError(f"--alpha {args.alpha}: must be between 0 and 1")
     # any kind: a physics model (or a hybrid's physics part) goes down the physics path
     model = load_model(args.model) if args.model is not None else None
-    physics = model is None or model.kind != NETWORK
+    physics = model is None or model.kind != c.NETWORK
     priors = priors_from_args(args)
     if not physics and priors.stated:
         raise BadInputError(f"{priors.motor_options()[0]}: states the motor a physics fit starts from, so it goes "
@@ -196,9 +197,10 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
     physics as the model (see discrepancy/physics_kind.py). A hybrid's physics part is checked:
     the workflow fits physical effects, and a network correction on top would hide the very
     disagreement it looks for; so it says so, and -o is a physics model or CONFIG."""
-    from ..discrepancy.physics import save_config, supply_tau_s
     from ..discrepancy.workflow import Options, run_physics_workflow
-    from ..model import HYBRID, PlantModel, save_model
+    from ..model import save_model
+    from ..physics.config import save_config, supply_tau_s
+    from ..physics.plant_model import PlantModel
 
     where = "--physics" if loaded is None else f"the {loaded.kind} model {args.model}"
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
@@ -209,9 +211,9 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
         base, model = args.physics or None, _physics_input(args.physics)  # a bad CONFIG fails before any work
     else:
         base = str(args.model)
-        plant = loaded.plant if loaded.kind == HYBRID else loaded
+        plant = loaded.plant if loaded.kind == c.HYBRID else loaded
         model = _physics_of(plant, base)
-        if loaded.kind == HYBRID:
+        if loaded.kind == c.HYBRID:
             out = f"; -o {args.output} gets a physics model" if args.output else ""
             warnings.append(f"--model {args.model}: a hybrid: its physics part is checked, without the "
                             f"network's correction{out}")
@@ -219,7 +221,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
     if loaded is None and not _is_npz(args.physics):
         # the start: the stated motor under the CONFIG (which wins where both give a constant), sized
         # at the measured recordings' voltage; neither given: the nominal bench
-        from ..discrepancy.physics import NOMINAL_START_WARNING, median_voltage, start_model
+        from ..physics.config import NOMINAL_START_WARNING, median_voltage, start_model
 
         model, notes, start_warnings = start_model(args.physics or None, priors, median_voltage(measured))
         # (from the nominal bench, every fit flag says so: "nominal (no CONFIG given)")
@@ -269,8 +271,8 @@ def _thrust_of(loaded: Any, signals: list[Any]) -> Any:
 
 def _model_vs_priors(model: Any, priors: MotorPriors, where: str) -> list[str]:
     """A model file's constants win over stated priors (it was fitted); one warning per stated
-    Kv or CP the model's value is outside the prior's range of (``priors.physics_start``)."""
-    from ..priors import physics_start
+    Kv or CP the model's value is outside the prior's range of (``physics.sizing.physics_start``)."""
+    from ..physics.sizing import physics_start
 
     start = physics_start(priors) if priors.stated else None
     if start is None:
@@ -291,22 +293,22 @@ def _is_npz(path: str | None) -> bool:
 
 def _physics_input(path: str) -> Any:
     """``--physics CONFIG``: a JSON CONFIG, or a physics model file (.npz)."""
-    from ..discrepancy.physics import load_config
-    from ..model import PHYSICS, load_model
+    from ..model import load_model
+    from ..physics.config import load_config
 
     if not _is_npz(path):
         return load_config(path)
-    return _physics_of(load_model(path, kinds=(PHYSICS,)), path)
+    return _physics_of(load_model(path, kinds=(c.PHYSICS,)), path)
 
 
 def _physics_of(m: Any, source: str) -> Any:
-    """The workflow's physics model of a model file's plant (``model.PlantModel``), on the
-    nominal bench's constants where the file has none."""
-    from ..discrepancy.physics import PhysicsModel, load_config
+    """The workflow's physics model of a model file's plant (``physics.plant_model.PlantModel``),
+    on the nominal bench's constants where the file has none."""
+    from ..physics.config import PhysicsConfig, load_config
 
     nominal = load_config(None).params
-    return PhysicsModel(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v,
-                        source=source)
+    return PhysicsConfig(dataclasses.replace(nominal, **dataclasses.asdict(m.params)), dict(m.effects), m.supply_v,
+                         source=source)
 
 
 def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,

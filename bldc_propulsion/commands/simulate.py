@@ -15,17 +15,20 @@ DESCRIPTION = (
     "(/truth/speed, /truth/thrust) as an MCAP bag. Every physical effect can be "
     "switched off (0), kept at its realistic strength (1, the default) or scaled. With "
     "--namespace motorN the run is recorded as one motor of a quadrotor: its topics under "
-    "/motorN/, /battery/adc at the root."
+    "/motorN/, /battery/adc at the root. --fault NAME=SIZE@TIME changes the bench mid-recording "
+    "(the truth a health monitor is judged against), kept in the recording's metadata."
 )
 
 
 def help_details(p: argparse.ArgumentParser) -> None:
-    """The profiles and effects, listed below the options: they live in the simulator (numpy,
-    scipy), so they are imported only when this help is printed (cli.OneLineParser)."""
-    from ..sim import EFFECT_DOCS, PROFILES
+    """The profiles, effects and faults, listed below the options: they live in the simulator
+    (numpy, scipy), so they are imported only when this help is printed (cli.OneLineParser)."""
+    from ..sim import EFFECT_DOCS, FAULT_DOCS, PROFILES
 
     effects = "\n".join(f"  {name}: {doc}" for name, doc in EFFECT_DOCS.items())
-    p.epilog = f"profiles: {', '.join(PROFILES)}\neffects:\n{effects}"
+    faults = "\n".join(f"  {name}: {doc}" for name, doc in FAULT_DOCS.items())
+    p.epilog = (f"profiles: {', '.join(PROFILES)}\neffects:\n{effects}\n"
+                f"faults (--fault NAME=SIZE@TIME, TIME in seconds from the start):\n{faults}")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,7 +44,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--param", action="append", metavar="NAME=VALUE",
-        help="override a bench constant (see bldc_propulsion/sim/params.py); repeatable",
+        help="override a bench constant (see bldc_propulsion/physics/params.py); repeatable",
+    )
+    p.add_argument(
+        "--fault", action="append", metavar="NAME=SIZE@TIME",
+        help="change the bench from TIME (s, inside the duration) on, e.g. propeller_damage=0.1@20 "
+             "(faults and their SIZE listed below); repeatable, each from its own onset",
     )
     p.add_argument("--namespace", metavar="NS",
                    help="record as one motor of a vehicle (e.g. motor0): its topics under /NS/, "
@@ -52,6 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
+    from ..sim.faults import parse_fault
     from ..sim.record import simulate_to_bag
 
     info = simulate_to_bag(
@@ -65,11 +74,13 @@ def run(args: argparse.Namespace) -> CommandResult:
         storage=args.storage,
         force=args.force,
         namespace=args.namespace,
+        faults=[parse_fault(text) for text in args.fault or ()],
     )
     where = f" (motor topics under /{info['namespace']}, battery at the root)" if info["namespace"] else ""
     text = (
         f"wrote {info['path']}{where}: {info['duration_s']:.1f} s of '{info['profile']}', "
         f"{info['messages']} messages, speed {info['speed_min_rad_s']:.0f}..{info['speed_max_rad_s']:.0f} rad/s, "
         f"battery {info['voltage_end_v']:.2f} V at the end"
+        + (f"; faults {', '.join(info['faults'])}" if info["faults"] else "")
     )
     return CommandResult(info, text)

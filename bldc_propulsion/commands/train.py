@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .. import contract as c
-from ..atomic import MODEL, REPORT, check_outputs, report_output
+from ..atomic import REPORT, check_outputs, report_output
 from ..errors import BadInputError
 from ..priors import MotorPriors, add_prior_arguments, priors_from_args
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, 
     import numpy as np
 
     from ..recordings import Signals
-    from ..training.train import ThrustFit
+    from ..training.train import ThrustFit, TrainOutcome
 
 NAME = "train"
 HELP = "train the speed model (n-H-1 network, Levenberg-Marquardt; or the bench physics) from recordings"
@@ -129,9 +129,9 @@ PHYSICS_PRIORS = ("motor_kv", "pole_count", "cells", "prop_pitch_in")
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..model import save_model
+    from ..model import MODEL, save_model
     from ..recordings import load_all
-    from ..training.train import stated_thrust, train_model
+    from ..training.train import stated_thrust
 
     _network_options(args)
     priors = priors_from_args(args)  # options that go together, checked before any work
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> CommandResult:
                   inputs=[*args.train, *args.validation, args.physics_config])
     _check_disjoint(args.train, args.validation)
     if args.physics_config:  # a bad CONFIG is refused here, not after the first progress lines
-        from ..discrepancy.physics import load_config
+        from ..physics.config import load_config
 
         load_config(args.physics_config, option="--physics-config")
     # every check that reads the inputs comes before the first progress line, so that bad
@@ -156,45 +156,12 @@ def run(args: argparse.Namespace) -> CommandResult:
 
     if args.kind == "physics":
         return _run_physics(args, out, train, validation, stated, priors)
-    run = [0]
-
-    def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
-        if epoch == 0 and args.restarts > 1:
-            run[0] += 1
-            progress(f"run {run[0]} of {args.restarts} (seed {args.seed + run[0] - 1})")
-        progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
-
-    network = {"hidden": args.hidden, "seed": args.seed, "max_epochs": args.max_epochs,
-               "patience": args.patience, "progress": report_epoch, "restarts": args.restarts}
     hybrid = args.kind == "hybrid"
     inputs = [c.INPUT_PHYSICS_SPEED, *args.inputs] if hybrid else list(args.inputs)
-    if hybrid:  # the physics first; the network learns what it gets wrong
-        from ..training.fit_physics import train_hybrid, train_physics
-
-        physics = train_physics(train, validation, thrust_coefficient=stated, priors=priors,
-                                config=args.physics_config, progress=progress)
-        progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
-                 f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
-        outcome = train_hybrid(physics, inputs=args.inputs, **network)
-    else:
-        outcome = train_model(train, validation, inputs=inputs, thrust_coefficient=stated, **network)
+    outcome, physics_warnings = _train_network(args, train, validation, stated, priors)
     meta = outcome.model.metadata
-    runs = len(meta["restarts"])
-    warnings = []
-    if meta["best_epoch"] == 0 and hybrid:  # its initial weights: the physics alone
-        warnings.append("the network did not improve on the physics on the validation recordings: "
-                        "the hybrid's correction is 0 (the physics model alone)")
-    elif meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
-        raise BadInputError(
-            f"-o {out}: not written: no training run improved on its initial weights (validation "
-            f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
-            "validation recordings are the same bench and signals as the training ones "
-            "(`bldc-propulsion info`), or give more --restarts")
-    stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
-    if stuck and not warnings:
-        warnings.append(f"{stuck} of {runs} training runs never improved on their initial weights "
-                        "(the kept run did)")
-    warnings += physics.warnings if hybrid else []  # the physics part's start and fit flags
+    warnings = _run_warnings(meta, hybrid, out)
+    warnings += physics_warnings  # the physics part's start and fit flags
     thrust_line, thrust_warnings = _thrust_summary(outcome.thrust)
     warnings += thrust_warnings
     save_model(outcome.model, out, force=args.force)
@@ -232,6 +199,56 @@ def run(args: argparse.Namespace) -> CommandResult:
     ])
     data["warnings"] = warnings
     return CommandResult(data, text, warnings=warnings)
+
+
+def _train_network(args: argparse.Namespace, train: list[Signals], validation: list[Signals],
+                   stated: ThrustFit | None, priors: MotorPriors) -> tuple[TrainOutcome, list[str]]:
+    """The network (--kind network), or the physics and then the network on its error (--kind
+    hybrid), with the epochs reported as they go; and the physics part's warnings."""
+    from ..training.train import train_model
+
+    run = [0]
+
+    def report_epoch(epoch: int, cost: float, val: float, mu: float) -> None:
+        if epoch == 0 and args.restarts > 1:
+            run[0] += 1
+            progress(f"run {run[0]} of {args.restarts} (seed {args.seed + run[0] - 1})")
+        progress(f"epoch {epoch:4d}  cost {cost:.6g}  validation {val:.6g}  mu {mu:.3g}")
+
+    network = {"hidden": args.hidden, "seed": args.seed, "max_epochs": args.max_epochs,
+               "patience": args.patience, "progress": report_epoch, "restarts": args.restarts}
+    if args.kind != "hybrid":
+        return train_model(train, validation, inputs=list(args.inputs), thrust_coefficient=stated, **network), []
+    # the physics first; the network learns what it gets wrong
+    from ..training.fit_physics import train_hybrid, train_physics
+
+    physics = train_physics(train, validation, thrust_coefficient=stated, priors=priors,
+                            config=args.physics_config, progress=progress)
+    progress(f"physics: RMSE training {physics.train_rmse_rad_s:.2f} rad/s, validation "
+             f"{physics.validation_rmse_rad_s:.2f} rad/s; training the network on its error")
+    return train_hybrid(physics, inputs=args.inputs, **network), physics.warnings
+
+
+def _run_warnings(meta: dict[str, Any], hybrid: bool, out: Path) -> list[str]:
+    """What the LM runs' histories say: BadInputError when the kept network is its initial weights
+    (nothing was learnt), a warning when the hybrid's correction stayed 0 or some runs never
+    improved."""
+    runs = len(meta["restarts"])
+    warnings = []
+    if meta["best_epoch"] == 0 and hybrid:  # its initial weights: the physics alone
+        warnings.append("the network did not improve on the physics on the validation recordings: "
+                        "the hybrid's correction is 0 (the physics model alone)")
+    elif meta["best_epoch"] == 0:  # the kept network is its initial weights: nothing was learnt
+        raise BadInputError(
+            f"-o {out}: not written: no training run improved on its initial weights (validation "
+            f"cost {meta['validation_cost']:.4g} at epoch 0 in the best of {runs} run(s)); check that the "
+            "validation recordings are the same bench and signals as the training ones "
+            "(`bldc-propulsion info`), or give more --restarts")
+    stuck = sum(1 for r in meta["restarts"] if r["best_epoch"] == 0)
+    if stuck and not warnings:
+        warnings.append(f"{stuck} of {runs} training runs never improved on their initial weights "
+                        "(the kept run did)")
+    return warnings
 
 
 def _thrust_summary(fit: ThrustFit) -> tuple[str, list[str]]:

@@ -16,8 +16,7 @@ from typing import Any
 #: name -> the module of this package that defines it
 _HOME = {
     "BatteryFilter": "battery_filter", "BatteryFilterConfig": "battery_filter",
-    "PhysicsModel": "estimator", "Prediction": "estimator", "ThrustEstimator": "estimator",
-    "fallback_model": "estimator",
+    "Prediction": "estimator", "ThrustEstimator": "estimator",
     "FeatureState": "features", "compute_features": "features", "register_feature": "features",
     "ERROR": "status", "OK": "status", "WARN": "status", "CoreStatus": "status",
     "TachBatchResult": "tachometer", "TachometerConfig": "tachometer",

@@ -5,7 +5,8 @@ The paper filters the ESC-modulated battery voltage with
     H(z) = 4.9975e-4 (z + 1) / (z - 0.9995)   at 1 kHz.
 
 That is the bilinear (Tustin) discretisation of a first-order low-pass K / (tau s + 1) with
-tau = 1.9995 s and K = 1.999. The DC gain K is the voltage divider in front of the ADC (the
+tau = 1.9995 s and K = 1.999 (``contract.paper_filter_prototype``: the physics model needs the
+same tau for the lag of its voltage input). The DC gain K is the voltage divider in front of the ADC (the
 ADC reads under 10 V), so this module keeps the two apart:
 
     battery volts = divider_ratio * lowpass(adc volts),   lowpass = 1 / (tau s + 1)
@@ -34,30 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..contract import PAPER_DIVIDER_RATIO, PAPER_FILTER_RATE_HZ, PAPER_FILTER_TAU_S
 from ..errors import BadInputError
 from .status import OK, WARN, CoreStatus, counters
-
-#: Paper, eq. (1): H(z) = PAPER_GAIN (z + 1) / (z - PAPER_POLE) at PAPER_RATE_HZ.
-PAPER_GAIN = 4.9975e-4
-PAPER_POLE = 0.9995
-PAPER_RATE_HZ = 1000.0
-
-
-def paper_prototype(
-    gain: float = PAPER_GAIN, pole: float = PAPER_POLE, rate_hz: float = PAPER_RATE_HZ
-) -> tuple[float, float]:
-    """(K, tau_s) of the continuous K / (tau s + 1) whose Tustin form at rate_hz is gain (z+1)/(z-pole).
-
-    Tustin maps K/(tau s + 1) to K/(c+1) (z+1) / (z - (c-1)/(c+1)) with c = 2 tau / T, so
-    c = (1 + pole) / (1 - pole) and K = gain (c + 1). The paper's numbers give K = 1.999,
-    tau = 1.9995 s.
-    """
-    T = 1.0 / rate_hz
-    c = (1.0 + pole) / (1.0 - pole)
-    return gain * (c + 1.0), c * T / 2.0
-
-
-PAPER_DC_GAIN, PAPER_TAU_S = paper_prototype()
 
 
 def discretise(tau_s: float, sample_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -90,12 +70,12 @@ def _tustin_step(tau_s: float, dt: float) -> tuple[float, float, float]:
 class BatteryFilterConfig:
     """Parameters of :class:`BatteryFilter` (SI units; ADC limits in volts at the ADC pin)."""
 
-    sample_rate_hz: float = PAPER_RATE_HZ
-    divider_ratio: float = PAPER_DC_GAIN  #: battery volts per ADC volt (the paper's 1.999)
+    sample_rate_hz: float = PAPER_FILTER_RATE_HZ
+    divider_ratio: float = PAPER_DIVIDER_RATIO  #: battery volts per ADC volt (the paper's 1.999)
     min_adc_v: float = 0.0
     max_adc_v: float = 10.0  #: the DS1104 ADC reads under 10 V
     max_gap_s: float = 0.5
-    tau_s: float = PAPER_TAU_S  #: time constant of the low-pass (paper: 1.9995 s)
+    tau_s: float = PAPER_FILTER_TAU_S  #: time constant of the low-pass (paper: 1.9995 s)
     dt_tolerance: float = 0.01  #: relative period jitter still treated as the nominal period
 
     def __post_init__(self) -> None:
@@ -208,7 +188,22 @@ class BatteryFilter:
         out = np.full(n, np.nan)
         if n == 0:
             return out
+        idx = self._accepted_samples(t, x)
+        m = len(idx)
+        if m == 0:
+            return out
+        ta, xa = t[idx], x[idx]
+        kind, dt = self._step_kinds(ta)
+        y = self._filter_steps(ta, xa, kind, dt)
+        self._t = float(ta[-1])
+        self.accepted += m
+        out[idx] = self.config.divider_ratio * y
+        return out
+
+    def _accepted_samples(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Indices of the samples ``update`` would accept; the rejected ones counted by reason."""
         cfg = self.config
+        n = len(t)
         finite = np.isfinite(t) & np.isfinite(x)
         with np.errstate(invalid="ignore"):
             in_range = (x >= cfg.min_adc_v) & (x <= cfg.max_adc_v)
@@ -228,12 +223,12 @@ class BatteryFilter:
             last_bad = int(np.flatnonzero(~acc)[-1])
             self._last_rejection = ("nonfinite" if not finite[last_bad]
                                     else "range" if not in_range[last_bad] else "time")
-        idx = np.flatnonzero(acc)
-        m = len(idx)
-        if m == 0:
-            return out
-        ta, xa = t[idx], x[idx]
-        # step kind: 0 nominal period, 1 irregular, 2 start/restart
+        return np.flatnonzero(acc)
+
+    def _step_kinds(self, ta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each accepted sample's step from the one before (the filter's last sample for the
+        first): 0 nominal period, 1 irregular, 2 start/restart; and its length (s)."""
+        m = len(ta)
         kind = np.zeros(m, dtype=np.int8)
         dt = np.empty(m)
         dt[1:] = np.diff(ta)
@@ -244,12 +239,19 @@ class BatteryFilter:
             dt[0] = ta[0] - self._t
         irregular = (dt < self._dt_lo) | (dt > self._dt_hi)
         kind[irregular] = 1
-        kind[dt > cfg.max_gap_s] = 2
+        kind[dt > self.config.max_gap_s] = 2
         if self._t is None:
             kind[0] = 2
+        return kind, dt
+
+    def _filter_steps(self, ta: np.ndarray, xa: np.ndarray, kind: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """The low-pass output at the accepted samples: runs of nominal steps through
+        scipy.signal.lfilter (state carried in zi), the others one at a time as ``update``
+        takes them; the state is left at the last sample."""
+        m = len(ta)
         y = np.empty(m)
         pos = 0
-        tau = cfg.tau_s
+        tau = self.config.tau_s
         from scipy import signal  # here: a node (update only) starts without scipy.signal
 
         for brk in np.flatnonzero(kind).tolist() + [m]:
@@ -269,13 +271,10 @@ class BatteryFilter:
                 b0, b1, a1 = _tustin_step(tau, float(dt[brk]))
                 self._y = b0 * xb + (b1 * self._x - a1 * self._y)
             self._x = xb
-            self._t = float(ta[brk])  # mark started (exact value set below)
+            self._t = float(ta[brk])  # mark started (exact value set by process)
             y[brk] = self._y
             pos = brk + 1
-        self._t = float(ta[-1])
-        self.accepted += m
-        out[idx] = cfg.divider_ratio * y
-        return out
+        return y
 
     # --- diagnostics -------------------------------------------------------------------------
 

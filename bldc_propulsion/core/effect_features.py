@@ -37,7 +37,8 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .. import contract as c
-from ..plant import throttle
+from ..physics.lag import asymmetric_lag_on_times, lag_gain, lag_on_times, lag_step
+from ..physics.plant import throttle
 
 PWM_LAG = "pwm_lag"
 PWM_DELAYED = "pwm_delayed"
@@ -94,50 +95,11 @@ def thermal_proxy(pwm: np.ndarray | float, volts: np.ndarray | float) -> np.ndar
     return float(out) if np.ndim(out) == 0 else out
 
 
-# --- exact first-order lag of a zero-order-held input -------------------------------------------
+# --- events on a time grid (the lag itself: physics/lag.py) ------------------------------------------
 def _held(t_events: np.ndarray, values: np.ndarray, times: np.ndarray) -> np.ndarray:
     """Value of the last event at or before each time (the first value before the first event)."""
     idx = np.searchsorted(t_events, times, side="right") - 1
     return values[np.clip(idx, 0, len(values) - 1)]
-
-
-def lag_on_times(times: np.ndarray, u: np.ndarray, tau_s: float, y0: float) -> np.ndarray:
-    """y at ``times`` of dy/dt = (u - y)/tau where u[k] is held on [times[k], times[k+1]).
-
-    y[0] = y0. Exact for a piecewise-constant input: y[k+1] = u[k] + (y[k] - u[k]) exp(-h/tau).
-    Vectorised with cumulative products in chunks (so they never underflow); tau = 0 gives y = u
-    held (y[k] = u[k-1]: the value reached at the end of each interval).
-    """
-    n = len(times)
-    y = np.empty(n)
-    if n == 0:
-        return y
-    y[0] = y0
-    if n == 1:
-        return y
-    h = np.diff(times)
-    if tau_s <= 0.0:
-        y[1:] = u[:-1]
-        return y
-    x = h / tau_s  # decay exponent of each interval
-    start = 0  # interval index where the current chunk begins
-    y_start = y0
-    m = n - 1
-    while start < m:
-        # chunk: as many intervals as keep the cumulative exponent below 300
-        cum = np.cumsum(x[start:])
-        stop = start + max(1, int(np.searchsorted(cum, 300.0, side="right")))
-        stop = min(stop, m)
-        xs = x[start:stop]
-        us = u[start:stop]
-        L = np.cumsum(xs)  # exponent from chunk start to the end of each interval
-        # y_end[j] = e^{-L_j} y_start + sum_{i<=j} e^{-(L_j - L_i)} (1 - e^{-x_i}) u_i
-        w = np.exp(L) * (-np.expm1(-xs)) * us  # e^{L_i} (1 - e^{-x_i}) u_i
-        acc = np.cumsum(w)
-        y[start + 1: stop + 1] = np.exp(-L) * (y_start + acc)
-        y_start = y[stop]
-        start = stop
-    return y
 
 
 def _merged(grid: np.ndarray, *event_times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -173,32 +135,6 @@ def pwm_above_start(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t
     """max(pwm - threshold, 0): the part of the command above the ESC's start level."""
     thr = _param(params, PWM_ABOVE_START, "threshold")
     return np.maximum(_held(pwm_t, pwm, grid) - thr, 0.0)
-
-
-def asymmetric_lag_on_times(times: np.ndarray, u: np.ndarray, tau_up: float, tau_down: float,
-                            y0: float) -> np.ndarray:
-    """Like ``lag_on_times`` with tau_up while u > y and tau_down while u < y (exact per interval:
-    with a held input the state moves monotonically towards it, so the direction is fixed)."""
-    n = len(times)
-    y = np.empty(n)
-    if n == 0:
-        return y
-    y[0] = y0
-    h = np.diff(times)
-    a_up = np.exp(-h / tau_up) if tau_up > 0 else np.zeros_like(h)
-    a_dn = np.exp(-h / tau_down) if tau_down > 0 else np.zeros_like(h)
-    yk = float(y0)
-    ul = u.tolist()
-    au = a_up.tolist()
-    ad = a_dn.tolist()
-    out = [yk]
-    for k in range(n - 1):
-        uk = ul[k]
-        a = au[k] if uk > yk else ad[k]
-        yk = uk + (yk - uk) * a
-        out.append(yk)
-    y[:] = out
-    return y
 
 
 def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
@@ -311,18 +247,11 @@ class StreamingFeature:
             return
         h = t - self.t
         u = self._u()
-        if self.name == PWM_LAG:
-            tau = self.params["tau_s"]
-            a = math.exp(-h / tau) if tau > 0 else 0.0
-            self.y = u + (self.y - u) * a
+        if self.name in (PWM_LAG, THERMAL_LOAD):
+            self.y = lag_step(self.y, u, lag_gain(h, self.params["tau_s"]))
         elif self.name == PWM_ASYMMETRIC_LAG:
             tau = self.params["tau_up_s"] if u > self.y else self.params["tau_down_s"]
-            a = math.exp(-h / tau) if tau > 0 else 0.0
-            self.y = u + (self.y - u) * a
-        elif self.name == THERMAL_LOAD:
-            tau = self.params["tau_s"]
-            a = math.exp(-h / tau) if tau > 0 else 0.0
-            self.y = u + (self.y - u) * a
+            self.y = lag_step(self.y, u, lag_gain(h, tau))
         self.t = t
 
     def _first_event(self, t: float) -> None:
@@ -346,15 +275,13 @@ class StreamingFeature:
         while self._pending and self._pending[0][0] <= t:
             te, level = self._pending.popleft()
             if te > self._ts:
-                a = math.exp(-(te - self._ts) / tau) if tau > 0 and math.isfinite(self._ts) else 0.0
                 if math.isfinite(self._ts):
-                    self.y = self._u_mapped + (self.y - self._u_mapped) * a
+                    self.y = lag_step(self.y, self._u_mapped, lag_gain(te - self._ts, tau))
                 self._ts = te
             self._u_mapped = level
         if t <= self._ts or not math.isfinite(self._ts):
             return float(self.y)
-        a = math.exp(-(t - self._ts) / tau) if tau > 0 else 0.0
-        return float(self._u_mapped + (self.y - self._u_mapped) * a)
+        return float(lag_step(self.y, self._u_mapped, lag_gain(t - self._ts, tau)))
 
     def update_pwm(self, t: float, pwm: float) -> None:
         if self.t is not None and t < self.t:

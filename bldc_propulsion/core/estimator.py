@@ -1,7 +1,7 @@
 """Online speed and thrust prediction from the PWM command and the filtered battery voltage.
 
 Any kind of model (model.py): a network, a physics model (its one input, ``physics_speed``, is
-the plant stepped as a stream, core/plant_stream.py) or a hybrid (the physics speed plus a
+the plant stepped as a stream, physics/stream.py) or a hybrid (the physics speed plus a
 network's correction). The model's inputs are computed by core/features.py (the trainer and
 evaluate use the same code). Inputs
 outside the training range are clipped to it and the prediction is flagged: the network was
@@ -25,15 +25,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, Protocol, cast
+from dataclasses import dataclass
+from typing import Protocol, cast
 
 import numpy as np
 
-from .. import contract as c
+from ..contract import HYBRID, NETWORK, PHYSICS
 from ..errors import BadInputError
-from ..model import HYBRID, NETWORK, NOMINAL_THRUST_COEFFICIENT, PHYSICS
-from .features import REST_SPEED_RAD_S, FeatureState, PhysicsSpeed, pwm_ok, voltage_ok
+from ..physics.fallback import FallbackModel
+from ..physics.plant import REST_SPEED_RAD_S
+from .features import FeatureState, PhysicsSpeed, pwm_ok, voltage_ok
 from .status import OK, WARN, CoreStatus, counters
 
 #: A measured speed (``update_speed``) is where the physics starts only if it was taken at most
@@ -53,7 +54,8 @@ _PWM, _VOLTAGE = 0, 1  # kinds of the inputs kept in the start window
 
 
 class SpeedModel(Protocol):
-    """What the estimator needs from a model: any kind of model.py's, or the physics fallback."""
+    """What the estimator needs from a model: any kind of model.py's, or the first-principles
+    fallback (physics/fallback.py)."""
 
     # read-only (properties): a model may compute them (PlantModel, the fallback) or store them
     @property
@@ -105,67 +107,6 @@ NO_THRUST_MESSAGE = ("model has no thrust coefficient: train with measured thrus
                      "--thrust-coefficient / --vehicle-mass-kg")
 
 
-@dataclass(frozen=True)
-class PhysicsModel:
-    """First-principles fallback used until a model is trained. Rough: nominal constants only.
-
-    Steady state of a DC motor driving a propeller: the ESC applies ``duty * V`` to the motor,
-    the back-EMF is ``ke w`` (ke = 1/Kv) and the current ``kQ w^2 / ke`` carries the propeller
-    torque ``kQ w^2``, so
-
-        duty V = R kQ w^2 / ke + ke w  ->  w = 2 duty V / (ke + sqrt(ke^2 + 4 R kQ duty V / ke)).
-
-    ``duty`` is ``pwm_filtered`` (the paper's 0.25 s command lag standing in for the rotor's
-    inertia) above the ESC's start level (PWM 0.055 = 0.1 of the scaled range), rescaled to
-    0..1. Nominal AXI 2212/34 (Kv 710 rpm/V) with a 12x4.5 propeller: R = 0.25 Ohm for the
-    winding plus ESC, kQ = 5.5e-7 N m s^2. No no-load current, no battery sag model beyond the
-    measured voltage, no temperature: expect errors of 10-20 %.
-    """
-
-    kv_rpm_per_v: float = 710.0
-    resistance_ohm: float = 0.25
-    torque_coefficient: float = 5.5e-7  #: kQ, N m s^2/rad^2
-    start_fraction: float = 0.1  #: scaled PWM where the ESC starts the motor (level 0.055)
-    pwm_tau_s: float = c.PAPER_PWM_TAU_S
-    thrust_coefficient: float = NOMINAL_THRUST_COEFFICIENT
-    input_names: tuple[str, ...] = c.DEFAULT_INPUTS
-    metadata: dict[str, Any] = field(default_factory=lambda: {"kind": "first-principles fallback"})
-    is_fallback: bool = True
-
-    @property
-    def input_min(self) -> np.ndarray:
-        return np.array([0.0, 0.0, 0.0])  # battery_voltage (V), pwm, pwm_filtered
-
-    @property
-    def input_max(self) -> np.ndarray:
-        return np.array([60.0, 1.0, 1.0])
-
-    def feature_params(self) -> dict[str, dict[str, float]]:
-        return {c.INPUT_PWM_FILTERED: {"tau_s": self.pwm_tau_s}}
-
-    def forward(self, X_raw: np.ndarray) -> np.ndarray:
-        """Speed (rad/s) from rows of (battery_voltage, pwm, pwm_filtered)."""
-        X = np.asarray(X_raw, dtype=float)
-        volts, pwm_f = X[..., 0], X[..., 2]
-        ke = 60.0 / (2.0 * math.pi * self.kv_rpm_per_v)  # V s/rad
-        duty = np.clip((pwm_f - self.start_fraction) / (1.0 - self.start_fraction), 0.0, 1.0)
-        vm = duty * np.maximum(volts, 0.0)
-        a = self.resistance_ohm * self.torque_coefficient / ke
-        w: np.ndarray = 2.0 * vm / (ke + np.sqrt(ke * ke + 4.0 * a * vm))
-        return w
-
-    def forward_one(self, x: list[float]) -> float:
-        """:meth:`forward` of one row in plain floats: the same operations in the same order
-        (IEEE results, bit for bit; tested), 20x cheaper than numpy on one row."""
-        volts, pwm_f = x[0], x[2]
-        ke = 60.0 / (2.0 * math.pi * self.kv_rpm_per_v)
-        duty = (pwm_f - self.start_fraction) / (1.0 - self.start_fraction)
-        duty = min(max(duty, 0.0), 1.0) if duty == duty else duty  # np.clip; NaN stays NaN
-        vm = duty * (volts if volts > 0.0 or volts != volts else 0.0)  # np.maximum(volts, 0.0)
-        a = self.resistance_ohm * self.torque_coefficient / ke
-        return 2.0 * vm / (ke + math.sqrt(ke * ke + 4.0 * a * vm))
-
-
 def _fast_forward(model: SpeedModel) -> Callable[[list[float]], float]:
     """x (list of raw inputs) -> speed (rad/s); the network's scaling folded into its weights.
 
@@ -181,7 +122,7 @@ def _fast_forward(model: SpeedModel) -> Callable[[list[float]], float]:
         net, k = _fast_forward(hybrid.network), hybrid.physics_index
         return lambda x: x[k] + net(x)
     W1 = getattr(model, "W1", None)
-    if isinstance(model, PhysicsModel):
+    if isinstance(model, FallbackModel):
         return model.forward_one
     if W1 is None or getattr(model, "is_fallback", False):
         return lambda x: float(model.forward(np.asarray(x, dtype=float)))
@@ -200,11 +141,6 @@ def _fast_forward(model: SpeedModel) -> Callable[[list[float]], float]:
         return float(dot(W2s, tanh(dot(W1s, x) + b1s))) + b2s
 
     return f
-
-
-def fallback_model() -> PhysicsModel:
-    """The documented first-principles fallback (see :class:`PhysicsModel`): rough."""
-    return PhysicsModel()
 
 
 class ThrustEstimator:

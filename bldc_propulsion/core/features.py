@@ -9,7 +9,7 @@ The paper's three inputs (section 4):
 | ``pwm_filtered`` | ``pwm`` through a first-order low-pass, time constant ``tau_s`` (paper: 0.25 s) |
 
 ``pwm_filtered`` is discretised exactly for a zero-order-held command over any time step:
-y += (1 - exp(-dt/tau)) (u - y); it starts in steady state at the first command.
+y += (1 - exp(-dt/tau)) (u - y) (``physics/lag.py``); it starts in steady state at the first command.
 
 Inputs are a registry (name -> :class:`Feature` subclass with parameters), so the discrepancy
 workflow can add its own (:func:`register_feature`); the inputs of ``core/effect_features.py``
@@ -32,8 +32,10 @@ import numpy as np
 
 from .. import contract as c
 from ..errors import BadInputError, ModelError
-from ..plant import motor_response
-from .plant_stream import STREAM_DEFAULTS, PlantStream, split_params, stream_problem
+from ..physics.lag import lag_gain, lag_step
+from ..physics.plant import measured_start_speed, motor_response
+from ..physics.stream import STREAM_DEFAULTS, PlantStream, split_params, stream_problem
+from . import effect_features as ef
 
 #: Plausible raw inputs; samples outside are rejected (PWM level is pulse width / 20 ms).
 PWM_LEVEL_MIN = 0.0
@@ -172,11 +174,6 @@ class Pwm(Feature):
         return zero_order_hold(pwm_t, scale_pwm(pwm), grid_t)
 
 
-def _lag_gain(dt: float, tau: float) -> float:
-    """1 - exp(-dt/tau) (0 for dt <= 0): exact step of a first-order lag with a held input."""
-    return -math.expm1(-dt / tau) if dt > 0.0 else 0.0
-
-
 class PwmLowpass(Feature):
     """Scaled PWM through a first-order low-pass (time constant ``tau_s``), exact for a held command.
 
@@ -201,13 +198,13 @@ class PwmLowpass(Feature):
         if self._t is None:
             self._y = u
         else:
-            self._y = self._y + _lag_gain(t - self._t, self.params["tau_s"]) * (self._u - self._y)
+            self._y = lag_step(self._y, self._u, lag_gain(t - self._t, self.params["tau_s"]))
         self._t, self._u = t, u
 
     def value_at(self, t: float) -> float:
         if self._t is None:
             return math.nan
-        return self._y + _lag_gain(t - self._t, self.params["tau_s"]) * (self._u - self._y)
+        return lag_step(self._y, self._u, lag_gain(t - self._t, self.params["tau_s"]))
 
     def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
               volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
@@ -221,58 +218,21 @@ class PwmLowpass(Feature):
         tl, ul = pwm_t.tolist(), u.tolist()
         y[0] = yk
         for k in range(1, n):  # the same scalar arithmetic as update_pwm
-            yk = yk + _lag_gain(tl[k] - tl[k - 1], tau) * (ul[k - 1] - yk)
+            yk = lag_step(yk, ul[k - 1], lag_gain(tl[k] - tl[k - 1], tau))
             y[k] = yk
         idx = np.searchsorted(pwm_t, grid_t, side="right") - 1
         out = np.full(len(grid_t), np.nan)
         ok = idx >= 0
         i = idx[ok]
-        dt = grid_t[ok] - pwm_t[i]
-        gain = np.where(dt > 0.0, -np.expm1(-np.maximum(dt, 0.0) / tau), 0.0)
-        out[ok] = y[i] + gain * (u[i] - y[i])
+        out[ok] = lag_step(y[i], u[i], lag_gain(grid_t[ok] - pwm_t[i], tau))
         return out
 
 
 #: The ``physics_speed`` input's parameter that starts the rotor turning: its speed (rad/s) at the
 #: first command, 0 at rest. Not a model constant but where one recording or stream starts: set
-#: per recording from its measured speed (``measured_start_speed``; training.train.features_of)
+#: per recording from its measured speed (``physics.plant.measured_start_speed``; training.train.features_of)
 #: and by the estimator from a measured speed (core/estimator.py); never stored in a model file.
 INITIAL_SPEED = "initial_speed_rad_s"
-#: A measured speed below this (rad/s) is rest: about the tachometer's slowest measurable speed
-#: (its 0.3 s timeout is a revolution at ~5 rad/s), and a start from it differs from one at rest
-#: by less than the tachometer's noise.
-REST_SPEED_RAD_S = 5.0
-#: ``measured_start_speed`` looks at a recording's first START_SAMPLES measured samples (50 ms
-#: on the 100 Hz grid) and trusts them when START_AGREE of them lie within START_TOLERANCE of
-#: their median: a lone spike (or two) is outvoted, and a rotor still spinning up after a step
-#: (~10 % of its speed per 10 ms on the nominal bench) still agrees.
-START_SAMPLES = 5
-START_AGREE = 3
-START_TOLERANCE = 0.2
-#: The measured speed is the physics' start only when it starts within this (s) of the first
-#: command, where the physics starts: the tachometer's first speed needs a batch and a revolution
-#: (~10-30 ms at speed). A recording whose speed starts later (a part of a longer one, cut after
-#: its commands began) runs the physics from its first command at rest, as before.
-START_GAP_S = 0.1
-
-
-def measured_start_speed(t: np.ndarray, speed: np.ndarray, first_command_t: float) -> float:
-    """The rotor's speed (rad/s) where a recording starts, from its measured speed ``speed`` on
-    the grid ``t``: the earliest of the first START_SAMPLES samples that agrees with the others
-    (see START_AGREE), 0 (rest, as a recording starting from rest) when the rotor is at rest
-    (REST_SPEED_RAD_S), when the samples do not agree or are not all finite, or when they start
-    more than START_GAP_S from ``first_command_t`` (where the physics starts)."""
-    t, speed = np.asarray(t, dtype=float), np.asarray(speed, dtype=float)
-    if len(t) < START_SAMPLES or not abs(float(t[0]) - float(first_command_t)) <= START_GAP_S:
-        return 0.0
-    x = speed[:START_SAMPLES]
-    if not np.all(np.isfinite(x)):
-        return 0.0
-    m = float(np.median(x))
-    near = np.abs(x - m) <= START_TOLERANCE * m
-    if m < REST_SPEED_RAD_S or int(near.sum()) < START_AGREE:
-        return 0.0
-    return float(x[int(np.argmax(near))])
 
 
 def start_params(params: Mapping[str, Mapping[str, float]], initial_speed: float) -> dict[str, dict[str, float]]:
@@ -295,9 +255,9 @@ def with_measured_start(names: Sequence[str], params: Mapping[str, Mapping[str, 
 
 
 class PhysicsSpeed(Feature):
-    """The plant's speed (rad/s) under a physics model's constants (core/plant_stream.py): the
+    """The plant's speed (rad/s) under a physics model's constants (physics/stream.py): the
     whole of a ``physics`` model, an input of a ``hybrid`` one. Parameters: ``STREAM_DEFAULTS``
-    (the model file's physics arrays give them: ``model.PlantModel.feature_params``) and
+    (the model file's physics arrays give them: ``physics.plant_model.PlantModel.feature_params``) and
     ``INITIAL_SPEED`` (0: the rotor at rest at the first command)."""
 
     name = c.INPUT_PHYSICS_SPEED
@@ -330,7 +290,7 @@ class PhysicsSpeed(Feature):
 
     def batch(self, grid_t: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
               volt_t: np.ndarray, volt: np.ndarray) -> np.ndarray:
-        """The batch twin (``plant.motor_response`` with the supply held: equal to the stream)."""
+        """The batch twin (``physics.plant.motor_response`` with the supply held: equal to the stream)."""
         out = np.full(len(grid_t), np.nan)
         if len(pwm_t) == 0 or len(volt_t) == 0:
             return out
@@ -362,11 +322,7 @@ for _cls in (BatteryVoltage, Pwm, PwmLowpass, PhysicsSpeed):
 
 
 def _register_effect_features() -> None:
-    """Register the inputs of core/effect_features.py (discrepancy workflow), if present."""
-    try:
-        from . import effect_features as ef
-    except ImportError:  # pragma: no cover - module not shipped
-        return
+    """Register the inputs of core/effect_features.py (discrepancy workflow)."""
 
     def make(name: str) -> type[Feature]:
         needs = tuple("voltage" if s == "voltage" else "pwm" for s in ef.NEEDS.get(name, ("pwm",)))
@@ -407,7 +363,7 @@ def _register_effect_features() -> None:
         EffectFeature.__name__ = EffectFeature.__qualname__ = f"EffectFeature_{name}"
         return EffectFeature
 
-    for name in getattr(ef, "BATCH", {}):
+    for name in ef.BATCH:
         if name not in FEATURES:
             register_feature(make(name))
 

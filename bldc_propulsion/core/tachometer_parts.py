@@ -18,14 +18,39 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from .tachometer import TachometerConfig
-
 TWO_PI = 2.0 * math.pi
+
+
+class Settings(Protocol):
+    """What the parts read of the decoder's configuration (``tachometer.TachometerConfig`` has
+    it; the parts need these numbers, not the module that checks them)."""
+
+    @property
+    def sample_rate_hz(self) -> float: ...
+    @property
+    def gap_tolerance_s(self) -> float: ...
+    @property
+    def edges_per_rev(self) -> int: ...
+    @property
+    def max_speed_rad_s(self) -> float: ...
+    @property
+    def timeout_s(self) -> float: ...
+    @property
+    def min_edge_interval_s(self) -> float: ...
+    @property
+    def level_decay_v_per_s(self) -> float: ...
+    @property
+    def low_fraction(self) -> float: ...
+    @property
+    def high_fraction(self) -> float: ...
+    @property
+    def min_contrast_v(self) -> float: ...
+    @property
+    def initial_low_v(self) -> float: ...
 
 
 @dataclass(slots=True)
@@ -82,7 +107,7 @@ class SampleClock:
                  "anchor", "next_idx", "last_batch_t", "t_start", "now",
                  "rates", "rate_bad", "rate_measured")
 
-    def __init__(self, cfg: TachometerConfig, counts: TachCounters, *, rate_batches: int,
+    def __init__(self, cfg: Settings, counts: TachCounters, *, rate_batches: int,
                  rate_tolerance: float) -> None:
         self.dt = 1.0 / cfg.sample_rate_hz
         self.counts = counts
@@ -172,7 +197,7 @@ class SpeedGate:
                  "_max_accel", "hist", "last_edge_t", "lost", "edges_since_loss", "have_speed",
                  "speed_now", "verify", "candidate", "t_speed")
 
-    def __init__(self, cfg: TachometerConfig, counts: TachCounters, clock: SampleClock, *,
+    def __init__(self, cfg: Settings, counts: TachCounters, clock: SampleClock, *,
                  verify_tolerance: float, max_accel: float) -> None:
         self.counts = counts
         self._clock = clock  # edge positions to times, and the sample-rate verdict
@@ -323,7 +348,7 @@ class EdgeDetector:
                  "_min_contrast", "_initial_low", "hi", "lo", "level_now", "known",
                  "tail", "state", "r_last", "cross", "pending", "pending_levels")
 
-    def __init__(self, cfg: TachometerConfig, counts: TachCounters, gate: SpeedGate) -> None:
+    def __init__(self, cfg: Settings, counts: TachCounters, gate: SpeedGate) -> None:
         self.counts = counts
         self._gate = gate
         dt = 1.0 / cfg.sample_rate_hz

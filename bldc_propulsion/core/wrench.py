@@ -9,7 +9,7 @@ Only the propeller's steady drag: the inertial torque J dw/dt of a speed change 
 friction are left out (a few percent at a steady speed; J dw/dt matters only in transients).
 
 kQ is known where the model has the propeller's constants: a physics model (and the physics part
-of a hybrid) has CP, rho and D (``plant.PlantParams.torque_coefficient``), the first-principles
+of a hybrid) has CP, rho and D (``physics.params.PlantParams.torque_coefficient``), the first-principles
 fallback its nominal kQ. A network model maps commands to speed only: torque.z is then 0, and
 a status says so rather than letting a consumer take the 0 for a measurement.
 """

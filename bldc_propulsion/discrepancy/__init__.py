@@ -4,8 +4,9 @@ One loop, two model kinds:
 
 - ``workflow`` (steps 1-5, the loop) talks to a model kind through the ``base.ModelKind``
   protocol (start, candidates, score, add, heldout, keep, finish): ``network`` (a trained
-  network, ``--model``) and ``physics_kind`` (the bench physics, ``--physics``; the model, its
-  CONFIG, calibration, scores and fit flags are ``physics``);
+  network, ``--model``) and ``physics_kind`` (the bench physics, ``--physics``; the model and
+  its CONFIG, calibration and fit flags are the package's ``physics/``, the effects' scores and
+  strength fits on it ``physics`` here);
 - ``residuals`` (windows, whiteness, cross-correlation, conditions), ``effects`` (one candidate
   feature per effect of the contract), ``scoring`` (held-out time blocks, significance),
   ``identify`` (the identification rules: dynamics, start level, heating, which one changed),

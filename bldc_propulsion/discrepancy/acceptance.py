@@ -13,11 +13,11 @@ The level: on a --holdout, HOLDOUT_ALPHA (0.05). The candidate reaching step 5 h
 found significant at the workflow's alpha (0.01) on the measured data, so the holdout is a
 replication on independent recordings, and the usual discovery/replication design applies: a
 false name needs both tests to pass by chance (<= 5 candidates x 0.01 x 0.05 = 0.0025 per
-round). At 0.01 the replication was the weaker link: a dynamic effect changes only the blocks
-holding a command step (about a third of a 30 s holdout), and the retrained network moves the
-settled ones within the noise either way, so a fit that halves the holdout's mean squared error
-got p = 0.02-0.05 (randomized benches, network path: dead time and coasting; physics path: a
-13 ms dead time, weak heating). Without a holdout the acceptance figure is the step-3 test itself
+round). At 0.01 the replication would be the weaker link: a dynamic effect changes only the
+blocks holding a command step (about a third of a 30 s holdout), and the retrained network moves
+the settled ones within the noise either way, so a fit that halves the holdout's mean squared
+error gets p = 0.02-0.05 on the randomized benches (network path: dead time and coasting; physics
+path: a 13 ms dead time, weak heating). Without a holdout the acceptance figure is the step-3 test itself
 or data the fit saw for early stopping, not a replication: the workflow's alpha.
 
 Also here: the refusal of a --holdout that overlaps --measured or --reference (same file or the

@@ -6,6 +6,10 @@ and holdout recordings, calibrated where it calibrates), ``candidates`` and ``sc
 each effect it can add, scored on held-out time blocks), ``add`` (step 4: the effect fitted
 into a trial model), ``heldout`` (step 5 without a --holdout: the kind's own held-out evidence),
 ``keep`` (the trial becomes the model), ``finish`` (its own result fields and summary lines).
+Between scoring and adding, ``identify`` refines the round's proposal (``Proposal`` ->
+``Refined``): the network identifies the response its residual corrections cannot see
+(``identify.refine``), the physics fits each effect's strength in the model itself and keeps the
+proposal as it is.
 """
 
 from __future__ import annotations
@@ -14,12 +18,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-import numpy as np
-
 from ..recordings import Signals
 from . import acceptance as acc
 from . import scoring as sc
+from .dataset import DataSet
 from .defaults import ALPHA, MIN_EFFECT  # the decision thresholds (see workflow.py)
+from .results import Evidence
 
 Progress = Callable[[str], None]
 
@@ -47,31 +51,6 @@ class Options:
 
 
 @dataclass
-class DataSet:
-    """Recordings, the current model's prediction on them, and the residual."""
-
-    signals: list[Signals]
-    predictions: list[np.ndarray] = field(default_factory=list)
-    inputs: list[np.ndarray] = field(default_factory=list)  #: network inputs scaled to [-1, 1]
-
-    @property
-    def residuals(self) -> list[np.ndarray]:
-        return [s.speed - p for s, p in zip(self.signals, self.predictions, strict=True)]
-
-
-def rmse(residuals: Sequence[np.ndarray], masks: Sequence[np.ndarray] | None = None) -> float:
-    """Root mean square of the finite residual samples (inside ``masks`` when given)."""
-    parts = []
-    for k, r in enumerate(residuals):
-        sel = np.isfinite(r)
-        if masks is not None:
-            sel &= masks[k]
-        parts.append(r[sel])
-    x = np.concatenate(parts) if parts else np.zeros(0)
-    return float(np.sqrt(np.mean(x**2))) if len(x) else float("nan")
-
-
-@dataclass
 class Scores:
     """A candidate's step-3 scores: on the measured data (for the network, its residual
     correction fitted on measured + reference pooled), on the measured data alone, and on the
@@ -93,9 +72,30 @@ class Trial:
     feature: str  #: the fitted feature in words
     value: dict[str, Any] | None = None  #: the fitted value in physical units (physics.fitted_value)
     #: fitted quantities at a bound of their range or implausibly far from the CONFIG, in words
-    #: (physics.FitFlag): the fit is not a basis for a verdict
+    #: (physics.fit.FitFlag): the fit is not a basis for a verdict
     flags: list[str] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific fields of the round
+
+
+@dataclass
+class Proposal:
+    """A round's proposal as the scores made it: every candidate's evidence (the identification
+    may change its verdicts in place), the effect the scores propose, and the effects added in
+    earlier rounds (never proposed again)."""
+
+    evidence: dict[str, Evidence]
+    best: str | None
+    added: Sequence[str]
+
+
+@dataclass
+class Refined:
+    """A round's proposal after the kind's identification: the effect tried first, and its
+    parameters when the identification fixed them (else the kind fits them)."""
+
+    best: str | None
+    params: dict[str, float] | None = None
+    reference_params: dict[str, float] | None = None  #: the effect's parameters on the reference itself
 
 
 class ModelKind(Protocol):
@@ -103,9 +103,6 @@ class ModelKind(Protocol):
 
     #: the model as the sentences name it ("the model", "the calibrated physics model")
     noun: str
-    #: its step-3 scores are residual corrections, which cannot see a changed response (dead
-    #: time, lag, start level, heating): the loop then applies identify.refine
-    identifies_response: bool
     #: what the holdout-less before/after figure was fitted on (for the warning)
     fitted_on: str
     #: the warning when there are no reference recordings
@@ -127,8 +124,9 @@ class ModelKind(Protocol):
     def score(self, names: Sequence[str], progress: Progress) -> dict[str, Scores]:
         """Step 3: each candidate scored on held-out time blocks."""
 
-    def residual_rmse(self) -> tuple[float, float]:
-        """The current model's residual RMSE (rad/s) on the measured and the reference data."""
+    def identify(self, proposal: Proposal, progress: Progress) -> Refined:
+        """Between steps 3 and 4: the round's proposal refined by what the kind identifies beyond
+        its scores (the effect tried first, at the parameters the identification fixed)."""
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
             scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:

@@ -28,6 +28,7 @@ import numpy as np
 from .. import contract as c
 from ..core import effect_features as ef
 from ..core.features import zero_order_hold
+from ..physics.scales import PWM_HALF_RANGE, centred_pwm, centred_voltage
 from ..recordings import Signals
 
 Params = dict[str, float]
@@ -44,7 +45,7 @@ class Context:
     @property
     def p(self) -> np.ndarray:
         """PWM level centred and scaled to about [-1, 1]."""
-        return (self.sig.pwm - 0.075) / 0.025
+        return centred_pwm(self.sig.pwm)
 
     @property
     def yhat(self) -> np.ndarray:
@@ -96,25 +97,25 @@ def _scaled_from_level(offset: float) -> tuple[float, float]:
 def _lag_columns(ctx: Context, params: Params) -> np.ndarray:
     # only while the command is above the lagged state (the rotor spinning UP): a rotor that is
     # slow to spin up lacks inertia in the model; a slow spin-down alone is spin_down_asymmetry
-    d = (_feature(ctx, ef.PWM_LAG, params) - ctx.sig.pwm) / 0.025
+    d = (_feature(ctx, ef.PWM_LAG, params) - ctx.sig.pwm) / PWM_HALF_RANGE
     return _interacted(np.minimum(d, 0.0), ctx)
 
 
 def _delay_columns(ctx: Context, params: Params) -> np.ndarray:
-    d = (_feature(ctx, ef.PWM_DELAYED, params) - ctx.sig.pwm) / 0.025
+    d = (_feature(ctx, ef.PWM_DELAYED, params) - ctx.sig.pwm) / PWM_HALF_RANGE
     return _interacted(d, ctx)
 
 
 def _asym_columns(ctx: Context, params: Params) -> np.ndarray:
     # only while the state is above the command (the rotor slowing DOWN)
-    d = (_feature(ctx, ef.PWM_ASYMMETRIC_LAG, params) - ctx.sig.pwm) / 0.025
+    d = (_feature(ctx, ef.PWM_ASYMMETRIC_LAG, params) - ctx.sig.pwm) / PWM_HALF_RANGE
     return _interacted(np.maximum(d, 0.0), ctx)
 
 
 def _deadband_columns(ctx: Context, params: Params) -> np.ndarray:
     thr = params["threshold"]
     below = (ctx.sig.pwm < thr).astype(float)
-    above = np.maximum(ctx.sig.pwm - thr, 0.0) / 0.025
+    above = np.maximum(ctx.sig.pwm - thr, 0.0) / PWM_HALF_RANGE
     # below the start level the speed is zero whatever the model predicts (-> -yhat);
     # above it the throttle map is compressed (a term in pwm - threshold)
     return np.column_stack([below, below * ctx.yhat, above, above**2])
@@ -154,7 +155,7 @@ def _heating_columns(ctx: Context, params: Params) -> np.ndarray:
 
 def _voltage_columns(ctx: Context, params: Params) -> np.ndarray:
     # the speed scales with the voltage the ESC chops: terms in V and V * speed
-    v = (ctx.sig.voltage - 11.5) / 1.0
+    v = centred_voltage(ctx.sig.voltage)
     return np.column_stack([v, v * ctx.yhat, v * ctx.yhat**2])
 
 

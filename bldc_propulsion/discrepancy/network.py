@@ -8,7 +8,8 @@ Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``)
   fitted on measured + reference pooled (what differs between them: a residual offset that only
   the battery voltage lines up with), on the measured data alone (structure within them), and on
   the reference alone; a residual correction cannot see a changed response (dead time, lag, start
-  level, heating), so the loop applies the identification rules (``identify.py``);
+  level, heating), so the kind's ``identify`` applies the identification rules (``identify/``) to
+  each round's proposal;
 - step 4: the network retrained with the effect's input (fitted parameters) on reference +
   measured recordings, early-stopped on the measured recordings' last part, starting from the
   base model's own weights (the new input's at 0). An effect that maps the command before the
@@ -35,14 +36,16 @@ from ..training.evaluate import predict_speed
 from ..training.train import features_of, train_model
 from . import acceptance as acc
 from . import effects as fx
+from . import identify as idf
 from . import scoring as sc
-from .base import DataSet, Options, Progress, Scores, Trial, rmse
+from .base import Options, Progress, Proposal, Refined, Scores, Trial
+from .dataset import DataSet, rmse
 
 #: The measured recordings' share kept out of the retraining (early stopping, and the held-out
 #: evidence without a --holdout): every VALIDATION_EVERY-th of VALIDATION_CHUNKS equal chunks of
 #: each recording, so the early stopping sees the recording's whole range of commands (a last
-#: 20 % in one piece can miss what differs: a tail the base model already fits stopped every
-#: retraining at its first epoch, the base model returned unchanged whatever the effect).
+#: 20 % in one piece can miss what differs: a tail the base model already fits stops every
+#: retraining at its first epoch, and the base model comes back unchanged whatever the effect).
 VALIDATION_CHUNKS = 10
 VALIDATION_EVERY = 5
 VALIDATION_FRACTION = 1.0 / VALIDATION_EVERY
@@ -258,7 +261,6 @@ class NetworkKind:
     """``base.ModelKind`` for a trained network (``model.NetworkModel``)."""
 
     noun = "the model"
-    identifies_response = True
     fitted_on = "which the new model was trained on"
     no_reference = ("no reference recordings (give --reference or keep the model's training recordings where "
                     "its metadata says): new and structural findings cannot be told apart")
@@ -281,6 +283,7 @@ class NetworkKind:
         progress(f"step 1: running the model over {len(measured)} measured recording(s)")
         self.cur_meas = run_model(self._model, measured)
         self.cur_ref = run_model(self._model, reference) if reference else None
+        self.identification = idf.Identification(measured, reference, self.opts.alpha, self.opts.min_effect)
         return self.cur_meas, self.cur_ref, run_model(self._model, hold)
 
     def no_verdict(self) -> str | None:
@@ -292,8 +295,12 @@ class NetworkKind:
     def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
         return [cd.effect for cd in fx.candidates_for(self._model.input_names, restrict) if cd.effect not in named]
 
-    def residual_rmse(self) -> tuple[float, float]:
-        return rmse(self.cur_meas.residuals), rmse(self.cur_ref.residuals) if self.cur_ref else float("nan")
+    def identify(self, proposal: Proposal, progress: Progress) -> Refined:
+        """The identification rules (``identify.refine``) on the current model's residual: its
+        scores are residual corrections, which cannot see a changed response (dead time, lag,
+        start level, heating)."""
+        rmse_ref = rmse(self.cur_ref.residuals) if self.cur_ref else float("nan")
+        return idf.refine(proposal, self.identification, (rmse(self.cur_meas.residuals), rmse_ref), progress)
 
     def score(self, names: Sequence[str], progress: Progress) -> dict[str, Scores]:
         cands = [fx.CANDIDATES[n] for n in names]

@@ -1,26 +1,27 @@
 """The bench physics as the model of the discrepancy workflow (``discrepancy --physics``).
 
 Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``) talks to; the
-model, its CONFIG, calibration and scores are ``physics.py``:
+model and its CONFIG are ``physics/config.py``, its calibration and fit flags ``physics/fit.py``
+(``pf``), the effects' scores and strength fits ``physics.py`` here:
 
 - step 1, reference first (with --reference): Kv, CP, the throttle exponent, the strengths of
-  the CONFIG's effects and of what every bench has (``physics.BASE_EFFECTS``: the rotor's
+  the CONFIG's effects and of what every bench has (``pf.BASE_EFFECTS``: the rotor's
   inertia, whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
-  (``physics.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
+  (``pf.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
   speed's own noise or NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and
-  ``physics.LOADED_SPEED_RANGE``), else no effect is named and the verdict says why. Then Kv and
+  ``pf.LOADED_SPEED_RANGE``), else no effect is named and the verdict says why. Then Kv and
   CP calibrated on the measured recordings (and, separately, on the reference), the exponent held
-  (``physics.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
+  (``pf.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
 - step 3: every effect scored on held-out time blocks of the measured data and, separately
   calibrated, of the reference data: one that is off switched on, one in the base freed (its
   strength refitted from a grid, constants recalibrated). The score is on the measured data
   alone (the fit is), so ``measured_alone`` is the same score; the strength fit is the
-  identification, so the loop's identification rules do not apply. A freed base effect whose
+  identification, so ``identify`` keeps the scores' proposal as it is. A freed base effect whose
   strength on the measured data is within ``physics.BASE_SAME_FACTOR`` of the reference's is
   the same bench recalibrated, not added;
 - step 4: the effect at the strength fitted on all measured data (constants with it, earlier
   effects' strengths refitted along); a fit with a quantity at a bound, or implausibly far from
-  a CONFIG the user gave (``physics.fit_flags``, ``PLAUSIBLE_FACTOR``), is not a basis for a verdict;
+  a CONFIG the user gave (``pf.fit_flags``, ``PLAUSIBLE_FACTOR``), is not a basis for a verdict;
 - step 5 without --holdout: step 3's per-fold refits are the held-out evidence.
 """
 
@@ -34,19 +35,22 @@ from typing import Any
 import numpy as np
 
 from .. import contract as c
+from ..physics import fit as pf
+from ..physics.config import CALIBRATED, PhysicsConfig
 from ..recordings import Signals
 from . import acceptance as acc
 from . import physics as ph
 from . import residuals as rs
-from .base import DataSet, Progress, Scores, Trial, rmse
+from .base import Progress, Proposal, Refined, Scores, Trial
+from .dataset import DataSet, rmse
 from .identify import identify_heating
 
 
-def constants_text(model: ph.PhysicsModel) -> str:
+def constants_text(model: PhysicsConfig) -> str:
     return ", ".join(f"{k} {v:.4g}" for k, v in model.constants().items())
 
 
-def predictions(model: ph.PhysicsModel, signals: Sequence[Signals]) -> DataSet:
+def predictions(model: PhysicsConfig, signals: Sequence[Signals]) -> DataSet:
     return DataSet(list(signals), [model.predict(s) for s in signals])
 
 
@@ -66,48 +70,47 @@ def speed_range(signals: Sequence[Signals]) -> float:
 
 
 class PhysicsKind:
-    """``base.ModelKind`` for the bench physics (``physics.PhysicsModel``)."""
+    """``base.ModelKind`` for the bench physics (``physics.config.PhysicsConfig``)."""
 
     noun = "the calibrated physics model"
-    identifies_response = False
     fitted_on = "which the constants and strengths were fitted on"
     no_reference = "no --reference recordings: new and structural findings cannot be told apart"
 
-    def __init__(self, model: ph.PhysicsModel) -> None:
+    def __init__(self, model: PhysicsConfig) -> None:
         self.config = model  #: the CONFIG as given (what "implausibly far" is measured from)
-        self.flags: list[ph.FitFlag] = []
+        self.flags: list[pf.FitFlag] = []
         self.reference_fit: dict[str, Any] | None = None
-        self._fits: dict[str, list[ph.Fit]] = {}
+        self._fits: dict[str, list[pf.Fit]] = {}
         self._trial_strength: dict[str, float] = {}
         #: the base effects' strengths the reference fit found (empty without a reference)
         self.base_strengths: dict[str, float] = {}
         self._named: list[str] = []
 
     @property
-    def model(self) -> ph.PhysicsModel:
+    def model(self) -> PhysicsConfig:
         return self.cur.model
 
     def start(self, measured: Sequence[Signals], reference: Sequence[Signals], hold: Sequence[Signals],
               progress: Progress) -> tuple[DataSet, DataSet | None, DataSet]:
         model = self.config.with_supply(measured)
-        self.meas_data = ph.Data.of(measured, "measured")
-        self.ref_data = ph.Data.of(reference, "reference") if reference else None
+        self.meas_data = ph.blocked(measured, "measured")
+        self.ref_data = ph.blocked(reference, "reference") if reference else None
         self.uncal_rmse = rmse(predictions(model, hold).residuals)
         self.unexplained: str | None = None
         if self.ref_data is not None:
             # reference first: what the model needs to agree with its own data is structural; only
             # what the measured data need beyond it can be new. What every bench has is in the base
-            # (physics.BASE_EFFECTS), whatever the CONFIG switches on.
-            model, switched = ph.with_base_effects(model)
+            # (pf.BASE_EFFECTS), whatever the CONFIG switches on.
+            model, switched = pf.with_base_effects(model)
             on = [n for n in c.EFFECTS if model.effects[n] > 0.0]
-            progress(f"step 1: reference first: {', '.join([*ph.CALIBRATED, *on])} fitted on "
+            progress(f"step 1: reference first: {', '.join([*CALIBRATED, *on])} fitted on "
                      f"{len(reference)} reference recording(s)")
-            rf = ph.fit_reference(model, self.ref_data, switched=switched)
+            rf = pf.fit_reference(model, self.ref_data, switched=switched)
             model = rf.model
-            self.base_strengths = {n: model.effects[n] for n in ph.BASE_EFFECTS}
-            flags = ph.fit_flags(rf, self.config, "reference fit")
+            self.base_strengths = {n: model.effects[n] for n in pf.BASE_EFFECTS}
+            flags = pf.fit_flags(rf, self.config, "reference fit")
             in_base = {n: ph.value_text(ph.fitted_value(n, model.effects[n], model.params, model.supply_v))
-                       for n in ph.BASE_EFFECTS if model.effects[n] > ph.BASE_SAME_ZERO}
+                       for n in pf.BASE_EFFECTS if model.effects[n] > ph.BASE_SAME_ZERO}
             self.reference_fit = {"constants": rf.model.constants(), "strengths": {n: rf.model.effects[n] for n in on},
                                   "in_base": in_base,
                                   "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))),
@@ -119,25 +122,25 @@ class PhysicsKind:
                      + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
             self.flags += flags
             self.unexplained = self._not_explained(flags, reference, progress)
-        progress(f"step 1: calibrating {', '.join(ph.CALIBRATED)} on {len(measured)} measured recording(s)")
-        held = ph.HELD_AFTER_REFERENCE if self.ref_data else ()
-        self.cur = ph.calibrate_base(model, self.meas_data, held)
-        self.cur_ref = ph.calibrate_base(model, self.ref_data, held) if self.ref_data else None
+        progress(f"step 1: calibrating {', '.join(CALIBRATED)} on {len(measured)} measured recording(s)")
+        held = pf.HELD_AFTER_REFERENCE if self.ref_data else ()
+        self.cur = pf.calibrate_base(model, self.meas_data, held)
+        self.cur_ref = pf.calibrate_base(model, self.ref_data, held) if self.ref_data else None
         self._ref_pending: list[str] = []
         self.base = self.cur.model
         # (judged in the range it was calibrated in: calibrate_base hands on the narrower one of
         # the fits with effects)
-        centre, span = ph.base_window(model, held)
+        centre, span = pf.base_window(model, held)
         wide = dataclasses.replace(self.cur, anchor=centre, log_range=span)
-        self.flags += ph.fit_flags(wide, self.config, "calibration on the measured data")
+        self.flags += pf.fit_flags(wide, self.config, "calibration on the measured data")
         progress(f"  calibrated: {constants_text(self.base)} (holdout RMSE {self.uncal_rmse:.2f} rad/s uncalibrated)")
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,
                 predictions(self.base, hold))
 
-    def _not_explained(self, flags: Sequence[ph.FitFlag], reference: Sequence[Signals],
+    def _not_explained(self, flags: Sequence[pf.FitFlag], reference: Sequence[Signals],
                        progress: Progress) -> str | None:
         """Why the base fitted on the reference is no basis for naming anything, or None: a
-        quantity of it not physical or at a bound (``physics.fit_flags``), or its residual far
+        quantity of it not physical or at a bound (``pf.fit_flags``), or its residual far
         above the speed's own noise (``NOT_EXPLAINED_FACTOR``; a model that cannot follow its own
         reference would take any effect that bends it towards the data for what changed)."""
         noise = rs.speed_noise([s.speed_events for s in reference])
@@ -155,7 +158,7 @@ class PhysicsKind:
         # the motor and propeller (Kv, CP, and the physical check on them), not the ESC's map, the
         # pack's resistance or an effect's strength
         blocking = [f.text() for f in flags
-                    if f.blocks and (f.quantity in ph.MOTOR_AND_PROPELLER or f.reason is not None)]
+                    if f.blocks and (f.quantity in pf.MOTOR_AND_PROPELLER or f.reason is not None)]
         if blocking:
             return f"the base physics fitted on the reference is not physical ({'; '.join(blocking)})"
         return None
@@ -169,13 +172,14 @@ class PhysicsKind:
 
     def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
         # a base effect (held at the reference's strength) is a candidate until it is freed
-        freeable = ph.BASE_EFFECTS if self.ref_data is not None else ()
+        freeable = pf.BASE_EFFECTS if self.ref_data is not None else ()
         return [n for n in restrict if self.cur.model.effects[n] == 0.0
                 or (n in freeable and n not in self.cur.free)]
 
-    def residual_rmse(self) -> tuple[float, float]:
-        r = float(np.sqrt(self.cur.sse / max(len(self.cur.r), 1)))
-        return r, float(np.sqrt(self.cur_ref.sse / max(len(self.cur_ref.r), 1))) if self.cur_ref else float("nan")
+    def identify(self, proposal: Proposal, progress: Progress) -> Refined:
+        """The proposal as the scores made it: each effect's strength is fitted in the model
+        itself (step 3's grid, step 4's fit), which is its identification."""
+        return Refined(proposal.best)
 
     def score(self, names: Sequence[str], progress: Progress) -> dict[str, Scores]:
         if self._ref_pending and self.cur_ref is not None:
@@ -184,7 +188,7 @@ class PhysicsKind:
             ref_model = self.cur_ref.model
             for name in self._ref_pending:
                 ref_model = ref_model.with_effect(name, self.cur.model.effects[name])
-            self.cur_ref = ph.recalibrate(self.cur_ref, ref_model, self.ref_data, self.cur.free)
+            self.cur_ref = pf.recalibrate(self.cur_ref, ref_model, self.ref_data, self.cur.free)
         self._ref_pending = []
         out = {}
         for name in names:
@@ -204,7 +208,7 @@ class PhysicsKind:
         progress(f"step 4: fitted {name} at {ph.describe(name, strength, fit.model)}; constants "
                  f"{constants_text(fit.model)}"
                  + "".join(f"; {n} refitted to strength {fit.model.effects[n]:.3g}" for n in self.cur.free))
-        flags = ph.fit_flags(fit, self.config, f"{name} fit")
+        flags = pf.fit_flags(fit, self.config, f"{name} fit")
         self.flags += flags
         self._trial_strength[name] = strength
         params = {"strength": strength, **fit.model.constants(), **fit.companions()}

@@ -16,7 +16,7 @@ from ..atomic import report_output
 from . import acceptance as acc
 from . import residuals as rs
 from . import scoring as sc
-from .base import DataSet
+from .dataset import DataSet, rmse
 from .physics import value_text
 
 #: An effect is new only if the share of the residual it removes on the reference is less than
@@ -54,7 +54,7 @@ class Evidence:
     sentence: str
     noun: str = "the model"
     verdict_residual: str | None = None  #: the scores' verdict when the identification overrode it
-    heating: dict[str, float] | None = None  #: identify.Heating, when identified
+    heating: dict[str, float | None] | None = None  #: identify.Heating.as_dict(), when identified
     dynamics: dict[str, Any] | None = None  #: identify.Dynamics of both sets, when identified
     fitted_parameters: dict[str, Any] | None = None
     fitted_value: dict[str, Any] | None = None  #: physics: the fitted value in physical units
@@ -191,8 +191,6 @@ class Result:
 
 def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.ndarray]) -> dict[str, float | None]:
     """Step 5's figures: holdout RMSE before and after, overall and inside the holdout's windows."""
-    from .base import rmse
-
     any_win = any(m.any() for m in hold_masks)
     return {
         "holdout_rmse_before": rmse(hold_base.residuals),

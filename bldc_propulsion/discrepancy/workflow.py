@@ -13,11 +13,11 @@ bench physics, ``physics_kind.py``):
    significant (p < alpha, >= min_effect) on the measured data and on the measured data alone,
    and the share of the residual it removes on the reference is less than STRUCTURAL_RATIO of
    the share it removes on the measured data; STRUCTURAL otherwise if it helps the reference.
-   These verdicts only PROPOSE and rank (``proposals``): for a kind whose scores are residual
-   corrections, the identification rules (``identify.refine``) decide the dynamic family and
-   heating from the response itself and their choice is tried first; then every other candidate
-   new or structural on the measured data, or removing >= min_effect of the residual whatever
-   its p, by that share (at most MAX_TRIALS per round).
+   These verdicts only PROPOSE and rank (``proposals``): the kind's ``identify`` refines the
+   proposal (the network, whose scores are residual corrections, decides the dynamic family
+   and heating from the response itself, ``identify.refine``) and its choice is tried first;
+   then every other candidate new or structural on the measured data, or removing >=
+   min_effect of the residual whatever its p, by that share (at most MAX_TRIALS per round).
 4. Add: the kind fits the effect into a trial model.
 5. Decide (``decide``, ``acceptance.py``): one test for every candidate, the held-out one, because
    a replication on recordings nothing was fitted on is the stronger evidence and one test per
@@ -46,10 +46,10 @@ from .. import contract as c
 from ..errors import BadInputError
 from ..recordings import Signals
 from . import acceptance as acc
-from . import identify as idf
 from . import residuals as rs
 from . import scoring as sc
-from .base import ALPHA, MIN_EFFECT, DataSet, ModelKind, Options, Progress, Scores, Trial, rmse
+from .base import ALPHA, MIN_EFFECT, ModelKind, Options, Progress, Proposal, Refined, Scores, Trial
+from .dataset import DataSet, rmse
 from .network import NetworkKind
 from .physics_kind import PhysicsKind
 from .results import (
@@ -124,7 +124,7 @@ def proposals(ev: dict[str, Evidence], first: str | None, min_effect: float) -> 
 def added_as(ev: Evidence) -> str:
     """'new' or 'structural' for an effect the deciding test added: the step-3 (or the
     identification's) verdict when it was one of them, else by the shares it removes (classify's
-    rule without the measured data's significance, which no longer decides). The reference's
+    rule without the measured data's significance, which does not decide here). The reference's
     share is compared with the smaller of the measured data's two: the correction fitted on the
     measured data alone is the like of the reference's (fitted on the reference alone), and the
     pooled fit's share on the measured data can exceed it by what the pooling adds; an effect the
@@ -208,8 +208,98 @@ def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Si
 
 def run_physics_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
                          holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
-    """``discrepancy --physics``: the loop with the bench physics (``physics.PhysicsModel``)."""
+    """``discrepancy --physics``: the loop with the bench physics (``physics.config.PhysicsConfig``)."""
     return run(PhysicsKind(model), measured, reference, holdout, opts, progress)
+
+
+class _Rounds:
+    """Steps 3-5 round by round: what the rounds found (every effect added, the new ones among
+    them, the structural ones, the evidence and the rounds) and the current model's prediction on
+    the holdout."""
+
+    def __init__(self, kind: ModelKind, hold: Sequence[Signals], holdout: bool, hold_base: DataSet, opts: Options,
+                 progress: Progress) -> None:
+        self.kind, self.hold, self.holdout, self.opts, self.progress = kind, hold, holdout, opts, progress
+        self.hold_cur = hold_base
+        self.added: list[str] = []  # every effect added, in order (new and structural)
+        self.named: list[str] = []  # the new ones
+        self.structural: list[dict[str, Any]] = []
+        self.evidence: dict[str, Evidence] = {}
+        self.rounds: list[Round] = []
+
+    def verdicts(self, names: Sequence[str], scores: dict[str, Scores]) -> tuple[dict[str, Evidence], str | None]:
+        """Step 3's verdicts on the measured data, which only propose: every candidate's evidence
+        (a new round), and the new one that removes the most of the residual (None: none is new)."""
+        opts, noun = self.opts, self.kind.noun
+        round_ev: dict[str, Evidence] = {}
+        best: str | None = None
+        for name in names:
+            feature, m, own, r = scores[name].feature, scores[name].measured, scores[name].measured_alone, \
+                scores[name].reference
+            verdict = classify(m, r, opts.alpha, opts.min_effect)
+            if verdict == "new" and not (own.p_value < opts.alpha and own.fraction >= opts.min_effect):
+                verdict = "not significant"
+            ev = round_ev[name] = Evidence(name, verdict, m, own, r, feature,
+                                           sentence(name, feature, m, r, verdict, noun), noun)
+            self.progress(f"  {name:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
+                          + (f" alone {100 * own.fraction:6.1f} % (p {own.p_value:.2g})" if own is not m else "")
+                          + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
+                          + f"  -> {verdict} on the measured data (proposes only)")
+            if verdict == "new" and (best is None or m.fraction > round_ev[best].measured.fraction):
+                best = name
+            if verdict == "structural" and name not in [x["effect"] for x in self.structural]:
+                self.structural.append({"effect": name, "sentence": ev.sentence, "measured_mse_reduction": m.fraction,
+                                        "reference_mse_reduction": r.fraction if r else None})
+        # an effect named earlier is never a candidate again, so this round's evidence replaces
+        # the earlier rounds' for every effect it scored
+        self.evidence.update(round_ev)
+        self.rounds.append(Round(round_ev))
+        return round_ev, best
+
+    def try_in_turn(self, tried: Sequence[str], refined: Refined,
+                    scores: dict[str, Scores]) -> tuple[str, Trial] | None:
+        """Steps 4 and 5 for each proposal in turn: the first one the deciding test accepts, and its
+        trial (None: every one failed)."""
+        kind, progress = self.kind, self.progress
+        for name in tried:
+            ev = self.rounds[-1].evidence[name]
+            progress(f"  proposed: {ev.sentence}")
+            params = (refined.params, refined.reference_params) if name == refined.best else (None, None)
+            trial = kind.add(name, *params, scores[name], self.hold, progress)
+            judged = decide(kind, name, trial, scores[name], self.hold, self.hold_cur, self.holdout, self.opts,
+                            len(tried))
+            if trial.flags:
+                judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
+            against = kind.contradicted(name)
+            if against:
+                judged = dataclasses.replace(judged, contradicted=against)
+            ev.acceptance = judged
+            ev.refit(trial.parameters, trial.feature, trial.value)
+            self.rounds[-1].trials.append({"effect": name, "parameters": trial.parameters, **trial.extra,
+                                           "holdout_rmse_rad_s": rmse(trial.hold.residuals),
+                                           "acceptance": judged.as_json()})
+            self.rounds[-1] = dataclasses.replace(self.rounds[-1], proposed=name, parameters=trial.parameters,
+                                                  holdout_rmse=rmse(trial.hold.residuals), acceptance=judged,
+                                                  extra=trial.extra)
+            progress(f"step 5: {judged.describe()}")
+            if judged.accepted:
+                return name, trial
+        return None
+
+    def add(self, name: str, kept: Trial) -> None:
+        """The accepted trial becomes the model; ``name`` is added (new or structural)."""
+        self.kind.keep(kept)
+        self.added.append(name)
+        ev = self.rounds[-1].evidence[name]
+        ev.added_as = added_as(ev)
+        if ev.verdict_residual is None and ev.verdict not in ("new", "structural"):
+            # the sentence says what it was added as, not the measured test's (proposing) verdict
+            ev.sentence = sentence(name, ev.feature, ev.measured, ev.reference, ev.added_as, self.kind.noun)
+        if ev.added_as == "new":
+            self.named.append(name)
+        ev.named = True
+        self.rounds[-1].named = name
+        self.hold_cur = kept.hold
 
 
 def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signals],
@@ -228,97 +318,34 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
 
     # step 1, step 2
     meas, ref, hold_base = kind.start(measured, reference, hold, progress)
-    hold_cur = hold_base
     found = find_disagreement(meas, ref, progress)
 
-    added: list[str] = []  # every effect added, in order (new and structural)
-    named: list[str] = []  # the new ones
-    structural: list[dict[str, Any]] = []
-    evidence: dict[str, Evidence] = {}
-    rounds: list[Round] = []
-    cache: dict[str, Any] = {}  # the identified dynamics, once per run
+    loop = _Rounds(kind, hold, bool(holdout), hold_base, opts, progress)
     no_verdict = kind.no_verdict()
     if no_verdict:
         progress(f"  no effect is named: {no_verdict}")
     if not no_verdict:
         progress(f"the rule: {RULE}")
-    while len(added) < opts.max_effects and not no_verdict:
-        names = kind.candidates(restrict, added)
+    while len(loop.added) < opts.max_effects and not no_verdict:
+        names = kind.candidates(restrict, loop.added)
         if not names:
             progress("  every effect considered is already in the model")
             break
         progress(f"step 3: scoring {len(names)} candidate effect(s) on held-out time blocks")
         scores = kind.score(names, progress)
-        round_ev: dict[str, Evidence] = {}
-        best: str | None = None
-        for name in names:
-            feature, m, own, r = scores[name].feature, scores[name].measured, scores[name].measured_alone, \
-                scores[name].reference
-            verdict = classify(m, r, opts.alpha, opts.min_effect)
-            if verdict == "new" and not (own.p_value < opts.alpha and own.fraction >= opts.min_effect):
-                verdict = "not significant"
-            ev = round_ev[name] = Evidence(name, verdict, m, own, r, feature,
-                                           sentence(name, feature, m, r, verdict, kind.noun), kind.noun)
-            progress(f"  {name:20s} measured {100 * m.fraction:6.1f} % (p {m.p_value:.2g})"
-                     + (f" alone {100 * own.fraction:6.1f} % (p {own.p_value:.2g})" if own is not m else "")
-                     + (f"  reference {100 * r.fraction:6.1f} % (p {r.p_value:.2g})" if r else "")
-                     + f"  -> {verdict} on the measured data (proposes only)")
-            if verdict == "new" and (best is None or m.fraction > round_ev[best].measured.fraction):
-                best = name
-            if verdict == "structural" and name not in [x["effect"] for x in structural]:
-                structural.append({"effect": name, "sentence": ev.sentence, "measured_mse_reduction": m.fraction,
-                                   "reference_mse_reduction": r.fraction if r else None})
-        # an effect named earlier is never a candidate again, so this round's evidence replaces
-        # the earlier rounds' for every effect it scored
-        evidence.update(round_ev)
-        rounds.append(Round(round_ev))
-        refined = idf.Refined(best)
-        if kind.identifies_response:
-            refined = idf.refine(round_ev, best, added, measured, reference, *kind.residual_rmse(), cache,
-                                 opts.alpha, opts.min_effect, progress)
+        round_ev, best = loop.verdicts(names, scores)
+        refined = kind.identify(Proposal(round_ev, best, loop.added), progress)
         tried = proposals(round_ev, refined.best, opts.min_effect)
         if not tried:
             progress(f"  nothing to propose: no candidate removes >= {100 * opts.min_effect:.0f} % of the "
                      "residual on the measured data")
             break
-        kept: Trial | None = None
-        for name in tried:
-            ev = round_ev[name]
-            progress(f"  proposed: {ev.sentence}")
-            params = (refined.params, refined.reference_params) if name == refined.best else (None, None)
-            trial = kind.add(name, *params, scores[name], hold, progress)
-            judged = decide(kind, name, trial, scores[name], hold, hold_cur, bool(holdout), opts, len(tried))
-            if trial.flags:
-                judged = dataclasses.replace(judged, at_bound="; ".join(trial.flags))
-            against = kind.contradicted(name)
-            if against:
-                judged = dataclasses.replace(judged, contradicted=against)
-            ev.acceptance = judged
-            ev.refit(trial.parameters, trial.feature, trial.value)
-            rounds[-1].trials.append({"effect": name, "parameters": trial.parameters, **trial.extra,
-                                      "holdout_rmse_rad_s": rmse(trial.hold.residuals),
-                                      "acceptance": judged.as_json()})
-            rounds[-1] = dataclasses.replace(rounds[-1], proposed=name, parameters=trial.parameters,
-                                             holdout_rmse=rmse(trial.hold.residuals), acceptance=judged,
-                                             extra=trial.extra)
-            progress(f"step 5: {judged.describe()}")
-            if judged.accepted:
-                kept = trial
-                break
+        kept = loop.try_in_turn(tried, refined, scores)
         if kept is None:
             # every proposal failed the deciding test: a later round would propose the same
             break
-        kind.keep(kept)
-        added.append(name)
-        ev.added_as = added_as(ev)
-        if ev.verdict_residual is None and ev.verdict not in ("new", "structural"):
-            # the sentence says what it was added as, not the measured test's (proposing) verdict
-            ev.sentence = sentence(name, ev.feature, ev.measured, ev.reference, ev.added_as, kind.noun)
-        if ev.added_as == "new":
-            named.append(name)
-        ev.named = True
-        rounds[-1].named = name
-        hold_cur = kept.hold
+        loop.add(*kept)
+    added, evidence, hold_cur = loop.added, loop.evidence, loop.hold_cur
 
     # the one number: a named effect's fitted value as the final model has it (the physics path
     # refits earlier effects' strengths with every later one)
@@ -331,7 +358,8 @@ def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signal
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     kind_fields, head, tail = kind.finish(added)
     result = Result(
-        named, structural, evidence, rounds, gap_fields(hold_base, hold_cur, hold_masks), found, hold_windows,
+        loop.named, loop.structural, evidence, loop.rounds, gap_fields(hold_base, hold_cur, hold_masks), found,
+        hold_windows,
         {"reference": [s.path for s in reference], "measured": [s.path for s in measured],
          "holdout": [s.path for s in hold]},
         in_sample,

@@ -168,6 +168,33 @@ def read_betaflight_csv(
     raw = {m: col[motor_cols[m]][keep] for m in chosen}
 
     protocol, why = _choose_protocol(path, raw, motor_protocol, meta, warnings)
+    commands = _commands(path, t, raw, motor_cols, protocol)
+    erpm = {m: col[erpm_cols[m]][keep] for m in chosen if m in erpm_cols}
+    speeds, speed_source = _speeds(path, t, erpm, pole_count, meta, warnings)
+
+    voltage = current = None
+    if volt_col is not None:
+        voltage = Series(t, col[volt_col][keep] * VOLTAGE_COLUMNS[volt_col])
+    elif "vbatLatest" in index:
+        warnings.append(f"{path}: column 'vbatLatest' has no unit (Blackbox Explorer's raw export: "
+                        "0.1 V or 0.01 V by firmware version); not converted: decode with "
+                        "blackbox_decode for 'vbatLatest (V)'")
+    if amp_col is not None:
+        current = Series(t, col[amp_col][keep] * CURRENT_COLUMNS[amp_col])
+
+    return FlightLog(
+        path=path, kind=KIND, commands=commands, speeds=speeds, voltage=voltage, current=current,
+        rows=int(len(t)),
+        command_mapping=_mapping(path, protocol, pole_count if speeds else None, volt_col, amp_col),
+        speed_source=speed_source, warnings=warnings,
+        details={"motor_protocol": protocol, "motor_protocol_from": why, "pole_count": pole_count,
+                 "skipped_rows": skipped, "header_lines": len(meta)},
+    )
+
+
+def _commands(path: Path, t: np.ndarray, raw: dict[int, np.ndarray], motor_cols: dict[int, str],
+              protocol: str) -> dict[int, Series]:
+    """Each chosen motor's output as PWM levels; BadInputError on a value the protocol cannot hold."""
     commands: dict[int, Series] = {}
     for m, v in raw.items():
         name = motor_cols[m]
@@ -182,57 +209,50 @@ def read_betaflight_csv(
             check_pulse_widths(path, f"column {name!r}", v,
                                "give --motor-protocol dshot if the ESCs took DShot")
             commands[m] = Series(t, us_to_level(v))
+    return commands
 
+
+def _speeds(path: Path, t: np.ndarray, erpm: dict[int, np.ndarray], pole_count: int | None,
+            meta: dict[str, str], warnings: list[str]) -> tuple[dict[int, Series], str | None]:
+    """The chosen motors' speeds from their eRPM columns (``erpm``, the kept rows) and where they
+    came from; BadInputError when there are some and no ``pole_count`` (``warnings`` gets what
+    to check)."""
     speeds: dict[int, Series] = {}
-    erpm_with_data = [m for m in chosen if m in erpm_cols and np.any(np.isfinite(col[erpm_cols[m]][keep]))]
-    speed_source = None
-    if erpm_with_data:
-        if pole_count is None:
-            raise BadInputError(
-                f"{path}: the log has eRPM columns (electrical RPM / 100, from bidirectional DShot): "
-                "give --pole-count (the motor's magnet poles, e.g. 14) so that they can be turned into "
-                "the rotor's speed")
-        logged = meta.get("motor_poles")
-        if logged and logged.strip().isdigit() and int(logged) != pole_count:
-            warnings.append(f"{path}: --pole-count {pole_count} differs from the log header's "
-                            f"motor_poles={logged} (Betaflight's own setting)")
-        for m in erpm_with_data:
-            speeds[m] = Series(t, erpm_hundreds_to_rad_s(col[erpm_cols[m]][keep], pole_count))
-        speed_source = f"eRPM (electrical RPM / 100) x 100 / {pole_count // 2} pole pairs"
-    else:
+    erpm_with_data = [m for m, v in erpm.items() if np.any(np.isfinite(v))]
+    if not erpm_with_data:
         warnings.append(f"{path}: no eRPM column with data (bidirectional DShot telemetry not "
                         "logged): no rotor/speed written")
         if pole_count is not None:
             warnings.append(f"{path}: --pole-count {pole_count} not used (no eRPM column)")
+        return speeds, None
+    if pole_count is None:
+        raise BadInputError(
+            f"{path}: the log has eRPM columns (electrical RPM / 100, from bidirectional DShot): "
+            "give --pole-count (the motor's magnet poles, e.g. 14) so that they can be turned into "
+            "the rotor's speed")
+    logged = meta.get("motor_poles")
+    if logged and logged.strip().isdigit() and int(logged) != pole_count:
+        warnings.append(f"{path}: --pole-count {pole_count} differs from the log header's "
+                        f"motor_poles={logged} (Betaflight's own setting)")
+    for m in erpm_with_data:
+        speeds[m] = Series(t, erpm_hundreds_to_rad_s(erpm[m], pole_count))
+    return speeds, f"eRPM (electrical RPM / 100) x 100 / {pole_count // 2} pole pairs"
 
-    voltage = current = None
-    if volt_col is not None:
-        voltage = Series(t, col[volt_col][keep] * VOLTAGE_COLUMNS[volt_col])
-    elif "vbatLatest" in index:
-        warnings.append(f"{path}: column 'vbatLatest' has no unit (Blackbox Explorer's raw export: "
-                        "0.1 V or 0.01 V by firmware version); not converted: decode with "
-                        "blackbox_decode for 'vbatLatest (V)'")
-    if amp_col is not None:
-        current = Series(t, col[amp_col][keep] * CURRENT_COLUMNS[amp_col])
 
+def _mapping(path: Path, protocol: str, pole_count: int | None, volt_col: str | None, amp_col: str | None) -> str:
+    """How the columns were turned into the recording's topics, in words (``pole_count``: None
+    when no speed was written)."""
     mapping = [
         ("motor[i] DShot 48-2047 -> pwm level 0.05-0.10 (below 48: stop, 0.05)" if protocol == "dshot"
          else "motor[i] PWM 1000-2000 us / 20000 us -> pwm level 0.05-0.10") + ", held on 50 Hz frames",
         (f"eRPM[i] (eRPM/100) x 100 / {pole_count // 2} pole pairs -> rotor/speed rad/s"
-         if speeds and pole_count is not None else "no eRPM: no rotor/speed"),
+         if pole_count is not None else "no eRPM: no rotor/speed"),
     ]
-    if voltage is not None:
+    if volt_col is not None:
         mapping.append(f"{volt_col} -> battery/voltage")
-    if current is not None:
+    if amp_col is not None:
         mapping.append(f"{amp_col} -> battery/current")
-    return FlightLog(
-        path=path, kind=KIND, commands=commands, speeds=speeds, voltage=voltage, current=current,
-        rows=int(len(t)),
-        command_mapping=f"imported from {KIND} {path.name}: " + "; ".join(mapping) + "; motor[i] -> /motor<i>",
-        speed_source=speed_source, warnings=warnings,
-        details={"motor_protocol": protocol, "motor_protocol_from": why, "pole_count": pole_count,
-                 "skipped_rows": skipped, "header_lines": len(meta)},
-    )
+    return f"imported from {KIND} {path.name}: " + "; ".join(mapping) + "; motor[i] -> /motor<i>"
 
 
 def _header(path: Path, reader: _csv.Reader) -> tuple[dict[str, str], list[str]]:

@@ -74,6 +74,46 @@ def read_ulog(path: Path, *, pole_count: int | None = None, motors: list[int] | 
     ulog, warnings = _load(path)
     params = getattr(ulog, "initial_parameters", {}) or {}
 
+    commands, rows, command_text, command_topic = _commands(path, ulog, motors, warnings)
+
+    speeds: dict[int, Series] = {}
+    esc = _dataset(ulog, "esc_status")
+    if esc is not None:
+        t = esc["timestamp"] * 1e-6
+        rpm = _indexed(esc, "esc[{}].esc_rpm")
+        count = int(np.max(esc["esc_count"])) if "esc_count" in esc else len(rpm)
+        for i in commands:
+            if i in rpm and i < count:
+                speeds[i] = Series(t, rpm_to_rad_s(np.abs(rpm[i])))
+    if not speeds:
+        warnings.append(f"{path}: no esc_status esc_rpm for the imported motors: no rotor/speed written")
+
+    voltage, current, volt_field = _battery(ulog)
+
+    mapping = [command_text + ", held on 50 Hz frames",
+               "esc_status esc[i].esc_rpm (mechanical RPM) -> rotor/speed rad/s" if speeds
+               else "no esc_rpm: no rotor/speed"]
+    if "MOT_POLE_COUNT" in params:
+        mapping[-1] += f" (PX4's MOT_POLE_COUNT={params['MOT_POLE_COUNT']})"
+    if voltage is not None:
+        mapping.append(f"battery_status {volt_field} -> battery/voltage")
+    if current is not None:
+        mapping.append("battery_status current_a -> battery/current")
+    return FlightLog(
+        path=path, kind=KIND, commands=commands, speeds=speeds, voltage=voltage, current=current,
+        rows=int(rows),
+        command_mapping=f"imported from {KIND} {path.name}: " + "; ".join(mapping) + "; motor i -> /motor<i>",
+        speed_source="esc_status esc_rpm (mechanical RPM)" if speeds else None,
+        warnings=warnings,
+        details={"command_topic": command_topic, "pole_count": None,
+                 "mot_pole_count": params.get("MOT_POLE_COUNT")},
+    )
+
+
+def _commands(path: Path, ulog: Any, motors: list[int] | None,
+              warnings: list[str]) -> tuple[dict[int, Series], int, str, str]:
+    """The chosen motors' commands as PWM levels: from actuator_motors when it was ever armed, else
+    actuator_outputs; with the rows read, how they were mapped (in words) and the topic."""
     motors_msg = _dataset(ulog, "actuator_motors")
     outputs_msg = _dataset(ulog, "actuator_outputs")
     if motors_msg is not None and outputs_msg is not None and not any(
@@ -108,19 +148,13 @@ def read_ulog(path: Path, *, pole_count: int | None = None, motors: list[int] | 
         command_topic = "actuator_outputs"
     else:
         raise BadInputError(f"{path}: no actuator_motors or actuator_outputs messages (the motor commands) in the ULog")
+    return commands, rows, command_text, command_topic
 
-    speeds: dict[int, Series] = {}
-    esc = _dataset(ulog, "esc_status")
-    if esc is not None:
-        t = esc["timestamp"] * 1e-6
-        rpm = _indexed(esc, "esc[{}].esc_rpm")
-        count = int(np.max(esc["esc_count"])) if "esc_count" in esc else len(rpm)
-        for i in commands:
-            if i in rpm and i < count:
-                speeds[i] = Series(t, rpm_to_rad_s(np.abs(rpm[i])))
-    if not speeds:
-        warnings.append(f"{path}: no esc_status esc_rpm for the imported motors: no rotor/speed written")
 
+
+def _battery(ulog: Any) -> tuple[Series | None, Series | None, str | None]:
+    """The battery's voltage (the filtered one where logged) and current, each None when not
+    measured, and the voltage's field."""
     voltage = current = None
     volt_field = None
     bat = _dataset(ulog, "battery_status")
@@ -137,22 +171,4 @@ def read_ulog(path: Path, *, pole_count: int | None = None, motors: list[int] | 
             current = Series(t, np.where(a >= 0, a, np.nan))  # -1: not measured
             if not len(current.t):
                 current = None
-
-    mapping = [command_text + ", held on 50 Hz frames",
-               "esc_status esc[i].esc_rpm (mechanical RPM) -> rotor/speed rad/s" if speeds
-               else "no esc_rpm: no rotor/speed"]
-    if "MOT_POLE_COUNT" in params:
-        mapping[-1] += f" (PX4's MOT_POLE_COUNT={params['MOT_POLE_COUNT']})"
-    if voltage is not None:
-        mapping.append(f"battery_status {volt_field} -> battery/voltage")
-    if current is not None:
-        mapping.append("battery_status current_a -> battery/current")
-    return FlightLog(
-        path=path, kind=KIND, commands=commands, speeds=speeds, voltage=voltage, current=current,
-        rows=int(rows),
-        command_mapping=f"imported from {KIND} {path.name}: " + "; ".join(mapping) + "; motor i -> /motor<i>",
-        speed_source="esc_status esc_rpm (mechanical RPM)" if speeds else None,
-        warnings=warnings,
-        details={"command_topic": command_topic, "pole_count": None,
-                 "mot_pole_count": params.get("MOT_POLE_COUNT")},
-    )
+    return voltage, current, volt_field

@@ -47,7 +47,7 @@ from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
 from bldc_propulsion import contract
-from bldc_propulsion.core.estimator import ThrustEstimator, fallback_model
+from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
@@ -68,6 +68,7 @@ from bldc_propulsion.nodes.common import (
 )
 from bldc_propulsion.nodes.params import DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS
 from bldc_propulsion.nodes.stream_time import EventStream, arrival
+from bldc_propulsion.physics.fallback import fallback_model
 
 FALLBACK_TIMER_HZ = 25.0
 

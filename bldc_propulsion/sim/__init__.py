@@ -1,4 +1,5 @@
-"""Physics of the test bench (no I/O): battery, ESC, motor, propeller and the bench's sensors.
+"""The simulated test bench (no I/O): the plant of ``physics/`` driven by a battery model, and the
+bench's sensors. Its constants are ``physics.params.BenchParams``.
 
 ``simulate(profile, duration_s, seed, ...) -> SimResult``; see docs/architecture.md.
 """
@@ -6,15 +7,16 @@
 from __future__ import annotations
 
 from .bench import EFFECT_DOCS, SimResult, simulate
-from .params import BenchParams, params_with_overrides
+from .faults import FAULT_DOCS, Fault, parse_fault
 from .profiles import PROFILES, make_profile
 
 __all__ = [
     "EFFECT_DOCS",
+    "FAULT_DOCS",
     "PROFILES",
-    "BenchParams",
+    "Fault",
     "SimResult",
     "make_profile",
-    "params_with_overrides",
+    "parse_fault",
     "simulate",
 ]

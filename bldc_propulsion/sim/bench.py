@@ -4,17 +4,20 @@ Model (SI units throughout):
 
 * Battery: open-circuit voltage from a state-of-charge table, a series resistance, one RC
   polarisation branch, coulomb counting. Terminal V = OCV(soc) - Vp - Rs * i_batt.
-* ESC, motor, propeller, rotor and the winding's temperature: the plant (``plant.py``), driven by
+* ESC, motor, propeller, rotor and the winding's temperature: the plant (``physics/plant.py``), driven by
   the battery's terminal voltage behind its series resistance. The battery supplies the motor
   current only during the ESC's on-time: i_batt = duty * i.
 * Sensors: battery ADC through the divider with the ESC's switching modulation (zero-mean,
   proportional to battery current) and ADC noise; IR tachometer at 20 kHz, two blades, first-order
   phototransistor response, noise, 12-bit quantisation.
+* Faults (``faults.py``): the bench's constants changed from an onset on, the run split there
+  with its states carried across, so the health monitor has a known truth to be judged by.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import overload
 
@@ -22,14 +25,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from ..errors import BadInputError
-from ..plant import (
-    check_command,
-    esc_duty,
-    make_step,
-    motor_response,  # noqa: F401  (re-exported: its home before plant.py)
-    resolve_effects,
-)
-from .params import BenchParams, check_params
+from ..physics.params import BenchParams, check_params, resolve_effects
+from ..physics.plant import check_command, esc_duty, make_step
+from .faults import Fault, apply_fault, temperature_jump_k
 from .profiles import check_duration, make_profile
 
 #: What strength s of each effect scales (0 = off, 1 = realistic nominal).
@@ -76,6 +74,8 @@ class SimResult:
     params: BenchParams = field(default_factory=BenchParams)
     profile: str = ""
     seed: int = 0
+    #: changes injected mid-run, by onset (``sim.faults``); ``params`` is the bench before them
+    faults: tuple[Fault, ...] = ()
 
 
 def _check_seed(seed: int) -> int:
@@ -94,6 +94,21 @@ def _check_soc(soc: float) -> float:
     return x
 
 
+def _check_faults(faults: Sequence[Fault], duration_s: float) -> tuple[Fault, ...]:
+    """``faults`` by onset (stable), each a Fault whose onset lies inside the run."""
+    if isinstance(faults, (str, Fault)):
+        raise BadInputError(f"faults {faults!r}: expected a sequence of Fault (sim.faults)")
+    out = []
+    for f in faults:
+        if not isinstance(f, Fault):
+            raise BadInputError(f"faults: {f!r} is not a Fault (sim.faults.parse_fault makes one)")
+        if f.onset_s >= duration_s:
+            raise BadInputError(f"--fault {f.spec}: onset {f.onset_s:g} s is not inside the "
+                                f"recording (0 to {duration_s:g} s)")
+        out.append(f)
+    return tuple(sorted(out, key=lambda f: f.onset_s))
+
+
 @overload
 def pack_ocv(p: BenchParams, soc: float) -> float: ...
 @overload
@@ -103,32 +118,44 @@ def pack_ocv(p: BenchParams, soc: np.ndarray | float) -> np.ndarray | float:
     return p.battery_cells * np.interp(soc, p.battery_cell_soc, p.battery_cell_ocv_v)
 
 
-def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float) -> dict[str, np.ndarray]:
+#: One stretch of a run with constant bench constants: (first step, the bench from that step on,
+#: jump of the winding temperature at that step in K). A healthy run is one: [(0, p, 0.0)].
+Segment = tuple[int, BenchParams, float]
+
+
+def _segments(p: BenchParams, faults: Sequence[Fault], dt: float) -> list[Segment]:
+    """The run split at the faults' onsets: each stretch's bench has every fault begun by its
+    first step applied (a fault at an onset between steps begins at the next step)."""
+    out: list[Segment] = [(0, p, 0.0)]
+    for f in faults:  # by onset
+        k = max(0, int(math.ceil(f.onset_s / dt - 1e-9)))
+        if k != out[-1][0]:
+            out.append((k, out[-1][1], 0.0))
+        first, bench, jump = out[-1]
+        out[-1] = (first, apply_fault(bench, f), jump + temperature_jump_k(f))
+    return out
+
+
+def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: float,
+               segments: Sequence[Segment] | None = None) -> dict[str, np.ndarray]:
     """March the plant and the battery at the fixed step; returns truth arrays.
 
     A plain Python loop over scalars (locals only, no per-step allocation): the states are
     coupled nonlinearly, each step is a handful of flops, and vectorising is not possible. The
     plant's step (``plant.make_step``) sees the pack's open-circuit voltage less its polarisation
     (``battery_voltage`` strength s scales their deviation from the starting OCV) behind the
-    series resistance s R_s.
+    series resistance s R_s. ``segments`` (faults injected mid-run, see :func:`_segments`)
+    restart the loop with another bench's constants, carrying the states (speed, temperature,
+    charge, polarisation) across; one segment runs exactly the arithmetic of a healthy run.
     """
     n = len(duty)
     dt = p.sim_step_s
     sbv = eff["battery_voltage"]
-    rs = p.battery_series_resistance_ohm
-    step = make_step(p, eff, sbv * rs)
-    r1 = p.battery_polarisation_resistance_ohm
-    e1 = math.exp(-dt / p.battery_polarisation_time_constant_s)
-    r2 = p.battery_polarisation2_resistance_ohm
-    e2 = math.exp(-dt / p.battery_polarisation2_time_constant_s)
-    q_c = p.battery_capacity_c
-
-    grid = np.linspace(0.0, 1.0, _OCV_STEPS + 1)
-    ocv_tab = pack_ocv(p, grid)
-    ocv = ocv_tab.tolist()
-    slope = np.append(np.diff(ocv_tab), 0.0).tolist()
-    v0 = float(pack_ocv(p, soc0))
+    v0 = float(pack_ocv(p, soc0))  # the run's starting OCV: the battery_voltage reference
     steps = float(_OCV_STEPS)
+    grid = np.linspace(0.0, 1.0, _OCV_STEPS + 1)
+    duty_all = duty.tolist()
+    stretches = list(segments) if segments else [(0, p, 0.0)]
 
     w = 0.0
     temp = p.ambient_temperature_c
@@ -140,29 +167,43 @@ def _integrate(p: BenchParams, duty: np.ndarray, eff: dict[str, float], soc0: fl
     out_v = [0.0] * n
     out_temp = [0.0] * n
     out_soc = [0.0] * n
-    for k, d in enumerate(duty.tolist()):
-        x = soc * steps
-        if x <= 0.0:
-            voc = ocv[0]
-        else:
-            j = int(x)
-            voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
-        out_w[k], w_next, i, temp_next = step(w, temp, d, v0 + sbv * (voc - vp - vp2 - v0))
-        ib = d * i
-        out_ib[k] = ib
-        out_v[k] = v0 + sbv * (voc - vp - vp2 - rs * ib - v0)
-        out_temp[k] = temp
-        out_soc[k] = soc
-        # advance the slow states
-        temp = temp_next
-        soc -= ib * dt / q_c
-        if soc < 0.0:
-            soc = 0.0  # empty: the model holds the empty-pack voltage (no cutoff modelled)
-        elif soc > 1.0:
-            soc = 1.0
-        vp = vp * e1 + r1 * ib * (1.0 - e1)
-        vp2 = vp2 * e2 + r2 * ib * (1.0 - e2)
-        w = w_next
+    for s, (first, ps, jump) in enumerate(stretches):
+        stop = stretches[s + 1][0] if s + 1 < len(stretches) else n
+        rs = ps.battery_series_resistance_ohm
+        step = make_step(ps, eff, sbv * rs)
+        r1 = ps.battery_polarisation_resistance_ohm
+        e1 = math.exp(-dt / ps.battery_polarisation_time_constant_s)
+        r2 = ps.battery_polarisation2_resistance_ohm
+        e2 = math.exp(-dt / ps.battery_polarisation2_time_constant_s)
+        q_c = ps.battery_capacity_c
+        ocv_tab = pack_ocv(ps, grid)
+        ocv = ocv_tab.tolist()
+        slope = np.append(np.diff(ocv_tab), 0.0).tolist()
+        if jump:
+            temp += jump
+        for k, d in enumerate(duty_all[first:stop], first):
+            x = soc * steps
+            if x <= 0.0:
+                voc = ocv[0]
+            else:
+                j = int(x)
+                voc = ocv[j] + (x - j) * slope[j] if j < _OCV_STEPS else ocv[_OCV_STEPS]
+            out_w[k], w_next, i, temp_next = step(w, temp, d, v0 + sbv * (voc - vp - vp2 - v0))
+            ib = d * i
+            out_ib[k] = ib
+            out_v[k] = v0 + sbv * (voc - vp - vp2 - rs * ib - v0)
+            out_temp[k] = temp
+            out_soc[k] = soc
+            # advance the slow states
+            temp = temp_next
+            soc -= ib * dt / q_c
+            if soc < 0.0:
+                soc = 0.0  # empty: the model holds the empty-pack voltage (no cutoff modelled)
+            elif soc > 1.0:
+                soc = 1.0
+            vp = vp * e1 + r1 * ib * (1.0 - e1)
+            vp2 = vp2 * e2 + r2 * ib * (1.0 - e2)
+            w = w_next
     return {
         "speed": np.asarray(out_w),
         "current": np.asarray(out_ib),
@@ -272,19 +313,24 @@ def simulate(
     soc: float = 1.0,
     params: BenchParams | None = None,
     pwm: tuple[np.ndarray, np.ndarray] | None = None,
+    faults: Sequence[Fault] = (),
 ) -> SimResult:
     """Simulate the bench for ``duration_s`` under a named profile (or the command ``pwm``).
 
     ``effects=None`` is the realistic bench (every effect at 1.0); a dict sets the named ones.
     ``pwm=(t, level)`` replaces the named profile (``profile`` is then only a label); the ESC
     holds each level until the next, PWM_STOP before the first, levels clipped to 0.05..0.10.
-    Same arguments, same arrays: noise comes from independent streams of ``seed``.
+    ``faults`` change the bench from their onsets on (``sim.faults``; several allowed, each from
+    its own onset, which must lie inside the run); before the first onset the run is the healthy
+    one, number for number. Same arguments, same arrays: noise comes from independent streams
+    of ``seed``.
     """
     d = check_duration(duration_s)
     seed = _check_seed(seed)
     eff = resolve_effects(effects)
     soc0 = _check_soc(soc)
     p = check_params(params if params is not None else BenchParams())
+    injected = _check_faults(faults, d)
     streams = np.random.SeedSequence(seed).spawn(3)  # independent: profile, battery ADC, tachometer
     rng_profile, rng_batt, rng_tach = (np.random.default_rng(s) for s in streams)
 
@@ -301,8 +347,13 @@ def simulate(
     truth_t = np.arange(n) * dt
     duty = esc_duty(p, eff, cmd_t, cmd, truth_t)
 
-    truth = _integrate(p, duty, eff, soc0)
+    segments = _segments(p, injected, dt)
+    truth = _integrate(p, duty, eff, soc0, segments)
     speed = truth["speed"]
+    thrust = np.empty_like(speed)
+    for s, (first, bench, _) in enumerate(segments):  # b w^2 with each stretch's propeller
+        stop = segments[s + 1][0] if s + 1 < len(segments) else n
+        thrust[first:stop] = bench.thrust_coefficient * speed[first:stop] ** 2
 
     battery_t = np.arange(max(1, int(math.ceil(d * p.adc_sample_rate_hz - 1e-9)))) / p.adc_sample_rate_hz
     battery_adc = _battery_adc(p, battery_t, truth_t, truth["voltage"], truth["current"], rng_batt)
@@ -318,7 +369,7 @@ def simulate(
         tach=tach,
         truth_t=truth_t,
         truth_speed=speed,
-        truth_thrust=p.thrust_coefficient * speed**2,
+        truth_thrust=thrust,
         truth_current=truth["current"],
         truth_voltage=truth["voltage"],
         truth_temperature=truth["temperature"],
@@ -327,4 +378,5 @@ def simulate(
         params=p,
         profile=str(profile),
         seed=seed,
+        faults=injected,
     )

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from .params import BenchParams, check_params
+from ..physics.params import BenchParams, check_params
 
 #: Seed offset of the bench draw, so a bench seed and the recordings' seeds are independent streams.
 _BENCH_STREAM = 7_919

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -11,8 +12,9 @@ from .. import contract as c
 from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter, check_namespace, vehicle_topic
 from ..errors import BadInputError
+from ..physics.params import BenchParams, params_with_overrides
 from .bench import SimResult, simulate
-from .params import BenchParams, params_with_overrides
+from .faults import FAULTS_KEY, Fault, format_faults
 
 #: Tachometer batch size and ground-truth rate written to bags. 200 samples at 20 kHz is the
 #: contract's default batch (100 Hz); truth at 200 Hz keeps sample bags small while resolving
@@ -48,14 +50,18 @@ def write_sim_bag(res: SimResult, path: str | os.PathLike[str], *, force: bool =
     """Write ``res`` in message-time order (as ``ros2 bag record`` would); returns messages.
 
     With ``namespace`` (e.g. ``motor0``) the run is recorded as one motor of a vehicle: its
-    topics under ``/motor0/``, ``/battery/adc`` at the root; the messages are the same."""
+    topics under ``/motor0/``, ``/battery/adc`` at the root; the messages are the same. Its
+    faults go into the metadata (custom_data ``faults: propeller_damage=0.1@20``), read back by
+    ``Recording.faults``; a healthy run's metadata has no such key, so healthy recordings stay
+    byte for byte what they were before faults existed."""
     ns = check_namespace(namespace)
     streams = [(vehicle_topic(topic, ns), t, values) for topic, t, values in _streams(res)]
     times = np.concatenate([s[1] for s in streams])
     which = np.concatenate([np.full(len(s[1]), k) for k, s in enumerate(streams)])
     index = np.concatenate([np.arange(len(s[1])) for s in streams])
     order = np.lexsort((which, times))  # stable: time, then stream order
-    with BagWriter(path, force=force, t0_ns=SIM_EPOCH_NS, storage=storage) as bag:
+    custom = {FAULTS_KEY: format_faults(res.faults)} if res.faults else None
+    with BagWriter(path, force=force, t0_ns=SIM_EPOCH_NS, storage=storage, custom_data=custom) as bag:
         for k in order:
             topic, t, values = streams[which[k]]
             i = index[k]
@@ -78,9 +84,10 @@ def simulate_to_bag(
     storage: str = "mcap",
     force: bool = False,
     namespace: str | None = None,
+    faults: Sequence[Fault] = (),
 ) -> dict[str, Any]:
-    """Simulate and record (one motor of a vehicle under ``namespace``); returns what
-    ``simulate --json`` prints."""
+    """Simulate and record (one motor of a vehicle under ``namespace``, ``faults`` injected
+    from their onsets); returns what ``simulate --json`` prints."""
     namespace = check_namespace(namespace)
     check_output(path, RECORDING, force=force)
     if storage != "mcap" and str(path).lower().endswith(".mcap"):
@@ -88,7 +95,7 @@ def simulate_to_bag(
                             f"directory name for --storage {storage})")
     bench = params_with_overrides(BenchParams(), params or {})
     res = simulate(profile=profile, duration_s=duration_s, seed=seed, effects=effects, soc=soc,
-                   params=bench)
+                   params=bench, faults=faults)
     n = write_sim_bag(res, path, force=force, storage=storage, namespace=namespace)
     return {
         "path": str(path),
@@ -98,6 +105,7 @@ def simulate_to_bag(
         "seed": int(seed),
         "soc": float(soc),
         "effects": {k: float(v) for k, v in res.effects.items()},
+        "faults": [f.spec for f in res.faults],
         "messages": int(n),
         "speed_min_rad_s": float(np.min(res.truth_speed)),
         "speed_max_rad_s": float(np.max(res.truth_speed)),

@@ -1,7 +1,6 @@
 """A physics model from recordings: the plant's constants and effect strengths fitted by least
-squares on the training recordings (the discrepancy workflow's calibration,
-``discrepancy/physics.py``, ``fit_reference``), the candidate with the least validation error
-kept.
+squares on the training recordings (``physics.fit.fit_reference``, the calibration the discrepancy
+workflow runs too), the candidate with the least validation error kept.
 
 Why least squares on the plant instead of a network: the plant carries the rotor's inertia, the
 ESC's dead time and start level and the battery's sag as physics, so a handful of constants
@@ -21,9 +20,11 @@ import numpy as np
 
 from .. import __version__
 from .. import contract as c
-from ..discrepancy import physics as ph
 from ..errors import BadInputError
-from ..model import HybridModel, NetworkModel, PlantModel
+from ..model import HybridModel, NetworkModel
+from ..physics import fit as pf
+from ..physics.config import CALIBRATED, PhysicsConfig, median_voltage, start_model, supply_tau_s
+from ..physics.plant_model import PlantModel
 from ..priors import MotorPriors
 from ..recordings import Signals
 from .evaluate import predict_speed
@@ -35,7 +36,7 @@ from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, tra
 #: (half the randomized benches) is misfitted straight (tuning bench 101, coasting: chirp 5.68 %
 #: straight, 2.03 % bent). The validation recordings choose, as they choose the braking.
 STRAIGHT_MAP = ("esc_throttle_exponent",)
-#: Held in every training fit: the pack's series resistance (``physics.CALIBRATED``, which the
+#: Held in every training fit: the pack's series resistance (``physics.config.CALIBRATED``, which the
 #: discrepancy workflow calibrates on a reference). Here battery_voltage's strength is fitted too,
 #: and it scales the same term (the drop the battery filter has not passed, s R_s (i - lowpass(i))):
 #: with both free, the nominal bench's validation RMSE went from 0.54 to 1.31 rad/s.
@@ -52,7 +53,7 @@ class PhysicsOutcome:
     validation_rmse_rad_s: float
     candidates: list[dict[str, Any]]  #: every fit tried, with its figures; the kept one first
     #: one line each: the start point's (nominal bench, a CONFIG over stated priors) and every flag
-    #: of the kept fit (``physics.fit_flags``) that did not refuse it
+    #: of the kept fit (``physics.fit.fit_flags``) that did not refuse it
     warnings: list[str] = dataclasses.field(default_factory=list)
 
 
@@ -63,7 +64,7 @@ def rmse(model: PlantModel, signals: Sequence[Signals]) -> float:
     return float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
 
 
-def _plant_model(m: ph.PhysicsModel, tau_s: float) -> PlantModel:
+def _plant_model(m: PhysicsConfig, tau_s: float) -> PlantModel:
     assert m.supply_v is not None, "a fit on recordings has their supply (with_supply)"
     return PlantModel(m.params, m.effects, m.supply_v, supply_tau_s=tau_s)
 
@@ -78,7 +79,7 @@ def train_physics(
     progress: Callable[[str], None] | None = None,
 ) -> PhysicsOutcome:
     """Fit the plant to ``train`` (Kv, CP and every effect's strength, least squares) from the
-    user's motor (``physics.start_model``: the stated ``priors`` under a ``config`` file, which wins
+    user's motor (``physics.config.start_model``: the stated ``priors`` under a ``config`` file, which wins
     where both are given; neither: the simulator's nominal bench, with a warning) for two ESCs,
     each with its throttle map held straight and then with its exponent
     fitted too (from the straight fit), and keep the one ``validation`` prefers: an ESC that
@@ -88,7 +89,7 @@ def train_physics(
     choose; random steps do. The supply is the recordings' filtered battery voltage (the stiff
     supply of battery_voltage strength 0: their median).
 
-    The kept fit is checked (``physics.fit_flags``): a fit whose Kv or CP ended at a bound of its
+    The kept fit is checked (``physics.fit.fit_flags``): a fit whose Kv or CP ended at a bound of its
     range or implausibly far from a value the user stated (a prior, or the CONFIG) is no model of
     that motor: among the four, one without such a flag is kept, and when every one has it the
     training is refused (BadInputError naming the constant, its value, the range and the stated
@@ -97,37 +98,17 @@ def train_physics(
     if not train or not validation:
         raise BadInputError("training needs at least one training and one validation recording")
     say = progress or (lambda text: None)
-    taus = {ph.supply_tau_s(s) for s in [*train, *validation]}
+    taus = {supply_tau_s(s) for s in [*train, *validation]}
     if len(taus) > 1:
         raise BadInputError(f"{train[0].path}: the recordings' battery voltages come from different sources "
                             "(filtered from battery/adc and recorded): a physics model takes one kind")
     tau = taus.pop()
-    base, notes, warnings = ph.start_model(config, priors, ph.median_voltage(train), option="--physics-config")
+    base, notes, warnings = start_model(config, priors, median_voltage(train), option="--physics-config")
     for line in notes:
         say(f"start: {line}")
-    data = ph.Data.of(train, "training")
+    data = pf.Data.of(train)
     t0 = time.perf_counter()
-    candidates: list[dict[str, Any]] = []  # the JSON metadata's records, plus each fit's model and flags
-    for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
-        effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
-        start = dataclasses.replace(base, effects=effects).with_supply(train)
-        init = start  # the bent map starts from the straight fit
-        for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)),
-                           (f"{esc}, throttle map bent", HELD)):
-            say(f"fitting Kv, CP and the effects' strengths, {name}")
-            fit = ph.fit_reference(init, data, hold=hold)
-            init = fit.model
-            m = _plant_model(fit.model, tau)
-            flags = training_flags(fit, start)
-            candidates.append({"fit": name, "constants": fit.model.constants(), "effects": dict(fit.model.effects),
-                               "at_bound": [f.text() for f in flags if f.at_bound],
-                               "fit_flags": [f.as_json() for f in flags],
-                               "refused": [f.text() for f in flags if refuses(f)],
-                               "train_rmse_rad_s": rmse(m, train),
-                               "validation_rmse_rad_s": rmse(m, validation), "model": m, "flags": flags})
-            say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
-                f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s"
-                + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f)))
+    candidates = _candidate_fits(base, data, train, validation, tau, say)
     # a fit that is no model of the stated motor is kept only when every fit is one: then refused
     candidates.sort(key=lambda d: (bool(d["refused"]), d["validation_rmse_rad_s"]))
     best = candidates[0]
@@ -155,21 +136,50 @@ def train_physics(
                                                           for d in candidates], warnings)
 
 
+def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals], validation: Sequence[Signals],
+                    tau: float, say: Callable[[str], None]) -> list[dict[str, Any]]:
+    """``train_physics``'s four fits from ``base``: for each ESC (braking actively, letting the
+    rotor coast) the throttle map held straight, then bent from the straight fit. Each as its
+    JSON metadata record, plus its model and flags (``data``: ``train`` as the fit reads it)."""
+    candidates: list[dict[str, Any]] = []
+    for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
+        effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
+        start = dataclasses.replace(base, effects=effects).with_supply(train)
+        init = start  # the bent map starts from the straight fit
+        for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)),
+                           (f"{esc}, throttle map bent", HELD)):
+            say(f"fitting Kv, CP and the effects' strengths, {name}")
+            fit = pf.fit_reference(init, data, hold=hold)
+            init = fit.model
+            m = _plant_model(fit.model, tau)
+            flags = training_flags(fit, start)
+            candidates.append({"fit": name, "constants": fit.model.constants(), "effects": dict(fit.model.effects),
+                               "at_bound": [f.text() for f in flags if f.at_bound],
+                               "fit_flags": [f.as_json() for f in flags],
+                               "refused": [f.text() for f in flags if refuses(f)],
+                               "train_rmse_rad_s": rmse(m, train),
+                               "validation_rmse_rad_s": rmse(m, validation), "model": m, "flags": flags})
+            say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
+                f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s"
+                + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f)))
+    return candidates
+
+
 #: The constants whose flag against a stated value refuses a training fit: what the priors state.
 REFUSING = ("motor_kv_rpm_per_v", "propeller_cp")
 
 
-def training_flags(fit: ph.Fit, start: ph.PhysicsModel) -> list[ph.FitFlag]:
-    """``physics.fit_flags`` of a training fit: CALIBRATED constants at a bound or implausible,
+def training_flags(fit: pf.Fit, start: PhysicsConfig) -> list[pf.FitFlag]:
+    """``physics.fit.fit_flags`` of a training fit: CALIBRATED constants at a bound or implausible,
     strengths and companions at a bound only (every strength starts at 1 here, a start of the
     procedure, not a value anybody stated). The coasting ESC's spin-down strength at 0 is no bound
     hit: it is the braking ESC (a physical end, as 1 is), which the other candidates fit as such."""
-    return [f for f in ph.fit_flags(fit, start, "training fit")
-            if (f.at_bound or f.quantity in ph.CALIBRATED) and not (f.quantity == "spin_down_asymmetry strength"
+    return [f for f in pf.fit_flags(fit, start, "training fit")
+            if (f.at_bound or f.quantity in CALIBRATED) and not (f.quantity == "spin_down_asymmetry strength"
                                                                      and f.value <= 1e-3)]
 
 
-def refuses(flag: ph.FitFlag) -> bool:
+def refuses(flag: pf.FitFlag) -> bool:
     """The flag makes the fit no model of the stated motor: Kv or CP at a bound of its range or
     implausibly far from a value the user stated (a prior or the CONFIG)."""
     return flag.quantity in REFUSING and flag.stated

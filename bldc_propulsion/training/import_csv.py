@@ -175,23 +175,7 @@ def _parse(path: Path, text: str, command: _Command = _Command()) -> tuple[_Tabl
     command); BadInputError on the first bad cell."""
     reader, header = csv_header(path, text)
     index = _header_index(path, header, command)
-
-    used = {"time": COL_TIME}
-    if command.column is not None:
-        used["esc"] = command.column  # the command, whatever its column and unit
-    for role, name in (("voltage", COL_VOLTAGE), ("current", COL_CURRENT),
-                       ("rpm_electrical", COL_RPM_ELECTRICAL), ("rpm_optical", COL_RPM_OPTICAL)):
-        if name in index:
-            used[role] = name
-    thrust = next((name for name in THRUST_COLUMNS if name in index), None)
-    if thrust is not None:
-        used["thrust"] = thrust
-    other_thrust = [n for n in index if n.startswith("Thrust (") and n not in THRUST_COLUMNS]
-    # only for a consistency check of the speed: never fail on these
-    checks = {role: name for role, name in (("torque", COL_TORQUE), ("mech_power", COL_MECH_POWER))
-              if name in index}
-    if command.column != COL_ESC and COL_ESC in index:
-        checks["esc_ignored"] = COL_ESC  # counted, to say that it was not used
+    used, checks = _columns(index, command)
     lo, hi = UNIT_RANGE[command.unit]
     rows_with_time = command_cells = 0
 
@@ -204,28 +188,7 @@ def _parse(path: Path, text: str, command: _Command = _Command()) -> tuple[_Tabl
             line = reader.line_num
             if not any(cell.strip() for cell in row):
                 continue  # blank line
-            cells: dict[str, float] = {}
-            for role, name in used.items():
-                k = index[name]
-                cell = row[k].strip() if k < len(row) else ""
-                if not cell:
-                    cells[role] = math.nan
-                    continue
-                try:
-                    v = float(cell)
-                except ValueError:
-                    raise BadInputError(
-                        f"{path}: line {line}, column {name!r}: {cell[:40]!r} is not a number"
-                    ) from None
-                if not math.isfinite(v):
-                    raise BadInputError(f"{path}: line {line}, column {name!r}: {cell!r} is not finite")
-                cells[role] = v
-            for role, name in checks.items():
-                k = index[name]
-                try:
-                    cells[role] = float(row[k]) if k < len(row) and row[k].strip() else math.nan
-                except ValueError:
-                    cells[role] = math.nan
+            cells = _cells(path, line, row, index, used, checks)
             t, esc = cells["time"], cells.get("esc", 0.0)
             rows_with_time += not math.isnan(t)
             command_cells += not (math.isnan(t) or math.isnan(esc))
@@ -258,8 +221,59 @@ def _parse(path: Path, text: str, command: _Command = _Command()) -> tuple[_Tabl
     ignored = cols.pop("esc_ignored", None)
     table = _Table(time=cols.pop("time"), cols=cols, lines=np.asarray(lines), skipped=skipped,
                    esc_cells_ignored=0 if ignored is None else int(np.count_nonzero(np.isfinite(ignored))),
-                   other_thrust=other_thrust)
+                   other_thrust=[n for n in index if n.startswith("Thrust (") and n not in THRUST_COLUMNS])
     return table, used
+
+
+def _columns(index: dict[str, int], command: _Command) -> tuple[dict[str, str], dict[str, str]]:
+    """The columns read, by role: those written (time, the command unless it comes from another
+    file, voltage, current, speeds, the first thrust column in a known unit), and those only
+    counted or used to check the speed (never a reason to fail)."""
+    used = {"time": COL_TIME}
+    if command.column is not None:
+        used["esc"] = command.column  # the command, whatever its column and unit
+    for role, name in (("voltage", COL_VOLTAGE), ("current", COL_CURRENT),
+                       ("rpm_electrical", COL_RPM_ELECTRICAL), ("rpm_optical", COL_RPM_OPTICAL)):
+        if name in index:
+            used[role] = name
+    thrust = next((name for name in THRUST_COLUMNS if name in index), None)
+    if thrust is not None:
+        used["thrust"] = thrust
+    # only for a consistency check of the speed: never fail on these
+    checks = {role: name for role, name in (("torque", COL_TORQUE), ("mech_power", COL_MECH_POWER))
+              if name in index}
+    if command.column != COL_ESC and COL_ESC in index:
+        checks["esc_ignored"] = COL_ESC  # counted, to say that it was not used
+    return used, checks
+
+
+def _cells(path: Path, line: int, row: list[str], index: dict[str, int], used: dict[str, str],
+           checks: dict[str, str]) -> dict[str, float]:
+    """One row's numbers by role (NaN: an empty cell); BadInputError on a used cell that is not a
+    finite number (a checked one is NaN then)."""
+    cells: dict[str, float] = {}
+    for role, name in used.items():
+        k = index[name]
+        cell = row[k].strip() if k < len(row) else ""
+        if not cell:
+            cells[role] = math.nan
+            continue
+        try:
+            v = float(cell)
+        except ValueError:
+            raise BadInputError(
+                f"{path}: line {line}, column {name!r}: {cell[:40]!r} is not a number"
+            ) from None
+        if not math.isfinite(v):
+            raise BadInputError(f"{path}: line {line}, column {name!r}: {cell!r} is not finite")
+        cells[role] = v
+    for role, name in checks.items():
+        k = index[name]
+        try:
+            cells[role] = float(row[k]) if k < len(row) and row[k].strip() else math.nan
+        except ValueError:
+            cells[role] = math.nan
+    return cells
 
 
 def _pwm_frames(t: np.ndarray, t_cmd: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -399,33 +413,95 @@ def import_csv(
     text = _read_text(src)
     table, used = _parse(src, text, command)
     source, rpm, speed_note = _speed(table, pole_pairs)
-
-    alignment: Alignment | None = None
-    other_info: dict[str, Any] | None = None
-    if other_src is None:
-        unit = command.unit
-        t_cmd, level_cmd = table.time, to_level(table.cols["esc"], unit)
-    else:
-        other, alignment = _align_other(src, other_src, table, rpm)
-        unit = "percent"  # the ESC32 utility logs Duty in %
-        t_cmd, level_cmd = other.t + alignment.offset_s, to_level(other.duty_percent, unit)
-        inside = (table.time >= t_cmd[0]) & (table.time <= t_cmd[-1])
-        table.keep(inside, "outside_command_log")
-        rpm = None if rpm is None else rpm[inside]
-        if len(table.time) < 2:
-            raise BadInputError(f"{src}: fewer than 2 rows within the time span of {other_src} (--command-from)")
-        other_info = {"path": str(other_src), "rows": int(len(other.t)), "skipped_rows": other.skipped,
-                      "first_timestamp": other.first_timestamp, "column": "Duty", "sha256": other.sha256}
+    cmd = _command_source(src, other_src, command, table, rpm)
+    rpm = cmd.rpm
     t = table.time
     cols = table.cols
 
-    frames, pwm = _pwm_frames(t, t_cmd, level_cmd)
-    thrust = cols.get("thrust")
+    frames, pwm = _pwm_frames(t, cmd.t, cmd.level)
     thrust_unit, thrust_factor = THRUST_COLUMNS[used["thrust"]] if "thrust" in used else (None, None)
-    if thrust is not None:
-        thrust = thrust * thrust_factor
+    thrust = cols.get("thrust")  # (in the log's unit; present only when "thrust" is used)
+    streams = _streams(t, cols, frames, pwm, rpm, None if thrust is None else thrust * thrust_factor)
 
-    # (topic, times, values): one message per row with a value, /pwm per 50 Hz frame
+    first_t = min(float(s[1].min()) for s in streams)
+    with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
+        whence = ("" if cmd.alignment is None or other_src is None
+                  else f" from {Path(other_src).name}'s Duty, shifted {cmd.alignment.offset_s:+.3f} s")
+        bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({cmd.unit}{whence}) "
+                                f"-> pwm level, held on 50 Hz frames; speed: {speed_note}", first_t)
+        bag.write_merged(streams)
+        written = bag.messages_written
+
+    columns_used = {role: name for role, name in used.items()
+                    if not role.startswith("rpm_") or role == f"rpm_{source}"}
+    ratio = _speed_check(table, rpm)
+    warnings = _data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs)
+    warnings += _command_warnings(src, command, table, cmd.unit, cmd.alignment)
+    counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
+    other_info = cmd.other_info
+    return {
+        "path": str(out),
+        "source": str(src),
+        "source_sha256": _sha256(text),
+        **_rows_summary(table),
+        "columns_used": columns_used,
+        "thrust_unit_in_log": thrust_unit,
+        "thrust_factor_to_n": thrust_factor,
+        "command": {"column": command.column if other_info is None else other_info["column"],
+                    "file": None if other_info is None else other_info["path"],
+                    "unit": cmd.unit, "mapping": mapping_text(cmd.unit)},
+        "command_from": other_info,
+        "alignment": None if cmd.alignment is None else cmd.alignment.as_dict(),
+        "command_levels": sorted({round(float(x), 12) for x in cmd.level})[:50],
+        "speed_source": source,
+        "speed_assumption": speed_note,
+        "pole_pairs": pole_pairs,
+        "speed_check_power_over_torque_ratio": ratio,
+        **_signal_ranges(frames, pwm, cols, cmd.unit, rpm),
+        "topics": counts,
+        "added_topics": ["/" + TOPIC_BATTERY_CURRENT] if "/" + TOPIC_BATTERY_CURRENT in counts else [],
+        "messages": int(written),
+        "warnings": warnings,
+    }
+
+
+@dataclass
+class _CommandSource:
+    """The command as imported: its times (s, the log's clock) and PWM levels, its unit, and with
+    ``--command-from`` the other file's alignment and summary (``rpm``: the log's speed per row,
+    cut to the rows kept)."""
+
+    t: np.ndarray
+    level: np.ndarray
+    unit: str
+    rpm: np.ndarray | None
+    alignment: Alignment | None = None
+    other_info: dict[str, Any] | None = None
+
+
+def _command_source(src: Path, other_src: Path | None, command: _Command, table: _Table,
+                    rpm: np.ndarray | None) -> _CommandSource:
+    """The log's own command column, or the ``--command-from`` file aligned to the log by speed;
+    then only the log's rows within the other file's time span are kept (``table`` changes)."""
+    if other_src is None:
+        return _CommandSource(table.time, to_level(table.cols["esc"], command.unit), command.unit, rpm)
+    other, alignment = _align_other(src, other_src, table, rpm)
+    unit = "percent"  # the ESC32 utility logs Duty in %
+    t_cmd, level_cmd = other.t + alignment.offset_s, to_level(other.duty_percent, unit)
+    inside = (table.time >= t_cmd[0]) & (table.time <= t_cmd[-1])
+    table.keep(inside, "outside_command_log")
+    rpm = None if rpm is None else rpm[inside]
+    if len(table.time) < 2:
+        raise BadInputError(f"{src}: fewer than 2 rows within the time span of {other_src} (--command-from)")
+    other_info = {"path": str(other_src), "rows": int(len(other.t)), "skipped_rows": other.skipped,
+                  "first_timestamp": other.first_timestamp, "column": "Duty", "sha256": other.sha256}
+    return _CommandSource(t_cmd, level_cmd, unit, rpm, alignment, other_info)
+
+
+def _streams(t: np.ndarray, cols: dict[str, np.ndarray], frames: np.ndarray, pwm: np.ndarray,
+             rpm: np.ndarray | None, thrust: np.ndarray | None) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(topic, times, values): one message per row with a value, /pwm per 50 Hz frame; topics
+    with no value left out."""
     streams: list[tuple[str, np.ndarray, np.ndarray]] = [(c.TOPIC_PWM, frames, pwm)]
     if "voltage" in cols:
         streams.append((c.TOPIC_BATTERY_VOLTAGE, t, cols["voltage"]))
@@ -436,21 +512,13 @@ def import_csv(
     if "current" in cols:
         streams.append((TOPIC_BATTERY_CURRENT, t, cols["current"]))
     streams = [(topic, ts[np.isfinite(v)], v[np.isfinite(v)]) for topic, ts, v in streams]
-    streams = [s for s in streams if len(s[1])]
+    return [s for s in streams if len(s[1])]
 
-    first_t = min(float(s[1].min()) for s in streams)
-    with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
-        whence = ("" if alignment is None or other_src is None
-                  else f" from {Path(other_src).name}'s Duty, shifted {alignment.offset_s:+.3f} s")
-        bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({unit}{whence}) -> "
-                                f"pwm level, held on 50 Hz frames; speed: {speed_note}", first_t)
-        bag.write_merged(streams)
-        written = bag.messages_written
 
-    columns_used = {role: name for role, name in used.items()
-                    if not role.startswith("rpm_") or role == f"rpm_{source}"}
+def _data_warnings(src: Path, table: _Table, used: dict[str, str], rpm: np.ndarray | None, ratio: float | None,
+                   source: str | None, speed_note: str, pole_pairs: int | None) -> list[str]:
+    """What a user should check about the speed, voltage and thrust written (or not written)."""
     warnings: list[str] = []
-    ratio = _speed_check(table, rpm)
     if ratio is not None and abs(ratio - 1.0) > SPEED_CHECK_TOLERANCE:
         hint = ("omit --pole-pairs" if source == "electrical" and pole_pairs is not None
                 else "check --pole-pairs / the stand's pole-count setting")
@@ -467,35 +535,28 @@ def import_csv(
             warnings.append(f"{src}: no {role} column; /{topic} not written")
     if rpm is None:
         warnings.append(f"{src}: {speed_note}")
-    warnings += _command_warnings(src, command, table, unit, alignment)
-    levels = sorted({round(float(x), 12) for x in level_cmd})
-    counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
-    skipped_total = int(sum(table.skipped.values()))
-    volts = cols["voltage"] if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None
+    return warnings
+
+
+def _rows_summary(table: _Table) -> dict[str, Any]:
+    """The rows imported and skipped, and the time they span (``import_csv``'s summary)."""
+    t = table.time
     return {
-        "path": str(out),
-        "source": str(src),
-        "source_sha256": _sha256(text),
         "rows": int(len(t)),
-        "skipped_rows": skipped_total,
+        "skipped_rows": int(sum(table.skipped.values())),
         "skipped": dict(table.skipped),
         "first_line": int(table.lines[0]),
         "time_start_s": float(t[0]),
         "duration_s": float(t[-1] - t[0]),
         "mean_row_rate_hz": float((len(t) - 1) / (t[-1] - t[0])),
-        "columns_used": columns_used,
-        "thrust_unit_in_log": thrust_unit,
-        "thrust_factor_to_n": thrust_factor,
-        "command": {"column": command.column if other_info is None else other_info["column"],
-                    "file": None if other_info is None else other_info["path"],
-                    "unit": unit, "mapping": mapping_text(unit)},
-        "command_from": other_info,
-        "alignment": None if alignment is None else alignment.as_dict(),
-        "command_levels": levels[:50],
-        "speed_source": source,
-        "speed_assumption": speed_note,
-        "pole_pairs": pole_pairs,
-        "speed_check_power_over_torque_ratio": ratio,
+    }
+
+
+def _signal_ranges(frames: np.ndarray, pwm: np.ndarray, cols: dict[str, np.ndarray], unit: str,
+                   rpm: np.ndarray | None) -> dict[str, Any]:
+    """The ranges of the command, speed and voltage written (``import_csv``'s summary)."""
+    volts = cols["voltage"] if "voltage" in cols and np.any(np.isfinite(cols["voltage"])) else None
+    return {
         "pwm_frames": int(len(frames)),
         "pwm_min": float(np.min(pwm)),
         "pwm_max": float(np.max(pwm)),
@@ -504,10 +565,6 @@ def import_csv(
         else float(np.nanmax(rpm) * RPM_TO_RAD_S),
         "voltage_min_v": None if volts is None else float(np.nanmin(volts)),
         "voltage_max_v": None if volts is None else float(np.nanmax(volts)),
-        "topics": counts,
-        "added_topics": ["/" + TOPIC_BATTERY_CURRENT] if "/" + TOPIC_BATTERY_CURRENT in counts else [],
-        "messages": int(written),
-        "warnings": warnings,
     }
 
 

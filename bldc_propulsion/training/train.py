@@ -218,31 +218,15 @@ def train_model(
     params = {c.INPUT_PWM_FILTERED: {"tau_s": pwm_tau_s}, **(feature_params or {})}
     X, y = stack(train, inputs, params)
     Xv, yv = stack(validation, inputs, params)
-    n_params = hidden * (len(inputs) + 2) + 1
-    if len(y) < max(2 * n_params, 50):
-        raise BadInputError(
-            f"too little training data: {len(y)} samples for {n_params} weights "
-            f"(record longer or use fewer --hidden)"
-        )
-    if len(yv) < 20:
-        raise BadInputError(f"too little validation data: {len(yv)} samples")
-    try:
-        xmin, xmax = minmax_fit(X)
-    except ValueError as exc:
-        names = ", ".join(inputs)
-        raise BadInputError(f"training inputs ({names}) do not vary: {exc}") from None
-    ymin, ymax = float(np.min(y)), float(np.max(y))
-    if not ymax > ymin:
-        raise BadInputError("the measured speed does not vary in the training recordings")
-    Xs, Xvs = minmax_apply(X, xmin, xmax), minmax_apply(Xv, xmin, xmax)
-    ys = 2.0 * (y - ymin) / (ymax - ymin) - 1.0
-    yvs = 2.0 * (yv - ymin) / (ymax - ymin) - 1.0
+    _check_amounts(len(y), len(yv), hidden, len(inputs))
+    sc = _Scaling.of(X, y, inputs)
+    scaled = (sc.inputs(X), sc.speed(y), sc.inputs(Xv), sc.speed(yv))
     runs: list[tuple[int | None, LMResult]] = []
     starts: list[int | None] = ([None] if phi0 is not None else []) + list(range(seed, seed + restarts))
-    zero = 2.0 * (0.0 - ymin) / (ymax - ymin) - 1.0  # the scaled output of 0 rad/s
     for start in starts[:restarts]:
-        p0 = phi0 if start is None else _zero_output(len(inputs), hidden, start, zero) if start_at_zero else None
-        runs.append((start, train_lm(Xs, ys, Xvs, yvs, hidden, seed=start or 0, phi0=p0,
+        p0 = (phi0 if start is None else _zero_output(len(inputs), hidden, start, sc.speed(0.0)) if start_at_zero
+              else None)
+        runs.append((start, train_lm(*scaled, hidden, seed=start or 0, phi0=p0,
                                      max_epochs=max_epochs, patience=patience, progress=progress)))
     best_seed, result = min(runs, key=lambda r: r[1].val_cost)
     W1, b1, W2, b2 = unpack(result.phi, len(inputs), hidden)
@@ -253,6 +237,71 @@ def train_model(
             "train": [_source(s) for s in train],
             "validation": [_source(s) for s in validation],
         },
+        **_lm_metadata(result, runs),
+        "seed": int(seed),
+        "best_seed": best_seed,  # None: the run started from the given weights (phi0)
+        "restarts": [{"seed": sd, "epochs": int(r.epochs), "best_epoch": int(r.best_epoch),
+                      "validation_cost": float(r.val_cost)} for sd, r in runs],
+        "hidden": int(hidden),
+        "samples": {"train": int(len(y)), "validation": int(len(yv))},
+        "thrust_fit": fit.as_metadata(),
+        "feature_params": params,
+    }
+    model = NetworkModel(input_names=tuple(inputs), input_min=np.asarray(sc.xmin, dtype=float),
+                         input_max=np.asarray(sc.xmax, dtype=float), output_min=sc.ymin, output_max=sc.ymax,
+                         W1=W1, b1=b1, W2=W2, b2=float(b2), pwm_tau_s=float(pwm_tau_s),
+                         thrust_coefficient=fit.coefficient, metadata=metadata)
+    rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
+    rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
+    return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
+
+
+def _check_amounts(n_train: int, n_validation: int, hidden: int, n_in: int) -> None:
+    """BadInputError when the training samples are too few for the network's weights, or the
+    validation samples too few to stop on."""
+    n_params = hidden * (n_in + 2) + 1
+    if n_train < max(2 * n_params, 50):
+        raise BadInputError(
+            f"too little training data: {n_train} samples for {n_params} weights "
+            f"(record longer or use fewer --hidden)"
+        )
+    if n_validation < 20:
+        raise BadInputError(f"too little validation data: {n_validation} samples")
+
+
+@dataclass
+class _Scaling:
+    """The min-max scaling a training derives from its training data: inputs and speed to [-1, 1]."""
+
+    xmin: np.ndarray
+    xmax: np.ndarray
+    ymin: float
+    ymax: float
+
+    @classmethod
+    def of(cls, X: np.ndarray, y: np.ndarray, inputs: Sequence[str]) -> _Scaling:
+        """BadInputError when an input or the speed does not vary."""
+        try:
+            xmin, xmax = minmax_fit(X)
+        except ValueError as exc:
+            names = ", ".join(inputs)
+            raise BadInputError(f"training inputs ({names}) do not vary: {exc}") from None
+        ymin, ymax = float(np.min(y)), float(np.max(y))
+        if not ymax > ymin:
+            raise BadInputError("the measured speed does not vary in the training recordings")
+        return cls(xmin, xmax, ymin, ymax)
+
+    def inputs(self, X: np.ndarray) -> np.ndarray:
+        return minmax_apply(X, self.xmin, self.xmax)
+
+    def speed(self, y: Any) -> Any:
+        """Speed (rad/s, array or number) in the network's output scale."""
+        return 2.0 * (y - self.ymin) / (self.ymax - self.ymin) - 1.0
+
+
+def _lm_metadata(result: LMResult, runs: Sequence[tuple[int | None, LMResult]]) -> dict[str, Any]:
+    """The kept LM run's epochs, stop and cost history, and the time all runs took (model metadata)."""
+    return {
         "epochs": int(result.epochs),
         "best_epoch": int(result.best_epoch),
         "stop_reason": result.stop_reason,
@@ -264,32 +313,7 @@ def train_model(
             "mu": result.history.mu.tolist(),
         },
         "training_seconds": float(sum(r.seconds for _, r in runs)),
-        "seed": int(seed),
-        "best_seed": best_seed,  # None: the run started from the given weights (phi0)
-        "restarts": [{"seed": sd, "epochs": int(r.epochs), "best_epoch": int(r.best_epoch),
-                      "validation_cost": float(r.val_cost)} for sd, r in runs],
-        "hidden": int(hidden),
-        "samples": {"train": int(len(y)), "validation": int(len(yv))},
-        "thrust_fit": fit.as_metadata(),
-        "feature_params": params,
     }
-    model = NetworkModel(
-        input_names=tuple(inputs),
-        input_min=np.asarray(xmin, dtype=float),
-        input_max=np.asarray(xmax, dtype=float),
-        output_min=ymin,
-        output_max=ymax,
-        W1=W1,
-        b1=b1,
-        W2=W2,
-        b2=float(b2),
-        pwm_tau_s=float(pwm_tau_s),
-        thrust_coefficient=fit.coefficient,
-        metadata=metadata,
-    )
-    rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
-    rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
-    return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
 
 
 def _zero_output(n_in: int, hidden: int, seed: int, b2: float) -> np.ndarray:

@@ -30,33 +30,28 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from ..contract import EFFECTS, PWM_STOP
-from ..plant import (
+from ..contract import EFFECTS, PAPER_FILTER_TAU_S, PWM_STOP
+from .lag import lag_step
+from .params import PLANT_FIELDS, PlantParams, check_plant, plant_problem, resolve_effects, strength_problem
+from .plant import (
     FRAME_TOLERANCE_S,
-    PLANT_FIELDS,
-    PlantParams,
     Supply,
     check_initial_speed,
-    check_plant,
     dead_time_s,
     make_step,
-    plant_problem,
-    resolve_effects,
     running_supply_current,
     start_level,
-    strength_problem,
     throttle,
 )
-from .battery_filter import BatteryFilterConfig
 
 #: The parameters of a stream as one flat {name: float} (a model input's parameters,
 #: core/features.py): every plant constant, every effect's strength, the stiff supply (V) and the
-#: voltage input's filter time constant (s; the battery filter's by default).
+#: voltage input's filter time constant (s; the paper's battery filter's by default).
 STREAM_DEFAULTS: dict[str, float] = {
     **{n: float(getattr(PlantParams(), n)) for n in PLANT_FIELDS},
     **{n: 1.0 for n in EFFECTS},
     "supply_v": 12.0,
-    "supply_tau_s": BatteryFilterConfig().tau_s,
+    "supply_tau_s": PAPER_FILTER_TAU_S,
 }
 
 
@@ -264,7 +259,7 @@ class PlantStream:
                 ib_lp = running_supply_current(step, w, temp, duty, v_ref + sbv * (vv[vi] - v_ref), rs)
             prev = last
             last, w, i, temp = step(w, temp, duty, v_ref + sbv * (vv[vi] - v_ref) + rs * ib_lp)
-            ib_lp += a_lp * (duty * i - ib_lp)
+            ib_lp = lag_step(ib_lp, duty * i, a_lp)
             k += 1
         if commit:
             self._k, self._w, self._temp, self._ib_lp = k, w, temp, ib_lp

@@ -1,10 +1,11 @@
 """The propulsion plant: ESC throttle map and dead time, motor electrics, rotor + propeller, and
 the winding's temperature. One implementation for everything that predicts the rotor's speed.
 
-The simulator (``sim/bench.py``) drives it with its battery model and writes bags with it; the
-physics model of the discrepancy workflow (``motor_response`` here) and the online estimator
-(``core/plant_stream.py``) drive it with the measured, filtered battery voltage. It imports
-nothing of the simulator's battery or sensors: the supply is an input.
+The simulator (``sim/bench.py``) drives it with its battery model and writes bags with it; a
+physics model (``motor_response`` here, the batch path; ``stream.py``, the online twin the
+estimator runs) drives it with the measured, filtered battery voltage. Its constants are
+``params.PlantParams``; the supply is an input (nothing here knows the simulator's battery or
+sensors).
 
 Model (SI units throughout):
 
@@ -38,173 +39,10 @@ from typing import TypeVar
 
 import numpy as np
 
-from .contract import EFFECTS, PWM_FULL, PWM_STOP
-from .errors import BadInputError
-
-
-@dataclass(frozen=True)
-class PlantParams:
-    """Every constant of the plant (SI units, the unit in each name). ``sim.BenchParams`` extends
-    it with the battery and the sensors; a physics model file stores exactly these fields."""
-
-    # --- the source as the ESC sees it ------------------------------------------------------
-    # ~8 mOhm per cell (a fresh 20-25C 2 Ah pack) + XT60/deans connector + 15 cm of 14 AWG lead
-    battery_series_resistance_ohm: float = 0.035
-
-    # --- ESC ------------------------------------------------------------------------------
-    # MOSFET on-resistance (two of them conduct, ~2 x 10 mOhm), motor leads, bullet connectors
-    # and the ESC's current path: sum chosen so that full throttle draws ~15 A
-    esc_resistance_ohm: float = 0.06
-    # start threshold above PWM_STOP at effect strength 1: paper 3.2, "motion starts when pwm
-    # level reaches 0.055"
-    esc_deadband_pwm: float = 0.005
-    # dead time at effect strength 1: up to one 20 ms frame before the pulse is read, plus the
-    # ESC's input averaging/throttle filtering (~1 frame) -> 40 ms
-    esc_input_delay_s: float = 0.040
-    # shape of the throttle map above the start threshold: duty = x ** exponent with x the
-    # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
-    # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
-    esc_throttle_exponent: float = 1.0
-
-    # --- AXI 2212/34 outrunner (Model Motors datasheet) -----------------------------------
-    motor_kv_rpm_per_v: float = 710.0  # datasheet: 710 rpm/V
-    winding_resistance_ohm: float = 0.20  # datasheet Ri ~ 200 mOhm (phase-to-phase)
-    motor_no_load_current_a: float = 0.4  # datasheet Io ~ 0.4 A at 10 V, as friction torque Kt*Io
-    winding_reference_temperature_c: float = 25.0  # resistance above is at room temperature
-    copper_temperature_coefficient_per_k: float = 0.00393  # annealed copper, IEC 60028
-    # One thermal node: 57 g motor (~40 J/K at ~0.7 J/(g K) for its copper/steel/aluminium mix)
-    # plus the part of the aluminium mount that follows it -> 70 J/K; the propeller wash cools
-    # an outrunner well: ~1.8 K/W to ambient. Time constant ~2 min.
-    motor_thermal_capacity_j_per_k: float = 70.0
-    motor_thermal_resistance_k_per_w: float = 1.8
-    ambient_temperature_c: float = 25.0
-    # rotating bell (~20 g of steel/magnets at ~13 mm radius): m r^2 ~ 4e-6 kg m^2
-    motor_rotor_inertia_kg_m2: float = 4.0e-6
-
-    # --- 12x4.5 propeller -----------------------------------------------------------------
-    propeller_diameter_m: float = 0.3048  # 12 in
-    propeller_mass_kg: float = 0.020  # typical 12x4.5 slow-fly/CR propeller, 18-22 g
-    # static coefficients of 12 in slow-fly propellers (UIUC propeller database style values for
-    # APC 12x4.7SF / 12x3.8SF at ~5000-6000 rpm: CT ~0.10-0.11, CP ~0.04-0.05)
-    propeller_ct: float = 0.105
-    propeller_cp: float = 0.042
-    air_density_kg_m3: float = 1.225  # ISA sea level, 15 C
-
-    # --- integration ------------------------------------------------------------------------
-    sim_step_s: float = 0.001  # 1 kHz: rotor time constant ~0.1 s, thermal/battery slower
-
-    # --- derived quantities (properties, not overridable) ---------------------------------
-    @property
-    def back_emf_constant_v_s_per_rad(self) -> float:
-        """Ke = 1/Kv in SI (V per rad/s); equals the torque constant Kt in N m/A."""
-        return 60.0 / (2.0 * math.pi * self.motor_kv_rpm_per_v)
-
-    @property
-    def propeller_inertia_kg_m2(self) -> float:
-        """Propeller as a thin rod about its centre: m D^2 / 12 (~1.5e-4 kg m^2)."""
-        return self.propeller_mass_kg * self.propeller_diameter_m**2 / 12.0
-
-    @property
-    def rotor_inertia_kg_m2(self) -> float:
-        """Propeller plus motor bell."""
-        return self.propeller_inertia_kg_m2 + self.motor_rotor_inertia_kg_m2
-
-    @property
-    def thrust_coefficient(self) -> float:
-        """b in thrust = b w^2 (N s^2/rad^2): CT rho D^4 / (4 pi^2), since n = w / (2 pi)."""
-        return self.propeller_ct * self.air_density_kg_m3 * self.propeller_diameter_m**4 / (4.0 * math.pi**2)
-
-    @property
-    def torque_coefficient(self) -> float:
-        """k in drag torque = k w^2 (N m s^2/rad^2): CP rho D^5 / (2 pi)^3."""
-        rho_d5 = self.air_density_kg_m3 * self.propeller_diameter_m**5
-        return self.propeller_cp * rho_d5 / (2.0 * math.pi) ** 3
-
-
-#: The plant's constants, in order (a physics model file stores them by these names).
-PLANT_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PlantParams))
-#: Constants that may be zero (a switch-off of a small term); all others must be > 0.
-PLANT_MAY_BE_ZERO = frozenset({
-    "battery_series_resistance_ohm",
-    "esc_resistance_ohm",
-    "esc_deadband_pwm",
-    "esc_input_delay_s",
-    "motor_no_load_current_a",
-    "copper_temperature_coefficient_per_k",
-    "motor_rotor_inertia_kg_m2",
-})
-#: Constants whose value is a temperature (any finite value).
-PLANT_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
-#: Coarsest integration step the rotor tolerates (its time constant is ~0.1 s at nominal inertia).
-MAX_STEP_S = 0.005
-
-
-def value_problem(value: object, may_be_zero: bool = False, any_finite: bool = False,
-                  integer: bool = False) -> str | None:
-    """Why ``value`` is not a valid constant (a number, finite, > 0 unless told), or None."""
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-        return f"{value!r} must be a finite number"
-    if integer and value != int(value):
-        return f"{value!r} must be a whole number"
-    if any_finite:
-        return None
-    if may_be_zero:
-        return f"{value!r} must be >= 0" if value < 0 else None
-    return f"{value!r} must be > 0" if value <= 0 else None
-
-
-def plant_problem(p: PlantParams) -> tuple[str, str] | None:
-    """The first constant of ``p`` that makes no physical sense, as (field, why), or None."""
-    for name in PLANT_FIELDS:
-        why = value_problem(getattr(p, name), name in PLANT_MAY_BE_ZERO, name in PLANT_ANY_FINITE)
-        if why:
-            return name, why
-    if p.esc_deadband_pwm >= 0.04:
-        return "esc_deadband_pwm", f"{p.esc_deadband_pwm!r} leaves no throttle range (must be < 0.04)"
-    if p.sim_step_s > MAX_STEP_S:
-        return "sim_step_s", f"{p.sim_step_s!r} too coarse for the rotor (must be <= {MAX_STEP_S} s)"
-    return None
-
-
-P = TypeVar("P", bound=PlantParams)
-
-
-def check_plant(p: P) -> P:
-    """``p`` if its plant constants make physical sense, else BadInputError('--param NAME: why')."""
-    bad = plant_problem(p)
-    if bad:
-        raise BadInputError(f"--param {bad[0]}: {bad[1]}")
-    return p
-
-
-# --- effect strengths ------------------------------------------------------------------------
-def strength_problem(name: str, value: object) -> str | None:
-    """Why ``value`` is not a strength of the effect ``name`` (finite, >= 0; spin-down's at most
-    1, the fraction of braking removed), or None."""
-    if name not in EFFECTS:
-        return f"unknown effect (known: {', '.join(EFFECTS)})"
-    try:
-        s = float(value)  # type: ignore[arg-type]  # any JSON/CLI value: float() sorts it out, below
-    except (TypeError, ValueError):
-        return "not a number"
-    if not math.isfinite(s) or s < 0.0:
-        return "strength must be a finite number >= 0"
-    if name == "spin_down_asymmetry" and s > 1.0:
-        return "must be in [0, 1] (fraction of braking removed)"
-    return None
-
-
-def resolve_effects(effects: Mapping[str, float] | None) -> dict[str, float]:
-    """All effects at 1.0, overridden by ``effects``; BadInputError naming a bad item."""
-    out = {name: 1.0 for name in EFFECTS}
-    for name, value in (effects or {}).items():
-        why = strength_problem(name, value)
-        if why:
-            item = name if name not in EFFECTS else f"{name}={value!r}"
-            raise BadInputError(f"--effect {item}: {why}")
-        out[name] = float(value)
-    return out
-
+from ..contract import PWM_FULL, PWM_STOP
+from ..errors import BadInputError
+from .lag import lag_gain, lag_step
+from .params import PlantParams, check_plant, resolve_effects
 
 # --- ESC ---------------------------------------------------------------------------------------
 Level = TypeVar("Level", float, np.ndarray)
@@ -212,7 +50,10 @@ Level = TypeVar("Level", float, np.ndarray)
 
 def _clip(x: Level, lo: float, hi: float) -> Level:
     """np.clip for arrays; min/max for one float (a stream's step: 20x faster, same value)."""
-    return np.clip(x, lo, hi) if isinstance(x, np.ndarray) else min(max(x, lo), hi)
+    if isinstance(x, np.ndarray):
+        clipped: np.ndarray = np.clip(x, lo, hi)
+        return clipped
+    return min(max(x, lo), hi)
 
 
 def throttle(level: Level, threshold: float, exponent: float = 1.0) -> Level:
@@ -373,7 +214,7 @@ class Supply:
     def of(cls, p: PlantParams, eff: Mapping[str, float], v_ref: float, tau_s: float) -> Supply:
         s = eff["battery_voltage"]
         rs = s * p.battery_series_resistance_ohm if tau_s > 0.0 else 0.0
-        gain = 1.0 - math.exp(-p.sim_step_s / tau_s) if tau_s > 0.0 else 0.0
+        gain = lag_gain(p.sim_step_s, tau_s) if tau_s > 0.0 else 0.0
         return cls(float(v_ref), s, rs, gain)
 
 
@@ -391,6 +232,43 @@ def check_initial_speed(w: object) -> float:
     if not (math.isfinite(x) and x >= 0.0):
         raise BadInputError(f"initial_speed: {w!r} must be a finite rotor speed >= 0 (rad/s)")
     return x
+
+
+#: A measured speed below this (rad/s) is rest: about the tachometer's slowest measurable speed
+#: (its 0.3 s timeout is a revolution at ~5 rad/s), and a start from it differs from one at rest
+#: by less than the tachometer's noise.
+REST_SPEED_RAD_S = 5.0
+#: ``measured_start_speed`` looks at a recording's first START_SAMPLES measured samples (50 ms
+#: on the 100 Hz grid) and trusts them when START_AGREE of them lie within START_TOLERANCE of
+#: their median: a lone spike (or two) is outvoted, and a rotor still spinning up after a step
+#: (~10 % of its speed per 10 ms on the nominal bench) still agrees.
+START_SAMPLES = 5
+START_AGREE = 3
+START_TOLERANCE = 0.2
+#: The measured speed is the physics' start only when it starts within this (s) of the first
+#: command, where the physics starts: the tachometer's first speed needs a batch and a revolution
+#: (~10-30 ms at speed). A recording whose speed starts later (a part of a longer one, cut after
+#: its commands began) runs the physics from its first command at rest, as before.
+START_GAP_S = 0.1
+
+
+def measured_start_speed(t: np.ndarray, speed: np.ndarray, first_command_t: float) -> float:
+    """The rotor's speed (rad/s) where a recording starts, from its measured speed ``speed`` on
+    the grid ``t``: the earliest of the first START_SAMPLES samples that agrees with the others
+    (see START_AGREE), 0 (rest, as a recording starting from rest) when the rotor is at rest
+    (REST_SPEED_RAD_S), when the samples do not agree or are not all finite, or when they start
+    more than START_GAP_S from ``first_command_t`` (where the physics starts)."""
+    t, speed = np.asarray(t, dtype=float), np.asarray(speed, dtype=float)
+    if len(t) < START_SAMPLES or not abs(float(t[0]) - float(first_command_t)) <= START_GAP_S:
+        return 0.0
+    x = speed[:START_SAMPLES]
+    if not np.all(np.isfinite(x)):
+        return 0.0
+    m = float(np.median(x))
+    near = np.abs(x - m) <= START_TOLERANCE * m
+    if m < REST_SPEED_RAD_S or int(near.sum()) < START_AGREE:
+        return 0.0
+    return float(x[int(np.argmax(near))])
 
 
 #: Most rounds of ``running_supply_current``'s fixed point: each shrinks its error by
@@ -441,7 +319,7 @@ def motor_response(
     temperature (nothing in a recording says how warm it is). The supply is
     linearly interpolated onto the steps (held before the first and after the last sample), or
     with ``hold_supply`` held from the latest sample at or before each step: what a stream knows
-    then, so ``core.plant_stream.PlantStream`` gives the same numbers sample by sample.
+    then, so ``stream.PlantStream`` gives the same numbers sample by sample.
     ``v_ref`` and ``supply_tau_s``: see :class:`Supply`.
     """
     eff = resolve_effects(effects)
@@ -469,5 +347,6 @@ def motor_response(
     for k in range(n):
         d = duty[k]
         speed[k], w, i, temp = step(w, temp, d, source[k] + rs * ib_lp)
-        ib_lp += a_lp * (d * i - ib_lp)
-    return np.interp(t_out, step_t, speed)
+        ib_lp = lag_step(ib_lp, d * i, a_lp)
+    out: np.ndarray = np.interp(t_out, step_t, speed)
+    return out

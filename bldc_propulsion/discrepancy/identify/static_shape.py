@@ -1,0 +1,204 @@
+"""The static shape at held command levels: where the rotor gets no drive, and the ESC start level.
+
+An ESC gives no drive below its start level, so a start level that rose shows at held levels in
+two ways none of the time quantities (lag, dead time, spin-down) mimics: the rotor runs down to
+rest at a level where the reference's spins (``start_level_rose``), and the throttle map above it
+is compressed, which the settled speeds show (``start_level_shift``: one static map for both
+sets, with its voltage and thermal terms, and an F-test of a second start level).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from ... import contract as c
+from ...core import effect_features as ef
+from ...physics.plant import throttle
+from ...physics.scales import centred_voltage
+from ...recordings import Signals
+from ..residuals import robust_sigma
+from .heating import HEATING_TAU_S
+from .steps import STEP_ALPHA, STEP_HOLD_S, held_levels
+
+#: A measured hold "gets no drive" when the rotor ends it (not rising) below NO_DRIVE_FRACTION of
+#: the speed the reference's rotor settles at for that level: a lower supply or a hotter winding
+#: lowers the speed by some per cent, only the loss of drive halves it.
+NO_DRIVE_FRACTION = 0.5
+#: A reference hold counts as "spinning" only above this share of the reference's fastest settled
+#: hold: a rotor that reads a few hundredths of a rad/s is at rest, and interpolating from it
+#: puts tens of rad/s at levels just above, where the static map is still at zero (the friction
+#: is not yet overcome; on a lower pack even less so), so a measured rotor at rest there would be
+#: taken for a start level that rose.
+SPINNING_MIN_SHARE = 0.02
+#: The end of a hold the speed is read from: a line fitted to it gives the end speed and whether
+#: the rotor had settled (drift <= 2 % + twice the noise) or was still rising.
+SETTLED_S = 0.3
+
+
+@dataclass
+class Holds:
+    """Held command levels (each at least STEP_HOLD_S, above PWM_STOP) and the rotor at their end."""
+
+    levels: np.ndarray  #: PWM level
+    speed: np.ndarray  #: speed at the end of the hold (rad/s)
+    settled: np.ndarray  #: the speed no longer drifted
+    rising: np.ndarray  #: the speed was still rising (spinning up towards the level's speed)
+    voltage: np.ndarray  #: mean filtered battery voltage over the hold's end (V; NaN if none)
+    thermal: np.ndarray  #: ``thermal_load`` state at the hold's end (HEATING_TAU_S)
+
+
+def holds(signals: Sequence[Signals]) -> Holds:
+    """Every hold of at least STEP_HOLD_S above PWM_STOP with the rotor's state at its end."""
+    rows = []
+    for s in signals:
+        ok = np.isfinite(s.speed)
+        if len(s.pwm_events[0]) < 2 or not ok.any():
+            continue
+        pwm_t, pwm = s.pwm_events
+        vt, vv = s.voltage_events
+        th = ef.compute(ef.THERMAL_LOAD, s.t, pwm_t, pwm, vt, vv, {"tau_s": HEATING_TAU_S})
+        tc, lv, ends = held_levels(s)
+        for k in range(len(tc)):
+            if ends[k] - tc[k] < STEP_HOLD_S or lv[k] <= c.PWM_STOP:
+                continue
+            last = (s.t >= ends[k] - SETTLED_S) & (s.t < ends[k]) & ok
+            if last.sum() < 5:
+                continue
+            tl = s.t[last] - ends[k]
+            slope, icpt = np.polyfit(tl, s.speed[last], 1)
+            noise = max(robust_sigma(s.speed[last] - (icpt + slope * tl)), 0.5)
+            drift = slope * SETTLED_S
+            volt = s.voltage[last]
+            volt = volt[np.isfinite(volt)]
+            rows.append((float(lv[k]), max(float(icpt), 0.0), abs(drift) <= 0.02 * abs(icpt) + 2.0 * noise,
+                         drift > 2.0 * noise, float(np.mean(volt)) if len(volt) else math.nan,
+                         float(np.nanmean(th[last])) if np.isfinite(th[last]).any() else math.nan))
+    a = np.array(rows, dtype=float).reshape(-1, 6)
+    return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
+
+
+def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
+    """Whether the measured rotor gets no drive at a level where the reference's has it, and why.
+
+    An ESC gives no drive below its start level: the rotor runs down to rest there (braked or
+    coasting, however long that takes) whatever it did before. A measured hold at a level within
+    the range where the reference's rotor settles spinning, ending (not rising) below
+    NO_DRIVE_FRACTION of the reference's speed at that level, had no drive: the start level rose.
+    Read from the holds, not from a fit of the throttle map (which the network re-weights, and a
+    lag would take for a slower spin-down)."""
+    top = float(np.max(reference.speed[reference.settled], initial=0.0))
+    spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
+    if spin.sum() < 2:
+        return False, "the reference recordings hold too few levels at which the rotor settles spinning"
+    order = np.argsort(reference.levels[spin])
+    lv_r, w_r = reference.levels[spin][order], reference.speed[spin][order]
+    # the reference's rotor at rest at a level bounds its start level from below: levels at or
+    # below that are no evidence
+    inside = (measured.levels >= lv_r[0]) & (measured.levels <= lv_r[-1]) & ~measured.rising
+    expect = np.interp(measured.levels, lv_r, w_r)
+    none = inside & (measured.speed < NO_DRIVE_FRACTION * expect)
+    if not none.any():
+        return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
+                       f"measured rotor spins as well")
+    k = int(np.argmax(np.where(none, measured.levels, -np.inf)))
+    return True, (f"the rotor runs at less than half the reference's speed, or stops, at {int(none.sum())} held "
+                  f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
+                  f"at the end of the hold, not rising, where the reference's settles at {expect[k]:.0f} rad/s; "
+                  f"its rotor spins from PWM {lv_r[0]:.4f})")
+
+
+#: ESC start levels (PWM level) the held levels' static map is fitted at (start_level_shift): from
+#: PWM_STOP to well past any start level an ESC ships with, in steps of 0.0005 (10 us of pulse).
+SHIFT_LEVELS = tuple(round(c.PWM_STOP + 0.0005 * k, 4) for k in range(41))  # 0.0500 ... 0.0700
+#: Least settled holds on each set for the start-level shift test (the static map has 7 terms).
+SHIFT_MIN_HOLDS = 8
+#: Least rise that counts: two steps of SHIFT_LEVELS, since a start level between two of them lands
+#: on either neighbour on each set (a one-step difference is the scan's own resolution).
+SHIFT_MIN_RISE = 0.001
+
+
+@dataclass
+class StartLevelShift:
+    """The two sets' start levels fitted on their settled holds with one static map for both,
+    and the F-test of "the measured set's start level differs" against "one start level"."""
+
+    measured: float  #: PWM level
+    reference: float  #: PWM level
+    f_stat: float
+    p_value: float
+    n_measured: int
+    n_reference: int
+
+    @property
+    def changed(self) -> bool:
+        return self.p_value < STEP_ALPHA and self.measured - self.reference >= SHIFT_MIN_RISE - 1e-9
+
+    @property
+    def at_bound(self) -> bool:
+        return self.measured >= SHIFT_LEVELS[-1]
+
+    def describe(self) -> str:
+        bound = (f" (at the end of the levels tried, PWM {SHIFT_LEVELS[-1]:.4f}: it may be higher)"
+                 if self.at_bound else "")
+        return (f"the settled speeds at held levels give an ESC start level of PWM {self.measured:.4f} on the "
+                f"measured data vs {self.reference:.4f} on the reference{bound}, one static map for both "
+                f"with its voltage and thermal terms (F = {self.f_stat:.1f}, p = {self.p_value:.2g}; "
+                f"{self.n_measured} vs {self.n_reference} holds; a rise counts from {SHIFT_MIN_RISE:g})")
+
+    def as_dict(self) -> dict[str, float]:
+        return {"measured_pwm": self.measured, "reference_pwm": self.reference, "f_stat": self.f_stat,
+                "p_value": self.p_value, "holds_measured": self.n_measured, "holds_reference": self.n_reference,
+                "at_bound": self.at_bound}
+
+
+def _static_map(h: Holds, start: float, measured: bool) -> np.ndarray:
+    """Columns of the settled speed at held levels: duty d = throttle(level, start) (no drive, no
+    speed, below the start level), d, d^2, d^3 and their change with the supply (V - 11.5 V) d, d^2,
+    and a response to the winding's thermal state per set, theta d (a hotter winding loses speed in
+    proportion to the load, a raised start level loses it most at low levels: they do not trade)."""
+    d = throttle(h.levels, start)
+    v = centred_voltage(h.voltage)
+    td = h.thermal * d
+    return np.column_stack([d, d**2, d**3, v * d, v * d**2, td * measured, td * (not measured)])
+
+
+def start_level_shift(measured: Holds, reference: Holds) -> StartLevelShift | None:
+    """Whether the measured ESC's start level rose, from the settled speeds at held levels.
+
+    A start level compresses the throttle map: the duty at a level drops most just above it
+    and not at all at full command, which neither a lag, a dead time nor a coasting rotor
+    changes (they move the path between holds, not where the rotor settles), and which a hotter
+    winding or a lower supply does not mimic (they lose speed in proportion to the load; both are
+    in the map). The two sets share one static map; their start levels are fitted on
+    SHIFT_LEVELS, together (the null: one level) and apart, and the F-test of the one extra
+    parameter, with the holds as the units, says whether they differ. None with fewer than
+    SHIFT_MIN_HOLDS settled holds on a set."""
+    def usable(h: Holds) -> Holds:
+        k = h.settled & ~h.rising & np.isfinite(h.voltage) & np.isfinite(h.thermal)
+        return Holds(h.levels[k], h.speed[k], h.settled[k], h.rising[k], h.voltage[k], h.thermal[k])
+
+    m, r = usable(measured), usable(reference)
+    if len(m.levels) < SHIFT_MIN_HOLDS or len(r.levels) < SHIFT_MIN_HOLDS:
+        return None
+    y = np.r_[m.speed, r.speed]
+    cols_m = [_static_map(m, t, True) for t in SHIFT_LEVELS]
+    cols_r = [_static_map(r, t, False) for t in SHIFT_LEVELS]
+
+    def sse(i: int, j: int) -> float:
+        A = np.vstack([cols_m[i], cols_r[j]])
+        beta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        return float(np.sum((y - A @ beta) ** 2))
+
+    n = len(SHIFT_LEVELS)
+    grid = np.array([[sse(i, j) for j in range(n)] for i in range(n)])
+    null = float(np.min(np.diag(grid)))
+    i, j = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    dof = len(y) - cols_m[0].shape[1] - 2  # the map's terms and the two start levels
+    f = (null - float(grid[i, j])) / max(float(grid[i, j]) / max(dof, 1), 1e-12)
+    return StartLevelShift(SHIFT_LEVELS[i], SHIFT_LEVELS[j], f, float(stats.f.sf(f, 1, max(dof, 1))),
+                           len(m.levels), len(r.levels))
