@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from types import ModuleType
 
-from . import discrepancy, evaluate, import_csv, import_log, info, replay, simulate, train
+from . import discrepancy, evaluate, health, import_csv, import_log, info, replay, simulate, train
 
-#: In the order ``bldc-propulsion --help`` lists them: look, make, learn, check, explain, convert.
-MODULES: tuple[ModuleType, ...] = (info, simulate, train, evaluate, replay, discrepancy, import_csv,
+#: In the order ``bldc-propulsion --help`` lists them: look, make, learn, check, explain, monitor, convert.
+MODULES: tuple[ModuleType, ...] = (info, simulate, train, evaluate, replay, discrepancy, health, import_csv,
                                    import_log)

@@ -1,8 +1,9 @@
 """The first-order lag dy/dt = (u - y) / tau of an input held between time points, exactly.
 
 Over a step of h seconds with u held, y covers the share g = 1 - exp(-h / tau) of its way to u:
-y <- y + g (u - y). ``lag_gain`` computes g (as -expm1(-h / tau), which keeps its digits for the
-short steps where 1 - exp(...) loses them; 1 for tau <= 0: no lag, 0 for h <= 0), ``lag_step``
+y <- y + g (u - y). ``lag_gain`` computes g (as 1 - exp(-h / tau): the digits -expm1 would keep
+on short steps are far below what the models resolve, and this form keeps every fitted constant
+and published figure what it was; 1 for tau <= 0: no lag, 0 for h <= 0), ``lag_step``
 takes the step; both work on floats and on arrays alike. ``lag_on_times`` runs a whole input
 sequence at once (vectorised), ``asymmetric_lag_on_times`` with one time constant while y rises
 and another while it falls.
@@ -33,12 +34,12 @@ def lag_gain(h: float | np.ndarray, tau: float | np.ndarray) -> float | np.ndarr
     """Share of the way to a held input a lag of time constant ``tau`` covers in ``h`` (s)."""
     if isinstance(h, np.ndarray) or isinstance(tau, np.ndarray):
         taus = np.asarray(tau, dtype=float)
-        g = -np.expm1(-np.maximum(h, 0.0) / np.where(taus > 0.0, taus, 1.0))
+        g = 1.0 - np.exp(-np.maximum(h, 0.0) / np.where(taus > 0.0, taus, 1.0))
         out: np.ndarray = np.where(np.asarray(h) > 0.0, np.where(taus > 0.0, g, 1.0), 0.0)
         return out
     if not h > 0.0:
         return 0.0
-    return -math.expm1(-h / tau) if tau > 0.0 else 1.0
+    return 1.0 - math.exp(-h / tau) if tau > 0.0 else 1.0
 
 
 def lag_step(y: Value, u: Value | float, g: Value | float) -> Value:

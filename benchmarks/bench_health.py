@@ -1,0 +1,210 @@
+"""Health monitor on randomized benches (issue 34 item 3): detection, naming and false alarms.
+
+Per bench seed (``sim.random_bench.draw_bench``): a physics model is fitted (``train_physics``) on a
+HEALTHY recording of that bench (random steps, 90 s, with 40 s of validation), then flights of
+random steps are simulated on the same bench with each fault injected at a random onset
+(propeller_damage 0.1, pack_resistance 2, motor_heating 30 K, as the issue's goals state) and
+healthy flights; the monitor (``core.health.run_health``) runs over what the bench's sensors
+give (the tachometer decoded, the battery ADC through the battery filter), as ``health`` does.
+
+Printed per fault: detected within 5 s of the onset, named right first (the first name given
+after the onset), named wrong, left unnamed, delays, size error; and false alarms per hour of
+healthy monitored flight (the hours run stated). The monitor's settings were tuned on bench
+seed 1 (flight seeds 30-33) only; the reported benches are seeds from --first-seed (default
+200), disjoint from it.
+
+    .venv/bin/python benchmarks/bench_health.py --seeds 6 --flights 2 --hours 0.5 [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig  # noqa: E402
+from bldc_propulsion.core.health import run_health  # noqa: E402
+from bldc_propulsion.recordings import decode_speed, load_signals  # noqa: E402
+from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim.faults import Fault  # noqa: E402
+from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
+from bldc_propulsion.sim.record import TACH_BATCH, write_sim_bag  # noqa: E402
+from bldc_propulsion.training.fit_physics import train_physics  # noqa: E402
+
+#: The issue's goal sizes.
+GOALS = {"propeller_damage": 0.1, "pack_resistance": 2.0, "motor_heating": 30.0}
+DETECT_WITHIN_S = 5.0
+FLIGHT_S = 120.0
+HEALTHY_FLIGHT_S = 300.0
+ONSET_RANGE_S = (55.0, 100.0)
+
+
+class _SimTachometer:
+    """What ``recordings.decode_speed`` reads of a recording, from a simulation in memory: the
+    tachometer's batches as the simulator's bag writer cuts them (no bag written and read)."""
+
+    def __init__(self, res: Any) -> None:
+        self.res = res
+        self.path = f"simulation seed {res.seed}"
+
+    def tachometer(self) -> Any:
+        r = self.res
+        n = len(r.tach) // TACH_BATCH
+        for k in range(n):
+            t = r.tach_t0 + (k * TACH_BATCH + TACH_BATCH - 1) / r.tach_rate_hz
+            yield float(t), r.tach[k * TACH_BATCH:(k + 1) * TACH_BATCH]
+
+
+def streams(res: Any) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """(command, filtered voltage, measured speed) of a simulated flight, by the cores a
+    recording is read with (battery filter, tachometer decoder)."""
+    v = BatteryFilter(BatteryFilterConfig()).process(res.battery_t, res.battery_adc)
+    ok = np.isfinite(v)
+    return (res.pwm_t, res.pwm), (res.battery_t[ok], v[ok]), decode_speed(_SimTachometer(res))
+
+
+def fit_model(bench_seed: int, tmp: Path) -> tuple[Any, float]:
+    """A physics model of the bench fitted on its healthy recordings; (model, seconds)."""
+    t0 = time.perf_counter()
+    bench = draw_bench(bench_seed)
+    sigs = []
+    for name, dur, seed, soc in (("train", 90.0, 1000 + bench_seed, 0.7), ("validation", 40.0, 2000 + bench_seed, 0.6)):
+        path = tmp / f"{name}_{bench_seed}"
+        write_sim_bag(simulate("random_steps", dur, seed, params=bench, soc=soc), path)
+        sigs.append(load_signals(path))
+    out = train_physics([sigs[0]], [sigs[1]], thrust_coefficient=None)
+    return out.model, time.perf_counter() - t0
+
+
+def judge(events: list[Any], fault: Fault | None) -> dict[str, Any]:
+    """One flight's outcome against its truth."""
+    if fault is None:
+        return {"false_alarms": len(events)}
+    before = [e for e in events if e.detected_s < fault.onset_s]
+    after = [e for e in events if e.detected_s >= fault.onset_s]
+    first = after[0] if after else None
+    detected = first is not None and first.detected_s - fault.onset_s <= DETECT_WITHIN_S
+    out: dict[str, Any] = {"false_alarms": len(before), "detected": detected,
+                           "delay_s": None if first is None else first.detected_s - fault.onset_s,
+                           "name": None if first is None else first.name, "size": None if first is None else first.size}
+    out["named_right"] = first is not None and first.name == fault.name
+    sized = out["named_right"] and first is not None and first.size is not None
+    out["size_error"] = (first.size - fault.size) if sized and first is not None and first.size is not None else None
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=6, help="benches (default 6)")
+    ap.add_argument("--first-seed", type=int, default=200, help="first bench seed (default 200; tuning used 1)")
+    ap.add_argument("--flights", type=int, default=2, help="flights per fault and bench (default 2)")
+    ap.add_argument("--hours", type=float, default=0.5, help="healthy flight hours in all (default 0.5)")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    args = ap.parse_args()
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(12345)
+    per_bench_healthy = max(1, math.ceil(args.hours * 3600.0 / HEALTHY_FLIGHT_S / args.seeds))
+    results: dict[str, list[dict[str, Any]]] = {name: [] for name in GOALS}
+    healthy: list[dict[str, Any]] = []
+    fits: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as d:
+        for bench_seed in range(args.first_seed, args.first_seed + args.seeds):
+            model, fit_s = fit_model(bench_seed, Path(d))
+            fits.append({"bench": bench_seed, "fit_s": fit_s,
+                         "battery_voltage_strength": model.effects["battery_voltage"]})
+            bench = draw_bench(bench_seed)
+            print(f"bench {bench_seed}: model fitted in {fit_s:.0f} s", file=sys.stderr)
+            for k in range(args.flights):
+                for name, size in GOALS.items():
+                    onset = float(rng.uniform(*ONSET_RANGE_S))
+                    fault = Fault(name, size, onset)
+                    seed = 10_000 * bench_seed + 100 * k + list(GOALS).index(name)
+                    res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)),
+                                   faults=[fault])
+                    run = run_health(model, *streams(res))
+                    j = judge(run.events, fault)
+                    j.update(bench=bench_seed, seed=seed, onset_s=onset)
+                    results[name].append(j)
+                    print(f"  {name} @{onset:.1f}: {j}", file=sys.stderr)
+            for k in range(per_bench_healthy):
+                seed = 10_000 * bench_seed + 5000 + k
+                res = simulate("random_steps", HEALTHY_FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
+                run = run_health(model, *streams(res))
+                healthy.append({"bench": bench_seed, "seed": seed, "monitored_s": run.monitored_s,
+                                "false_alarms": len(run.events),
+                                "events": [e.as_dict() for e in run.events]})
+                print(f"  healthy {seed}: {len(run.events)} alarms over {run.monitored_s:.0f} s", file=sys.stderr)
+    summary = summarize(results, healthy)
+    summary.update(benches=list(range(args.first_seed, args.first_seed + args.seeds)), tuning_benches=[1],
+                   fits=fits, seconds=time.perf_counter() - t_start)
+    if args.json:
+        print(json.dumps(summary, default=float))
+    else:
+        print_table(summary)
+
+
+def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {"faults": {}}
+    for name, rows in results.items():
+        n = len(rows)
+        delays = [r["delay_s"] for r in rows if r["detected"]]
+        errs = [r["size_error"] for r in rows if r["size_error"] is not None]
+        per_bench: dict[int, list[bool]] = {}
+        for r in rows:
+            per_bench.setdefault(r["bench"], []).append(bool(r["detected"] and r["named_right"]))
+        out["faults"][name] = {
+            "runs": n,
+            "detected_within_5s": sum(r["detected"] for r in rows) / n if n else None,
+            "named_right_first": sum(r["named_right"] for r in rows) / n if n else None,
+            "named_wrong": sum(r["name"] not in (None, name, "unnamed change") for r in rows) / n if n else None,
+            "unnamed": sum(r["name"] == "unnamed change" for r in rows) / n if n else None,
+            "missed": sum(r["name"] is None for r in rows) / n if n else None,
+            "false_alarms_before_onset": sum(r["false_alarms"] for r in rows),
+            "delay_median_s": float(np.median(delays)) if delays else None,
+            "delay_max_s": float(np.max(delays)) if delays else None,
+            "size_error_median": float(np.median(errs)) if errs else None,
+            "size_error_max_abs": float(np.max(np.abs(errs))) if errs else None,
+            "detected_and_named_per_bench": {str(k): float(np.mean(v)) for k, v in per_bench.items()},
+        }
+    hours = sum(h["monitored_s"] for h in healthy) / 3600.0
+    alarms = sum(h["false_alarms"] for h in healthy)
+    out["healthy"] = {"flights": len(healthy), "hours_monitored": hours, "false_alarms": alarms,
+                      "false_alarms_per_hour": alarms / hours if hours else None,
+                      "alarms": [e for h in healthy for e in h["events"]]}
+    return out
+
+
+def print_table(s: dict[str, Any]) -> None:
+    def pct(x: float | None) -> str:
+        return "-" if x is None else f"{100 * x:.0f} %"
+
+    def num(x: float | None, fmt: str = ".2f") -> str:
+        return "-" if x is None else format(x, fmt)
+
+    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
+    print("| fault | runs | detected <= 5 s | named right first | named wrong | unnamed | missed | "
+          "delay median / max (s) | size error median / max abs | per bench (detected and named) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, f in s["faults"].items():
+        spread = ", ".join(f"{k}: {pct(v)}" for k, v in f["detected_and_named_per_bench"].items())
+        print(f"| {name} | {f['runs']} | {pct(f['detected_within_5s'])} | {pct(f['named_right_first'])} | "
+              f"{pct(f['named_wrong'])} | {pct(f['unnamed'])} | {pct(f['missed'])} | "
+              f"{num(f['delay_median_s'])} / {num(f['delay_max_s'])} | "
+              f"{num(f['size_error_median'], '.3f')} / {num(f['size_error_max_abs'], '.3f')} | {spread} |")
+    h = s["healthy"]
+    print(f"healthy: {h['flights']} flights, {h['hours_monitored']:.2f} h monitored, {h['false_alarms']} alarms "
+          f"({num(h['false_alarms_per_hour'])} per hour)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,962 @@
+"""Health monitor: names a propulsion fault in flight from command, filtered voltage and rotor speed.
+
+A physics model predicts the rotor speed from the command and the filtered battery voltage; when
+the propeller, the pack or the motor changes, the measured speed (and the voltage) drift away
+from what the model expects, each change in a shape of its own. The monitor tests, for every
+candidate onset in the last few seconds and every fault of the contract
+(interfaces.md, "Changes a vehicle meets in flight"), whether the data after the onset moved
+along that fault's SIGNATURE, and names the one that explains the change best.
+
+Why this design (a GLR per fault on two channels, with a nuisance fit) and not a CUSUM on the
+speed residual alone:
+
+* the faults differ in shape, not only in size: a damaged propeller speeds the rotor up (less
+  drag) and lowers its current; a hotter winding slows it and lowers the current; more friction
+  slows it and raises the current; more pack resistance barely moves the speed (the model is fed
+  the measured voltage, sag included) but makes the pack sag more per ampere. So each fault gets
+  a signature in the SPEED residual (d predicted speed / d theta, from the physics run with theta
+  perturbed: :class:`PhysicsTwins`) and one in the PACK VOLTAGE (the sag its current change
+  causes), and the GLR tests each signature on both channels at once;
+* the battery filter (first order, 2 s) is undone on 0.1 s blocks (the terminal voltage's block
+  mean follows exactly from the filtered voltage at the block ends), so the voltage channel is a
+  static relation: terminal voltage = open-circuit part - R * model current;
+* a fitted model is never exact: its error along a fault's direction, a slow drift (discharge,
+  warming, polarisation) and an offset are NUISANCE, fitted on the whole window (reference
+  seconds before the onset plus the seconds after it), so only a change AT the onset counts;
+* the residuals are autocorrelated (a model error lasts as long as the operating point), so the
+  noise's variance and its correlation time (the variance of a sum of n blocks is
+  n * sigma^2 * kappa) are estimated per channel from the reference part of the window;
+* the threshold is the chi-square(1) tail at a false-alarm rate per hour divided by the number
+  of tests (faults x onsets x evaluations per hour), Bonferroni;
+* a change that no candidate explains (the best one's signature leaves a significant step in
+  the residual) is reported as an unnamed change, never a wrong name; a name waits while two
+  candidates explain the change about equally well.
+
+``HealthMonitor`` is numpy only (no physics, no ROS): it is fed, at each measured speed sample,
+what the estimator knows (:class:`HealthSample`). ``PhysicsTwins`` computes the model's speed,
+supply current and the signatures by stepping the plant (``plant.make_step``) once per fault with
+its parameter perturbed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..contract import PWM_STOP
+from ..physics.params import PlantParams, resolve_effects
+from ..physics.plant import (
+    FRAME_TOLERANCE_S,
+    Step,
+    Supply,
+    dead_time_s,
+    full_drive_speeds,
+    make_step,
+    start_level,
+    throttle,
+)
+
+#: The contract's fault names, in the order the monitor reports them.
+FAULTS: tuple[str, ...] = ("propeller_damage", "pack_resistance", "bearing_friction", "motor_heating")
+#: Each fault's size unit: the propeller's fractional loss of CT and CP, the factor on the pack's
+#: series resistance, the factor on the friction torque, kelvin the winding runs hotter
+#: (sim/faults.py states the same sizes).
+FAULT_UNITS: dict[str, str] = {"propeller_damage": "fraction", "pack_resistance": "factor",
+                               "bearing_friction": "factor", "motor_heating": "K"}
+#: The name of a change that no candidate explains.
+UNNAMED = "unnamed change"
+
+#: Perturbations the signatures are computed with (finite differences of the plant): small
+#: enough to stay linear, large enough to stand above float rounding.
+_PROPELLER_STEP = 0.05  #: fraction of CT and CP
+_PACK_STEP = 0.5  #: fraction of the model's series resistance (speed channel; ohm-scaled)
+_FRICTION_STEP = 0.5  #: fraction of the model's friction torque
+_HEATING_STEP_K = 10.0
+_VOLTAGE_STEP_V = 0.2
+#: Copper's temperature coefficient (1/K) when the model states none: the winding is copper
+#: whatever heating strength a fit gave the model.
+_COPPER_PER_K = 0.00393
+#: Friction reference when the model has none (A of no-load current): the nominal bench's.
+_FRICTION_REFERENCE_A = 0.4
+#: Series resistance reference when the model has none (ohm): the nominal bench's.
+_PACK_REFERENCE_OHM = 0.035
+
+
+# --- the physics side: the model's speed, current and the faults' signatures ---------------------
+@dataclass(frozen=True)
+class TwinSample:
+    """What the physics says at one time: the model's speed (rad/s) and supply current (A), and per
+    fault the change of each per unit of the fault's parameter (``PhysicsTwins.units``)."""
+
+    t: float
+    speed_rad_s: float
+    current_a: float
+    speed_sensitivity: tuple[float, ...]  #: d speed / d theta per fault (FAULTS order)
+    current_sensitivity: tuple[float, ...]  #: d supply current / d theta per fault
+    voltage_sensitivity: float = 0.0  #: d speed / d supply voltage (rad/s per V)
+
+
+class PhysicsTwins:
+    """The plant of a physics model stepped once as it is and once per fault with that fault's
+    parameter perturbed, on the same inputs: the signatures are the differences.
+
+    Fed the command frames and the filtered voltage in time order (``update_pwm``,
+    ``update_voltage``), asked ``sample(t)`` at each measured speed sample; the time rules are
+    ``physics.stream``'s (steps of the model's ``sim_step_s`` from the first command; a step
+    sees the latest frame at or before it less the dead time and the latest voltage at or before
+    it), so the nominal lane is the physics model's prediction. theta per fault, in the units the
+    monitor estimates: the propeller's loss (fraction), the pack's added series resistance (ohm),
+    the friction torque's added share of the model's (factor - 1) and the winding's added
+    temperature (K).
+    """
+
+    def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float,
+                 supply_tau_s: float) -> None:
+        eff = resolve_effects(effects)
+        self.params = params
+        rs = params.battery_series_resistance_ohm
+        #: the pack's series resistance the signatures are relative to (ohm)
+        self.pack_resistance_ohm = rs if rs > 0.0 else _PACK_REFERENCE_OHM
+        i0 = params.motor_no_load_current_a
+        #: the friction (no-load current, A) a factor is relative to
+        self.friction_reference_a = i0 if i0 > 0.0 else _FRICTION_REFERENCE_A
+        #: the model's cold full-drive speed on its supply (rad/s): the monitor's speed scale
+        self.speed_scale_rad_s = full_drive_speeds(params, eff, supply_v)[0]
+        alpha = params.copper_temperature_coefficient_per_k or _COPPER_PER_K
+        d_pack = _PACK_STEP * self.pack_resistance_ohm
+        lanes = [
+            (params, 1.0),
+            (dataclasses.replace(params, propeller_ct=params.propeller_ct * (1.0 - _PROPELLER_STEP),
+                                 propeller_cp=params.propeller_cp * (1.0 - _PROPELLER_STEP)), _PROPELLER_STEP),
+            (dataclasses.replace(params, battery_series_resistance_ohm=rs + d_pack), d_pack),
+            (dataclasses.replace(params, motor_no_load_current_a=i0 + _FRICTION_STEP * self.friction_reference_a),
+             _FRICTION_STEP),
+            (dataclasses.replace(params, winding_resistance_ohm=params.winding_resistance_ohm
+                                 * (1.0 + alpha * _HEATING_STEP_K)), _HEATING_STEP_K),
+            (params, _VOLTAGE_STEP_V),  # the supply _VOLTAGE_STEP_V higher: d speed / d volt
+        ]
+        self._lift = [0.0] * (len(lanes) - 1) + [_VOLTAGE_STEP_V]
+        self._steps: list[Step] = []
+        self._rs: list[float] = []
+        self._inv: list[float] = []
+        for p, delta in lanes:
+            sp = Supply.of(p, eff, supply_v, supply_tau_s)
+            self._steps.append(make_step(p, eff, sp.source_resistance_ohm))
+            self._rs.append(sp.source_resistance_ohm)
+            self._inv.append(1.0 / delta)
+        sp = Supply.of(params, eff, supply_v, supply_tau_s)
+        self._v_ref, self._sbv, self._a_lp = sp.v_ref, sp.strength, sp.lowpass_gain
+        self._dt = params.sim_step_s
+        self._delay = dead_time_s(params, eff)
+        self._map = (start_level(params, eff), params.esc_throttle_exponent)
+        self._t0: float | None = None
+        self._pt: list[float] = []
+        self._pv: list[float] = []
+        self._vt: list[float] = []
+        self._vv: list[float] = []
+        self._pi = 0
+        self._vi = 0
+        self._k = 0
+        self._level = PWM_STOP
+        self._duty = throttle(PWM_STOP, *self._map)
+        n = len(lanes)
+        self._w = [0.0] * n
+        self._temp = [params.ambient_temperature_c] * n
+        self._ib_lp = [0.0] * n
+        self._ib = [0.0] * n
+        self._w_now = [0.0] * n
+
+    def update_pwm(self, t: float, level: float) -> None:
+        """A command frame (PWM level) stamped t (s)."""
+        if self._t0 is None:
+            self._t0 = float(t)
+        self._pt.append(float(t))
+        self._pv.append(float(level))
+
+    def update_voltage(self, t: float, volts: float) -> None:
+        """A filtered battery voltage (V) stamped t (s)."""
+        self._vt.append(float(t))
+        self._vv.append(float(volts))
+
+    def sample(self, t: float) -> TwinSample | None:
+        """Step every lane up to t (s) and say what they give there; None before a command and a
+        voltage have arrived."""
+        t0 = self._t0
+        if t0 is None or not self._vt or t < t0:
+            return None
+        dt, lead = self._dt, self._delay
+        k_end = int((t - t0) / dt + 1e-9) + 1
+        pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
+        pi, vi, k = self._pi, self._vi, self._k
+        level, duty = self._level, self._duty
+        threshold, exponent = self._map
+        v_ref, sbv, a_lp = self._v_ref, self._sbv, self._a_lp
+        steps, rs, lift = self._steps, self._rs, self._lift
+        w, temp, ib_lp, ib, w_now = self._w, self._temp, self._ib_lp, self._ib, self._w_now
+        lanes = range(len(steps))
+        while k < k_end:
+            ts = t0 + k * dt
+            x = ts - lead + FRAME_TOLERANCE_S
+            if pi < len(pt) and pt[pi] <= x:
+                held = level
+                while pi < len(pt) and pt[pi] <= x:
+                    level = pv[pi]
+                    pi += 1
+                if level != held:
+                    duty = throttle(level, threshold, exponent)
+            while vi + 1 < len(vt) and vt[vi + 1] <= ts:
+                vi += 1
+            source = v_ref + sbv * (vv[vi] - v_ref)
+            for j in lanes:
+                w_now[j], w[j], i, temp[j] = steps[j](w[j], temp[j], duty, source + lift[j] + rs[j] * ib_lp[j])
+                ib[j] = duty * i
+                ib_lp[j] += a_lp * (ib[j] - ib_lp[j])
+            k += 1
+        self._k, self._level, self._duty = k, level, duty
+        if pi > 64:  # inputs consumed: dropped in batches (amortised)
+            del pt[:pi], pv[:pi]
+            pi = 0
+        if vi > 64:
+            del vt[:vi], vv[:vi]
+            vi = 0
+        self._pi, self._vi = pi, vi
+        inv = self._inv
+        nf = len(steps) - 2  # the nominal lane, a lane per fault, the voltage lane
+        return TwinSample(float(t), w_now[0], ib[0],
+                          tuple((w_now[j] - w_now[0]) * inv[j] for j in range(1, nf + 1)),
+                          tuple((ib[j] - ib[0]) * inv[j] for j in range(1, nf + 1)),
+                          (w_now[-1] - w_now[0]) * inv[-1])
+
+
+# --- the statistics side -------------------------------------------------------------------------
+@dataclass(frozen=True)
+class HealthConfig:
+    """How the monitor decides (times in s). Defaults: see each field."""
+
+    #: residuals, signatures and the voltage are averaged over blocks of this length
+    block_s: float = 0.1
+    #: the tests run every this many blocks
+    evaluate_every: int = 2
+    #: longest time after an onset that is tested (the goal: named within 5 s)
+    window_s: float = 5.0
+    #: shortest time after an onset that is tested
+    min_post_s: float = 0.4
+    #: candidate onsets are this far apart
+    onset_step_s: float = 0.2
+    #: data before the onset that the nuisance (offset, drift, the model's own error) is fitted on
+    reference_s: float = 20.0
+    #: false alarms per hour the threshold allows (Bonferroni over every test run in an hour)
+    false_alarms_per_hour: float = 0.01
+    #: a name is given once the best candidate's statistic exceeds the next one's by this much
+    #: (a likelihood ratio of e^(margin/2)), else it waits, at most name_within_s after the onset
+    #: (a second operating point usually tells the candidates apart); the size is refined as long
+    name_margin: float = 9.0
+    name_within_s: float = 15.0
+    #: blocks whose predicted speed is below this share of the highest predicted so far carry no
+    #: speed test (a rotor at rest or in the dead band shows no fault and its noise differs)
+    min_speed_fraction: float = 0.15
+    #: memory of the noise estimates (s): they follow the flight's regime, slowly
+    noise_memory_s: float = 60.0
+    #: after the window first fills (and after each change), the noise is learned this long
+    #: before a test may alarm: one window's estimate alone is too rough
+    learn_s: float = 10.0
+    #: the noise variance is taken this many times what the residuals show: the model's error
+    #: has heavier tails than a Gaussian's and its variance is estimated on a short reference
+    #: (tuned on healthy flights of tuning benches, see benchmarks/bench_health.py)
+    noise_inflation: float = 2.0
+    #: a data gap longer than this restarts the window (s)
+    max_gap_s: float = 1.0
+
+    def threshold(self, n_faults: int) -> float:
+        """The alarm level h: chi-square(1) exceeded with probability false_alarms_per_hour / M,
+        M = faults x onsets x evaluations per hour (the tests are correlated, so this is
+        conservative)."""
+        onsets = int(round((self.window_s - self.min_post_s) / self.onset_step_s)) + 1
+        per_hour = 3600.0 / (self.block_s * self.evaluate_every)
+        p = self.false_alarms_per_hour / (n_faults * onsets * per_hour)
+        return chi2_1_isf(p)
+
+
+def chi2_1_isf(p: float) -> float:
+    """x with P(chi-square(1) > x) = p: (the normal's two-sided quantile)^2, by bisection on erfc."""
+    lo, hi = 0.0, 80.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        if math.erfc(math.sqrt(mid / 2.0)) > p:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+@dataclass(frozen=True)
+class HealthSample:
+    """What the monitor is fed at one measured speed sample (SI units)."""
+
+    t: float
+    measured_speed_rad_s: float
+    predicted_speed_rad_s: float
+    voltage_v: float  #: the filtered battery voltage the estimator has now
+    twin: TwinSample  #: the physics' current and signatures at t
+
+
+@dataclass
+class HealthEvent:
+    """One change found: when it began and was found, what it is and how large."""
+
+    onset_s: float
+    detected_s: float
+    name: str  #: a contract fault name, or UNNAMED
+    size: float | None  #: in ``unit``; None for an unnamed change
+    unit: str
+    statistic: float  #: the GLR statistic (chi-square(1) under no change)
+    named_s: float | None = None  #: when the name was given (None: unnamed)
+    candidates: dict[str, float] = field(default_factory=dict)  #: every fault's statistic then
+    note: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"onset_s": self.onset_s, "detected_s": self.detected_s, "named_s": self.named_s,
+                "name": self.name, "size": self.size, "unit": self.unit, "statistic": self.statistic,
+                "candidates": dict(self.candidates), "note": self.note}
+
+    def text(self) -> str:
+        size = "" if self.size is None else f", size {_size_text(self.size, self.unit)}"
+        return (f"{self.onset_s:8.2f} s  {self.name}{size} (statistic {self.statistic:.0f}, "
+                f"found at {self.detected_s:.2f} s)" + (f"; {self.note}" if self.note else ""))
+
+
+def _size_text(size: float, unit: str) -> str:
+    if unit == "fraction":
+        return f"{100.0 * size:.1f} %"
+    if unit == "factor":
+        return f"{size:.2f}x"
+    return f"{size:.1f} {unit}"
+
+
+#: A block whose predicted speed moved by more than this share of the speed scale since the block
+#: before is a transient (it and the next _SETTLE_BLOCKS carry no test).
+_STEADY_FRACTION = 0.01
+_SETTLE_BLOCKS = 3
+#: The model's speed error is learned as a polynomial of this many terms in the predicted speed,
+#: known after _ERROR_MIN_BLOCKS steady blocks, with a memory of _ERROR_MEMORY_S of steady data,
+#: and trusted up to _ERROR_MARGIN (share of the speed scale) beyond the speeds it was learned on.
+_ERROR_TERMS = 4
+_ERROR_MIN_BLOCKS = 20
+_ERROR_MEMORY_S = 60.0
+_ERROR_MARGIN = 0.05
+#: The pack's polarisation time constant the voltage's nuisance assumes (s): a LiPo's ~10-60 s.
+_POLARISATION_S = 30.0
+#: Lags (s) over which the residual's autocorrelation is summed (truncated at its first zero).
+_CORRELATION_LAGS_S = 0.5
+#: Least noise (one sigma of a block) per channel: a share of the speed scale, volts; a quiet
+#: reference never makes it zero.
+_SPEED_NOISE_FLOOR = 1e-3
+_VOLTAGE_NOISE_FLOOR_V = 3e-3
+#: Fewest valid blocks in a channel's reference for its tests to run (and at least 4 per
+#: nuisance column): fewer say too little of its noise and the model's error.
+_MIN_REFERENCE_BLOCKS = 40
+_MIN_REFERENCE_STRETCHES = 3
+#: Steady stretches after the onset a name needs: the shapes differ across operating points.
+_NAME_STRETCHES = 2
+#: A name may leave unexplained at most this share of its own statistic (or the threshold).
+_UNEXPLAINED_SHARE = 0.1
+#: One sigma of the model's error from one visit of an operating point to the next, before the
+#: flight has shown it: a share of the speed scale (a physics fit's error is ~0.5-1 % of its
+#: range), volts. Learned from the flight with the noise's memory.
+_VISIT_PRIOR = {"speed": 0.01, "voltage": 0.02}
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of every run of True in ``flags``."""
+    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
+    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
+
+
+@dataclass(frozen=True)
+class _Channel:
+    """One measured quantity over the window's blocks: what is tested on it."""
+
+    name: str
+    y: np.ndarray  #: the residual (speed) or the terminal voltage (voltage)
+    valid: np.ndarray  #: 1 where a block carries the test, else 0
+    level: np.ndarray  #: what its noise grows with (predicted speed, model current)
+    nuisance: np.ndarray  #: columns fitted along (offset, drift, the model's error)
+    tests: np.ndarray  #: onsets x blocks x faults: each fault's change per unit of its size
+
+
+# block columns
+_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV = range(13)
+_S0 = 13  #: speed sensitivities (one per fault), then current sensitivities
+_ARMING, _ARMED, _NAMING, _REFINING = "arming", "armed", "naming", "refining"
+
+
+class HealthMonitor:
+    """The sequential test; see the module doc. ``update(sample)`` returns the events it
+    completed at that sample (usually none); ``events`` holds them all."""
+
+    def __init__(self, supply_tau_s: float, speed_scale_rad_s: float, pack_resistance_ohm: float,
+                 config: HealthConfig | None = None, voltage_strength: float = 1.0) -> None:
+        """``supply_tau_s``: the battery filter's time constant the voltage came through (0: the
+        terminal's own); ``voltage_strength``: how much of the measured voltage's change the model
+        passes to its motor (its battery_voltage strength); ``speed_scale_rad_s``: the model's
+        full-drive speed (what 'steady' and 'turning' are relative to); ``pack_resistance_ohm``:
+        what the pack's factor is relative to where the data cannot say (PhysicsTwins gives it)."""
+        self.config = cfg = config or HealthConfig()
+        if not (math.isfinite(speed_scale_rad_s) and speed_scale_rad_s > 0.0):
+            raise ValueError(f"speed_scale_rad_s {speed_scale_rad_s!r} must be a speed > 0")
+        self.speed_scale = float(speed_scale_rad_s)
+        self.tau_s = float(supply_tau_s)
+        self.voltage_strength = float(voltage_strength)
+        self.pack_reference_ohm = float(pack_resistance_ohm)
+        self.n_faults = len(FAULTS)
+        self.threshold = cfg.threshold(self.n_faults)
+        #: candidate onsets while armed, as blocks before the newest (min_post_s to window_s)
+        self._detect_post = np.arange(int(round(cfg.min_post_s / cfg.block_s)),
+                                      int(round(cfg.window_s / cfg.block_s)) + 1,
+                                      max(1, int(round(cfg.onset_step_s / cfg.block_s))))
+        self._post = self._detect_post  #: the onsets of the evaluation under way
+        self._name_blocks = int(round(max(cfg.name_within_s, cfg.window_s) / cfg.block_s))
+        #: blocks in a detection window: the reference and window_s
+        self._detect_blocks = int(round(cfg.reference_s / cfg.block_s)) + int(self._detect_post[-1])
+        self.window_blocks = int(round(cfg.reference_s / cfg.block_s)) + self._name_blocks
+        self._ref_blocks = int(round(cfg.reference_s / cfg.block_s))
+        self._cols = _S0 + 2 * self.n_faults
+        self._buf = np.zeros((self.window_blocks + 1, self._cols))
+        self.events: list[HealthEvent] = []
+        self.blocks = 0  #: blocks closed since the start
+        self.evaluations = 0
+        self.state = _ARMING
+        #: channel -> (a, b, visit, kappa): a block's noise variance a + b level^2, the variance of
+        #: the model's error from one steady stretch to the next, the short correlation factor
+        self.noise: dict[str, tuple[float, float, float, float]] = {}
+        self._since_jump = 0  #: blocks since the predicted speed last jumped
+        self._reset_window()
+        self._block: list[float] | None = None
+        self._block_index = 0
+        self._last_t: float | None = None
+        self._pending: HealthEvent | None = None
+        self._pending_onset_block = 0
+        self._t_origin: float | None = None
+
+    # --- input ---------------------------------------------------------------------------
+    def update(self, s: HealthSample) -> list[HealthEvent]:
+        """One measured speed sample; returns the events completed at it."""
+        t = float(s.t)
+        if not all(math.isfinite(x) for x in (t, s.measured_speed_rad_s, s.predicted_speed_rad_s, s.voltage_v)):
+            return []
+        if self._last_t is not None and t < self._last_t:
+            return []
+        if self._t_origin is None:
+            self._t_origin = t
+        if self._last_t is not None and t - self._last_t > self.config.max_gap_s:
+            self._close_block()
+            self._reset_window()
+        self._last_t = t
+        k = int((t - self._t_origin) / self.config.block_s)
+        out: list[HealthEvent] = []
+        if self._block is not None and k != self._block_index:
+            out += self._close_block()
+        if self._block is None:
+            self._block_index = k
+            self._block = [0.0] * self._cols
+        b = self._block
+        tw = s.twin
+        nf = self.n_faults
+        b[_T] += t
+        b[_N] += 1.0
+        b[_R] += s.measured_speed_rad_s - s.predicted_speed_rad_s
+        b[_W] += s.predicted_speed_rad_s
+        b[_IB] += tw.current_a
+        b[_VLAST] = s.voltage_v
+        b[_TVLAST] = t
+        b[_VMEAN] += s.voltage_v
+        b[_NV] += 1.0
+        for j in range(nf):
+            b[_S0 + j] += tw.speed_sensitivity[j]
+            b[_S0 + nf + j] += tw.current_sensitivity[j]
+        b[_SV] += tw.voltage_sensitivity
+        return out
+
+    def finish(self) -> list[HealthEvent]:
+        """The end of the data: close the open block and report a change still being named."""
+        out = self._close_block()
+        if self._pending is not None:
+            out.append(self._settle(self._pending))
+        return out
+
+    # --- blocks ----------------------------------------------------------------------------
+    def _reset_window(self) -> None:
+        """Forget the window and the model's learned error (after a gap, or a change: the new
+        normal is learned afresh)."""
+        self._filled = 0  #: blocks in the window since the last restart
+        self._row = 0
+        #: the model's speed error as a cubic in the predicted speed, learned (least squares with
+        #: a memory of _ERROR_MEMORY_S) from steady blocks older than the test window: what is known
+        #: of the model before a change can have entered it; known between the slowest and the
+        #: fastest speed learned (a polynomial does not extrapolate)
+        self._error_gram = np.zeros((_ERROR_TERMS, _ERROR_TERMS))
+        self._error_rhs = np.zeros(_ERROR_TERMS)
+        self._error_coef: np.ndarray = np.zeros(_ERROR_TERMS)
+        self._error_n = 0.0
+        self._error_span = (math.inf, -math.inf)
+
+    def _close_block(self) -> list[HealthEvent]:
+        b = self._block
+        self._block = None
+        if b is None or b[_N] == 0:
+            return []
+        n = b[_N]
+        row = np.array(b)
+        for j in (_T, _R, _W, _IB, _SV, *range(_S0, self._cols)):
+            row[j] /= n
+        row[_VMEAN] /= b[_NV]
+        prev = self._buf[(self._row - 1) % len(self._buf)] if self._filled else row
+        self._since_jump = 0 if abs(row[_W] - prev[_W]) > _STEADY_FRACTION * self.speed_scale else self._since_jump + 1
+        turning = row[_W] >= self.config.min_speed_fraction * self.speed_scale
+        row[_STEADY] = float(self._since_jump > _SETTLE_BLOCKS and turning)
+        lo, hi = self._error_span
+        margin = _ERROR_MARGIN * self.speed_scale
+        row[_KNOWN] = float(self._error_n >= _ERROR_MIN_BLOCKS and lo - margin <= row[_W] <= hi + margin)
+        row[_RC] = row[_R] - float(self._terms(row[_W]) @ self._error_coef)
+        self._buf[self._row % len(self._buf)] = row
+        self._row += 1
+        self._filled += 1
+        self.blocks += 1
+        self._learn_error()
+        if (self._filled > self._detect_blocks or self._pending is not None) \
+                and self.blocks % self.config.evaluate_every == 0:
+            return self._evaluate()
+        return []
+
+    def _terms(self, w: float) -> np.ndarray:
+        u = w / self.speed_scale
+        return np.array([u**k for k in range(_ERROR_TERMS)])
+
+    def _learn_error(self) -> None:
+        """Add the block that just left the test window (older than window_s) to the model's
+        learned error, if steady and no change is being named."""
+        back = int(self._detect_post[-1]) + 1
+        if self._filled <= back or self.state in (_NAMING, _REFINING):
+            return
+        old = self._buf[(self._row - back) % len(self._buf)]
+        if old[_STEADY] <= 0:
+            return
+        keep = math.exp(-self.config.block_s / _ERROR_MEMORY_S)
+        x = self._terms(old[_W])
+        self._error_gram = keep * self._error_gram + np.outer(x, x)
+        self._error_rhs = keep * self._error_rhs + x * old[_R]
+        self._error_n = keep * self._error_n + 1.0
+        self._error_span = (min(self._error_span[0], old[_W]), max(self._error_span[1], old[_W]))
+        ridge = 1e-3 * max(float(np.trace(self._error_gram)), 1e-9) / _ERROR_TERMS
+        self._error_coef = np.linalg.solve(self._error_gram + ridge * np.eye(_ERROR_TERMS), self._error_rhs)
+
+    def _window(self, n: int) -> np.ndarray:
+        """The last n + 1 blocks, oldest first (the first gives the voltage's starting point)."""
+        idx = (np.arange(self._row - n - 1, self._row)) % len(self._buf)
+        return self._buf[idx]
+
+    # --- the tests -------------------------------------------------------------------------
+    def _channels(self, win: np.ndarray) -> list[_Channel]:
+        """The speed and voltage channels over the window's blocks (its first block only gives
+        the voltage's starting point)."""
+        cfg, nf = self.config, self.n_faults
+        cur = win[1:]
+        m = len(cur)
+        t_rel = (cur[:, _T] - cur[-1, _T]) / (cfg.reference_s + cfg.window_s)
+        ones = np.ones(m)
+        w = cur[:, _W]
+        # only steady blocks of a turning rotor carry a test: a fault is a static change, and the
+        # model's errors in dead time, inertia and coasting are largest in transients
+        valid = cur[:, _STEADY]
+        # speed: the residual less the model's learned error at that speed (blocks at a speed
+        # not yet learned carry no test); nuisance: offset and drift. Fitting more here (the
+        # error along each signature) would fit the reference's few operating points exactly and
+        # leave a noise far below what the model's error does between visits of one speed
+        post = self._post_masks(m)  # (onsets, blocks): 1 from each candidate onset on
+        speed_tests = post[:, :, None] * cur[None, :, _S0:_S0 + nf]
+        # the pack's added sag dR * i after the onset slows the motor; the model sees it only as
+        # far as its voltage input passes it: through the battery filter's lag, times its
+        # battery_voltage strength s. So the motor gets dR (s lowpass(i after the onset) - i) less
+        # than the model thinks, times d speed / d volt
+        ib = cur[:, _IB]
+        seen = self._lowpass_after_onsets(ib, cur[:, _T]) if self.tau_s > 0.0 else post * ib[None, :]
+        speed_tests[:, :, FAULTS.index("pack_resistance")] = (
+            cur[None, :, _SV] * (self.voltage_strength * seen - post * ib[None, :]))
+        speed = _Channel("speed", cur[:, _RC], valid * cur[:, _KNOWN], w, np.column_stack([ones, t_rel]),
+                         speed_tests)
+        # voltage: the terminal voltage's block mean, the battery filter undone
+        if self.tau_s > 0.0:
+            dtv = cur[:, _TVLAST] - win[:-1, _TVLAST]
+            a = np.exp(-np.maximum(dtv, 1e-6) / self.tau_s)
+            v = (cur[:, _VLAST] - a * win[:-1, _VLAST]) / (1.0 - a)
+        else:
+            v = cur[:, _VMEAN]
+        # the polarisation's slow response to the current (~30 s), as a nuisance
+        g = 1.0 - math.exp(-cfg.block_s / _POLARISATION_S)
+        pol = np.empty(m)
+        acc = float(ib[0])
+        for k in range(m):
+            acc += g * (float(ib[k]) - acc)
+            pol[k] = acc
+        sag = self._sag_per_ampere(v, ib, t_rel, valid)
+        dib = cur[:, _S0 + nf:_S0 + 2 * nf]
+        # each fault's voltage signature: the sag its current change causes; the pack's: its own
+        volt_static = -sag * dib
+        volt_static[:, FAULTS.index("pack_resistance")] = -ib
+        volt = _Channel("voltage", v, valid, ib, np.column_stack([ones, t_rel, t_rel**2, ib, pol]),
+                        post[:, :, None] * volt_static[None, :, :])
+        self._sag = sag
+        return [speed, volt]
+
+    def _post_masks(self, m: int) -> np.ndarray:
+        """(onsets, m): 1 on the blocks from each candidate onset to the end, else 0."""
+        return (np.arange(m)[None, :] >= (m - self._post)[:, None]).astype(float)
+
+    def _lowpass_after_onsets(self, ib: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(onsets, blocks): the current from each candidate onset on (0 before) through the
+        battery filter: lowpass(i) - exp(-(t - t0)/tau) lowpass(i)(t0), the filter being linear."""
+        m = len(ib)
+        a = np.exp(-np.diff(t, prepend=t[0]) / self.tau_s)
+        x = np.empty(m)
+        acc = float(ib[0])
+        for k in range(m):
+            acc = a[k] * acc + (1.0 - a[k]) * float(ib[k])
+            x[k] = acc
+        starts = m - self._post
+        out = np.zeros((len(starts), m))
+        for o, k0 in enumerate(starts.tolist()):
+            decay = np.exp(-(t[k0:] - t[k0]) / self.tau_s)
+            before = x[k0 - 1] if k0 > 0 else x[0]
+            # the filter's state at the onset is the pre-onset part; what follows is new
+            out[o, k0:] = x[k0:] - decay * a[k0] * before
+        return out
+
+    def _sag_per_ampere(self, v: np.ndarray, ib: np.ndarray, t_rel: np.ndarray, valid: np.ndarray) -> float:
+        """The pack's healthy sag per ampere (ohm) over the reference part of the window: the
+        voltage's slope against the current, offset and drift fitted along; the model's series
+        resistance when the current hardly varied."""
+        ref = slice(0, self._ref_blocks)
+        ok = valid[ref] > 0
+        if ok.sum() < 20 or np.ptp(ib[ref][ok]) < 0.5:
+            return self.pack_reference_ohm
+        X = np.column_stack([np.ones(self._ref_blocks), t_rel[ref], ib[ref]])[ok]
+        r = -float(np.linalg.lstsq(X, v[ref][ok], rcond=None)[0][2])
+        return r if 0.2 * self.pack_reference_ohm < r < 10.0 * self.pack_reference_ohm else self.pack_reference_ohm
+
+    def _stats(self, ch: _Channel, tests: np.ndarray, learn: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """For every onset and test column (``tests``: onsets x blocks x columns): z'S^-1 r and
+        z'S^-1 z with the channel's nuisance projected out, S the residual's covariance (each
+        block's own noise, plus the visit error shared by the blocks of a steady stretch), times
+        kappa and the inflation: (z'S^-1 r)^2 / z'S^-1 z is chi-square(1) under no change.
+        ``learn``: first update the channel's noise model from the reference part of the window.
+        A channel with fewer than _MIN_REFERENCE_BLOCKS valid blocks in its reference (or no noise
+        learned yet) tests nothing: zeros."""
+        N = ch.nuisance
+        empty = np.zeros(tests.shape[::2])
+        if ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS, 4 * N.shape[1]) \
+                or len(_runs(ch.valid[:self._ref_blocks] > 0)) < _MIN_REFERENCE_STRETCHES:
+            return empty, empty
+        if not learn and ch.name not in self.noise:
+            return empty, empty
+        if learn:
+            self._learn_noise(ch, self._fit(ch, N)[3], N.shape[1])
+        w, P, c, res, Ginv, PWN = self._fit(ch, N)
+        kappa = self.noise[ch.name][3] * self.config.noise_inflation
+        Zw = tests * w[None, :, None]
+        PZw = np.einsum("jm,omf->ojf", P, Zw)
+        zr = np.einsum("omf,m->of", Zw, res) - np.einsum("ojf,j->of", PZw, c * (P @ (w * res)))
+        zz = np.einsum("omf,omf->of", Zw, tests) - np.einsum("ojf,j,ojf->of", PZw, c, PZw)
+        zN = np.einsum("omf,mi->ofi", Zw, N) - np.einsum("ojf,j,ji->ofi", PZw, c, PWN)
+        den = np.maximum(zz - np.einsum("ofi,ij,ofj->of", zN, Ginv, zN), 0.0)
+        return zr / kappa, den / kappa
+
+    def _visit_prior(self, name: str) -> float:
+        """The visit error's variance before the flight has shown it (_VISIT_PRIOR)."""
+        return (_VISIT_PRIOR[name] * (self.speed_scale if name == "speed" else 1.0)) ** 2
+
+    def _fit(self, ch: _Channel, N: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                         np.ndarray, np.ndarray]:
+        """The nuisance fitted by generalised least squares. The covariance of a steady stretch's
+        blocks is D + visit 11' (D: their own noise), whose inverse is D^-1 - c (D^-1 1)(D^-1 1)'
+        with c = visit / (1 + visit 1'D^-1 1): so x'S^-1 y = sum(w x y) - sum over stretches of
+        c (sum w x)(sum w y), w = 1/D. Returns (w, stretches x blocks indicator, c, residual,
+        (N'S^-1 N)^-1, stretch sums of w N)."""
+        a, b, visit, _ = self.noise.get(ch.name, (1.0, 0.0, 0.0, 1.0))
+        w = ch.valid / (a + b * ch.level**2)
+        runs = _runs(ch.valid > 0)
+        P = np.zeros((len(runs), len(w)))
+        for j, (i, k) in enumerate(runs):
+            P[j, i:k] = 1.0
+        c = visit / (1.0 + visit * (P @ w))
+        WN = N * w[:, None]
+        PWN = P @ WN
+        Ginv = np.linalg.pinv(N.T @ WN - PWN.T @ (c[:, None] * PWN))
+        rhs = WN.T @ ch.y - PWN.T @ (c * (P @ (w * ch.y)))
+        res = ch.y - N @ (Ginv @ rhs)
+        return w, P, c, res, Ginv, PWN
+
+    def _single(self, ch: _Channel, N: np.ndarray, z: np.ndarray) -> float:
+        """The chi-square(1) statistic of one test column z against the nuisance N (0 if the
+        channel tests nothing now)."""
+        if ch.name not in self.noise or ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS,
+                                                                                4 * N.shape[1]):
+            return 0.0
+        stat, den = self._stats(dataclasses.replace(ch, nuisance=N), z[None, :, None])
+        return float(stat[0, 0] ** 2 / den[0, 0]) if den[0, 0] > 0 else 0.0
+
+    def _learn_noise(self, ch: _Channel, res: np.ndarray, n_nuisance: int) -> None:
+        """The channel's noise from the reference part of the window, in two parts: a block's
+        own noise, a + b level^2 (the tachometer's error grows with the speed, the ESC's ripple on
+        the voltage with the current), seen within each steady stretch, with its short correlation
+        kappa; and the model's error that changes from one visit of an operating point to the
+        next (variance ``visit`` per stretch, shared by its blocks), seen between the stretches'
+        means. Exponential memory ``noise_memory_s``; the first estimate is taken whole."""
+        ref = slice(0, self._ref_blocks)
+        valid = ch.valid[ref] > 0
+        if valid.sum() < 20:
+            return
+        r, lv = res[ref], ch.level[ref]
+        runs = _runs(valid)
+        dev = np.zeros(len(r))
+        means: list[tuple[float, int, float]] = []
+        for i, j in runs:
+            if j - i < 2:
+                continue
+            mu = float(r[i:j].mean())
+            dev[i:j] = (r[i:j] - mu) * math.sqrt((j - i) / (j - i - 1.0))
+            means.append((mu, j - i, float(np.mean(lv[i:j] ** 2))))
+        ok = dev != 0.0
+        if ok.sum() < 10:
+            return
+        floor = (_SPEED_NOISE_FLOOR * self.speed_scale) ** 2 if ch.name == "speed" else _VOLTAGE_NOISE_FLOOR_V**2
+        r2, x2 = dev[ok] ** 2, lv[ok] ** 2
+        coef = np.linalg.lstsq(np.column_stack([np.ones(len(r2)), x2]), r2, rcond=None)[0]
+        a = max(float(coef[0]), floor)
+        b = max(float(coef[1]), 0.0)
+        if coef[0] < floor:  # refit b with a at its floor
+            b = max(float(np.sum(x2 * (r2 - a)) / max(float(np.sum(x2 * x2)), 1e-300)), 0.0)
+        z = np.where(ok, dev / np.sqrt(a + b * lv**2), 0.0)
+        n = float(ok.sum())
+        var = float(np.sum(z * z) / n)
+        kappa = 1.0
+        for lag in range(1, int(round(_CORRELATION_LAGS_S / self.config.block_s)) + 1):
+            rho = float(np.sum(z[lag:] * z[:-lag]) / (n * var)) if var > 0 else 0.0
+            if rho <= 0.0:
+                break
+            kappa += 2.0 * rho
+        a, b = a * var, b * var
+        old = self.noise.get(ch.name)
+        visit = old[2] if old else self._visit_prior(ch.name)
+        if len(means) >= 3:  # the stretches' means scatter by the visit error plus their own noise
+            # (the nuisance took n_nuisance of the window's stretches' freedom: about its share)
+            dof = max(len(means) - n_nuisance * len(means) / max(len(_runs(ch.valid > 0)), len(means)), 1.0)
+            visit = max(sum(mu * mu - kappa * (a + b * l2) / k for mu, k, l2 in means) / dof, 0.0)
+        if old is None:  # the visit error starts at its prior: a reference holds too few visits
+            self.noise[ch.name] = (a, b, self._visit_prior(ch.name), kappa)
+        else:
+            g = min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
+            self.noise[ch.name] = (old[0] + g * (a - old[0]), old[1] + g * (b - old[1]),
+                                   old[2] + g * (visit - old[2]), old[3] + g * (kappa - old[3]))
+
+    def _evaluate(self) -> list[HealthEvent]:
+        """The tests over the window: while armed, every candidate onset of the last window_s;
+        while a change is named and sized, its own onset only (up to name_within_s after it)."""
+        self.evaluations += 1
+        if self._pending is not None:
+            back = self._row - self._pending_onset_block
+            if back > self._name_blocks:
+                return [self._settle(self._pending)]
+            self._post = np.array([back])
+        else:
+            self._post = self._detect_post
+        win = self._window(self._ref_blocks + int(self._post.max()))
+        chans = self._channels(win)
+        num = np.zeros((len(self._post), self.n_faults))
+        den = np.zeros_like(num)
+        generic = []
+        steps = self._post_masks(len(chans[0].y))[:, :, None]
+        for ch in chans:
+            zr, zz = self._stats(ch, ch.tests, learn=self._pending is None)
+            num += zr
+            den += zz
+            # an unstructured step in this channel: the test of "something changed"
+            gr, gd = self._stats(ch, steps)
+            generic.append(np.where(gd[:, 0] > 0, gr[:, 0] ** 2 / np.maximum(gd[:, 0], 1e-300), 0.0))
+        theta = num / np.maximum(den, 1e-300)
+        stat = np.where((den > 0) & (theta > 0), num * num / np.maximum(den, 1e-300), 0.0)
+        self._last = (stat, theta, generic, chans)
+        t_now = float(win[-1, _T])
+        h = self.threshold
+        if self.state == _REFINING:
+            return self._refine(0)
+        if self.state == _NAMING:
+            return self._try_name(t_now, 0)
+        if self._filled - self._detect_blocks < self.config.learn_s / self.config.block_s:
+            return []  # still learning the noise
+        self.state = _ARMED
+        best_generic = max(float(g.max()) for g in generic)
+        if stat.max() < h and best_generic < h:
+            return []
+        o = int(np.unravel_index(int(np.argmax(stat)), stat.shape)[0])
+        if stat.max() < h:  # a change, but no candidate's signature fits it
+            o = int(np.argmax(np.max(np.stack(generic), axis=0)))
+        onset_block = self._row - int(self._post[o])
+        onset_t = float(self._buf[onset_block % len(self._buf), _T] - 0.5 * self.config.block_s)
+        self._pending = HealthEvent(onset_t, t_now, UNNAMED, None, "", float(max(stat.max(), best_generic)))
+        self._pending_onset_block = onset_block
+        self.state = _NAMING
+        return self._try_name(t_now, o)
+
+    # --- naming ----------------------------------------------------------------------------
+    def _try_name(self, t_now: float, o: int) -> list[HealthEvent]:
+        """Name the pending change at onset index o if one candidate explains it clearly best and
+        leaves nothing significant unexplained; report it unnamed once name_within_s is over."""
+        ev = self._pending
+        assert ev is not None
+        stat, theta, generic, _ = self._last
+        row = stat[o]
+        order = np.argsort(row)[::-1]
+        best, second = int(order[0]), int(order[1])
+        ev.candidates = {FAULTS[j]: float(row[j]) for j in range(self.n_faults)}
+        ev.statistic = float(max(row[best], max(float(g[o]) for g in generic)))
+        clear = row[best] >= self.threshold and row[best] - row[second] >= self.config.name_margin
+        # seen at one operating point only, a change fits any shape: a name needs two
+        chans = self._last[3]
+        post = chans[-1].valid[len(chans[-1].valid) - int(self._post[o]):] > 0
+        # what the name leaves unexplained must be small beside the change itself: the model's
+        # signature is never exact, so a large change always leaves a little
+        left = max(self.threshold, _UNEXPLAINED_SHARE * float(row[best]))
+        if clear and len(_runs(post)) >= _NAME_STRETCHES and self._unexplained(o, best) < left:
+            ev.name = FAULTS[best]
+            ev.named_s = t_now
+            ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
+            ev.statistic = float(row[best])
+            self.state = _REFINING
+            return []
+        if self._post[o] + self.config.evaluate_every > self._name_blocks:
+            ev.note = self._why_unnamed(row, best, second, o)
+            return [self._settle(ev)]
+        return []
+
+    def _why_unnamed(self, row: np.ndarray, best: int, second: int, o: int) -> str:
+        if row[best] < self.threshold:
+            return "no candidate's signature fits the change"
+        if row[best] - row[second] < self.config.name_margin:
+            return f"{FAULTS[best]} and {FAULTS[second]} explain it about equally"
+        return f"{FAULTS[best]} leaves part of the change unexplained"
+
+    def _unexplained(self, o: int, f: int) -> float:
+        """The largest step left in either channel once fault f's change at onset o is fitted."""
+        chans = self._last[3]
+        worst = 0.0
+        for ch in chans:
+            post = np.zeros(len(ch.y))
+            post[len(ch.y) - int(self._post[o]):] = 1.0
+            worst = max(worst, self._single(ch, np.column_stack([ch.nuisance, ch.tests[o, :, f]]), post))
+        return worst
+
+    def _size(self, f: int, theta: float) -> float:
+        name = FAULTS[f]
+        if name == "pack_resistance":
+            return 1.0 + theta / self._sag
+        if name == "bearing_friction":
+            return 1.0 + theta
+        return theta
+
+    def _refine(self, o: int) -> list[HealthEvent]:
+        """While the named change's data grow to name_within_s after its onset: its size from
+        the most data; then it is reported."""
+        ev = self._pending
+        assert ev is not None
+        stat, theta, _, _ = self._last
+        f = FAULTS.index(ev.name)
+        if stat[o, f] > 0:
+            ev.size = self._size(f, float(theta[o, f]))
+            ev.statistic = max(ev.statistic, float(stat[o, f]))
+        if self._post[o] + self.config.evaluate_every > self._name_blocks:
+            return [self._settle(ev)]
+        return []
+
+    def _settle(self, ev: HealthEvent) -> HealthEvent:
+        """Report ``ev`` and start a fresh window after it (the change is the new normal)."""
+        self._pending = None
+        self.events.append(ev)
+        self.state = _ARMING
+        self._reset_window()
+        return ev
+
+
+# --- a recording's streams, in time order ------------------------------------------------------------
+@dataclass
+class HealthRun:
+    """What the monitor found on one recording's streams."""
+
+    events: list[HealthEvent]
+    duration_s: float  #: from the first to the last measured speed sample
+    monitored_s: float  #: the part after the first full window, where changes can be found
+    threshold: float
+    noise: dict[str, tuple[float, float, float, float]]  #: channel -> HealthMonitor.noise at the end
+
+
+def physics_part(model: Any) -> Any:
+    """The physics model a model of any kind carries (a hybrid's plant), or None (a network)."""
+    kind = getattr(model, "kind", None)
+    if kind == "physics":
+        return model
+    if kind == "hybrid":
+        return model.plant
+    return None
+
+
+def run_health(model: Any, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np.ndarray, np.ndarray],
+               speed: tuple[np.ndarray, np.ndarray], config: HealthConfig | None = None) -> HealthRun:
+    """Feed a recording's command frames, filtered voltages and measured speeds, merged in time
+    order, to the estimator (``ThrustEstimator``: the prediction), the physics twins (current and
+    signatures) and the monitor, as a node receives them. ``model``: a physics or hybrid model
+    (model.py); ValueError for one without physics (a network)."""
+    from .estimator import ThrustEstimator
+
+    plant = physics_part(model)
+    if plant is None:
+        raise ValueError("the health monitor needs a physics or hybrid model (a network has no physics "
+                         "to give the faults' signatures)")
+    tau = float(plant.supply_tau_s)
+    twins = PhysicsTwins(plant.params, plant.effects, plant.supply_v, tau)
+    mon = HealthMonitor(tau, twins.speed_scale_rad_s, twins.pack_resistance_ohm, config,
+                        voltage_strength=float(plant.effects.get("battery_voltage", 1.0)))
+    est = ThrustEstimator(model)
+    kinds = [np.zeros(len(pwm[0])), np.ones(len(voltage[0])), np.full(len(speed[0]), 2.0)]
+    t_all = np.concatenate([np.asarray(pwm[0], float), np.asarray(voltage[0], float), np.asarray(speed[0], float)])
+    x_all = np.concatenate([np.asarray(pwm[1], float), np.asarray(voltage[1], float), np.asarray(speed[1], float)])
+    k_all = np.concatenate(kinds)
+    order = np.lexsort((k_all, t_all))  # by time; at equal times inputs before the speed
+    volts = math.nan
+    first = last = math.nan
+    for t, kind, x in zip(t_all[order].tolist(), k_all[order].tolist(), x_all[order].tolist(), strict=True):
+        if kind == 0.0:
+            if est.update_pwm(t, x):
+                twins.update_pwm(t, x)
+        elif kind == 1.0:
+            if est.update_voltage(t, x):
+                twins.update_voltage(t, x)
+                volts = x
+        else:
+            est.update_speed(t, x)
+            pred = est.predict(t)
+            tw = twins.sample(t)
+            if tw is None or not pred.ready:
+                continue
+            if first != first:
+                first = t
+            last = t
+            mon.update(HealthSample(t, x, pred.speed_rad_s, volts, tw))
+    mon.finish()
+    duration = last - first if last == last else 0.0
+    cfg = mon.config
+    armed = max(0.0, duration - cfg.reference_s - cfg.window_s)
+    return HealthRun(mon.events, duration, armed, mon.threshold, dict(mon.noise))

@@ -1,0 +1,251 @@
+"""The health monitor (core/health.py, `bldc-propulsion health`) against known truth: residuals
+built by hand with a known change, and simulated flights with a fault injected mid-run
+(sim/faults.py) on a bench whose physics model was fitted on a HEALTHY recording of another seed."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bldc_propulsion import cli
+from bldc_propulsion.core.health import (
+    FAULTS,
+    UNNAMED,
+    HealthConfig,
+    HealthMonitor,
+    HealthSample,
+    TwinSample,
+    chi2_1_isf,
+    run_health,
+)
+from bldc_propulsion.model import save_model
+from bldc_propulsion.recordings import load_signals
+from bldc_propulsion.sim import simulate
+from bldc_propulsion.sim.faults import Fault
+from bldc_propulsion.sim.record import write_sim_bag
+from bldc_propulsion.training.fit_physics import train_physics
+
+TAU_S = 2.0  #: the battery filter's time constant in the hand-made data
+
+
+# --- the statistics on residuals built by hand --------------------------------------------------------
+def _synthetic(duration_s: float, seed: int, change: tuple[float, np.ndarray, float, float] | None = None
+               ) -> list[HealthSample]:
+    """A flight of holds at random speeds, 100 speed samples a second: measured = predicted +
+    noise (+ ``change``: from onset t0, theta * the speed signature and dv volts of extra sag per
+    ampere), the terminal voltage 12 V - 0.04 ohm * i through a first-order filter of TAU_S.
+    The signatures: each fault's speed change per unit grows with the speed, in its own way."""
+    rng = np.random.default_rng(seed)
+    out = []
+    t, level, hold_end = 0.0, 300.0, 0.0
+    v_f = None
+    dt = 0.01
+    for k in range(int(duration_s / dt)):
+        t = k * dt
+        if t >= hold_end:
+            level = float(rng.uniform(150.0, 600.0))
+            hold_end = t + float(rng.uniform(1.0, 4.0))
+        u = level / 600.0
+        current = 12.0 * u**2
+        sens = (60.0 * u**2, -400.0 * u**2 * current / 12.0, -20.0 * (1.2 - u), -0.6 * u**2)
+        dcur = (-1.0 * u**2, 0.0, 0.8, -0.02 * u**2)
+        theta, shape, dv, t0 = change if change is not None else (0.0, np.zeros(4), 0.0, math.inf)
+        after = t >= t0
+        v_term = 12.0 - 0.04 * current - (dv * current if after else 0.0) + rng.normal(0.0, 0.02)
+        v_f = v_term if v_f is None else v_f + (1.0 - math.exp(-dt / TAU_S)) * (v_term - v_f)
+        measured = level + rng.normal(0.0, 1.0) + (theta * float(np.dot(shape, sens)) if after else 0.0)
+        out.append(HealthSample(t, measured, level, v_f, TwinSample(t, level, current, sens, dcur, 40.0)))
+    return out
+
+
+def _events(samples: list[HealthSample]) -> list:
+    mon = HealthMonitor(TAU_S, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
+    for s in samples:
+        mon.update(s)
+    mon.finish()
+    return mon.events
+
+
+def test_threshold_is_the_chi_square_tail_over_every_test_of_an_hour():
+    assert chi2_1_isf(0.05) == pytest.approx(3.841, abs=1e-3)  # the textbook 95 % point
+    cfg = HealthConfig()
+    onsets = round((cfg.window_s - cfg.min_post_s) / cfg.onset_step_s) + 1
+    tests = len(FAULTS) * onsets * 3600.0 / (cfg.block_s * cfg.evaluate_every)
+    assert math.erfc(math.sqrt(cfg.threshold(len(FAULTS)) / 2.0)) == pytest.approx(
+        cfg.false_alarms_per_hour / tests, rel=1e-6)
+
+
+def test_no_change_no_alarm_on_hand_made_residuals():
+    assert _events(_synthetic(180.0, 1)) == []
+
+
+def test_a_propeller_change_is_named_with_its_onset_and_size():
+    """theta 0.1 along the propeller's signature from 100 s: found within 5 s, its onset within
+    0.5 s, its size within 20 % (the noise is 1 rad/s per sample on a ~20 rad/s change)."""
+    events = _events(_synthetic(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0)))
+    assert len(events) == 1, [e.as_dict() for e in events]
+    e = events[0]
+    assert e.name == "propeller_damage" and e.unit == "fraction"
+    assert 100.0 <= e.detected_s <= 105.0 and abs(e.onset_s - 100.0) <= 0.5
+    assert e.size == pytest.approx(0.1, rel=0.2)
+
+
+@pytest.mark.xfail(strict=True, reason="known limitation: the pack's speed signature (the battery filter's lag "
+                   "after an onset) fits a step the data do not explain; it is named pack_resistance")
+def test_a_speed_rise_no_candidate_explains_is_unnamed_never_misnamed():
+    """The speed rises by 15 rad/s while every candidate's signature says a fault slows the rotor
+    (the propeller's signature taken away): no physical size fits, the change is left unnamed."""
+    samples = _synthetic(150.0, 3)
+    bumped = []
+    for s in samples:
+        twin = TwinSample(s.t, s.twin.speed_rad_s, s.twin.current_a, (0.0, *s.twin.speed_sensitivity[1:]),
+                          s.twin.current_sensitivity, s.twin.voltage_sensitivity)
+        bumped.append(HealthSample(s.t, s.measured_speed_rad_s + (15.0 if s.t >= 100.0 else 0.0),
+                                   s.predicted_speed_rad_s, s.voltage_v, twin))
+    events = _events(bumped)
+    assert events and all(e.name == UNNAMED for e in events), [e.as_dict() for e in events]
+    assert 100.0 <= events[0].detected_s <= 105.0 and events[0].size is None
+
+
+# --- simulated flights ---------------------------------------------------------------------------------------
+#: the simulated flights: nominal bench, random steps, 100 s, the fault at 60 s
+FLIGHT = dict(profile="random_steps", duration_s=100.0, seed=33, soc=0.8)
+ONSET_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory) -> Path:
+    """A physics model fitted on healthy recordings of the nominal bench (other seeds)."""
+    d = tmp_path_factory.mktemp("health_model")
+    sigs = []
+    for name, dur, seed, soc in (("train", 60.0, 101, 0.7), ("validation", 30.0, 102, 0.6)):
+        write_sim_bag(simulate("random_steps", dur, seed, soc=soc), d / name)
+        sigs.append(load_signals(d / name))
+    path = d / "physics.npz"
+    save_model(train_physics([sigs[0]], [sigs[1]], thrust_coefficient=None).model, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    """Each flight simulated and written once for the module (several tests read each)."""
+    d = tmp_path_factory.mktemp("health_flights")
+    made: dict[Fault | None, Path] = {}
+
+    def flight(fault: Fault | None) -> Path:
+        if fault not in made:
+            path = d / ("healthy" if fault is None else fault.name)
+            write_sim_bag(simulate(FLIGHT["profile"], FLIGHT["duration_s"], FLIGHT["seed"], soc=FLIGHT["soc"],
+                                   faults=[] if fault is None else [fault]), path)
+            made[fault] = path
+        return made[fault]
+    return flight
+
+
+@pytest.fixture(scope="module")
+def runs(model_path, flights):
+    """The monitor's run over each flight, once for the module."""
+    from bldc_propulsion.model import load_model
+
+    done: dict = {}
+
+    def run(fault: Fault | None):
+        if fault not in done:
+            s = load_signals(flights(fault))
+            done[fault] = run_health(load_model(model_path), s.pwm_events, s.voltage_events, s.speed_events)
+        return done[fault]
+    return run
+
+
+def test_a_healthy_flight_raises_no_alarm(runs):
+    run = runs(None)
+    assert run.events == [] and run.monitored_s > 60.0
+
+
+@pytest.mark.parametrize("name, size", [("propeller_damage", 0.1), ("pack_resistance", 2.0),
+                                        ("motor_heating", 30.0)])
+def test_a_fault_mid_flight_is_found_within_5_s_of_its_onset(runs, name, size):
+    run = runs(Fault(name, size, ONSET_S))
+    assert run.events, f"{name} not found"
+    e = run.events[0]
+    assert ONSET_S <= e.detected_s <= ONSET_S + 5.0, e.as_dict()
+    assert abs(e.onset_s - ONSET_S) <= 1.0, e.as_dict()
+    assert e.name in (name, UNNAMED), e.as_dict()  # never a wrong name
+
+
+_NOT_YET = pytest.mark.xfail(strict=True, reason="known limitation: on this flight the change is seen at too few "
+                                                 "operating points to tell it from bearing_friction: left unnamed")
+
+
+@pytest.mark.parametrize("name, size, low, high", [
+    # the propeller's loss is identified from the speed alone: 10 % within +-3 %
+    ("propeller_damage", 0.1, 0.07, 0.13),
+    # the factor is relative to the sag per ampere the reference shows, which holds part of the
+    # polarisation: 2x reads 1.5-2.5x
+    pytest.param("pack_resistance", 2.0, 1.5, 2.5, marks=_NOT_YET),
+    # kelvin is relative to the model's winding resistance, whose share of the circuit's a fit on
+    # speed and voltage cannot separate from the propeller's drag: 30 K reads 15-45 K
+    pytest.param("motor_heating", 30.0, 15.0, 45.0, marks=_NOT_YET),
+])
+def test_a_fault_mid_flight_is_named_with_its_size(runs, name, size, low, high):
+    run = runs(Fault(name, size, ONSET_S))
+    assert run.events, f"{name} not found"
+    e = run.events[0]
+    assert e.name == name, (e.note, e.candidates)
+    assert low <= e.size <= high, e.as_dict()
+
+
+# --- the command --------------------------------------------------------------------------------------------
+def test_cli_health_prints_the_timeline_and_json(model_path, flights, capsys):
+    bag = flights(Fault("propeller_damage", 0.1, ONSET_S))
+    assert cli.main(["health", "--model", str(model_path), str(bag)]) == 0
+    text = capsys.readouterr().out
+    assert "propeller_damage" in text and "injected (simulated truth): propeller_damage=0.1@60" in text
+    assert cli.main(["health", "--model", str(model_path), str(bag), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    (rec,) = data["recordings"]
+    assert rec["injected_faults"] == ["propeller_damage=0.1@60"]
+    assert rec["events"][0]["name"] == "propeller_damage" and rec["events"][0]["unit"] == "fraction"
+
+
+def test_cli_health_says_no_change_on_a_healthy_flight(model_path, flights, capsys):
+    bag = flights(None)
+    assert cli.main(["health", "--model", str(model_path), str(bag)]) == 0
+    assert "no change detected over" in capsys.readouterr().out
+
+
+def _one_line_error(capsys, *args: str) -> str:
+    assert cli.main(["health", *args]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    return err
+
+
+def test_cli_health_refuses_a_network_model_in_one_line(tmp_path, capsys):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from _models import good_model
+
+    net = tmp_path / "net.npz"
+    save_model(good_model(), net)
+    bag = tmp_path / "short"
+    write_sim_bag(simulate("random_steps", 2.0, 1), bag)
+    err = _one_line_error(capsys, "--model", str(net), str(bag))
+    assert "network" in err and "physics or hybrid" in err
+
+
+def test_cli_health_refuses_a_recording_without_speed_in_one_line(model_path, tmp_path, capsys):
+    from bldc_propulsion.bagio import BagWriter
+
+    bag = tmp_path / "no_speed"
+    with BagWriter(bag) as w:
+        for k in range(200):
+            w.write_float64("pwm", k * 0.02, 0.07)
+            w.write_float64("battery/adc", k * 0.02, 6.0)
+    err = _one_line_error(capsys, "--model", str(model_path), str(bag))
+    assert "rotor/speed" in err and "tachometer/adc" in err
