@@ -11,9 +11,10 @@ Printed per fault: detected within 5 s of the onset, named right first (the firs
 after the onset), named wrong, left unnamed, delays, size error; and false alarms per hour of
 healthy monitored flight (the hours run stated). The monitor's settings were tuned on bench
 seed 1 (flight seeds 30-33) only; the reported benches are seeds from --first-seed (default
-200), disjoint from it.
+200), disjoint from it. With ``--json PATH`` the figures and every run's outcome are also
+written as a figures record (``benchmarks/results.py`` renders it into docs/results.md).
 
-    .venv/bin/python benchmarks/bench_health.py --seeds 6 --flights 2 --hours 0.5 [--json]
+    .venv/bin/python benchmarks/bench_health.py --seeds 6 --flights 2 --hours 0.5 [--json PATH]
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig  # noqa: E402
-from bldc_propulsion.core.health import run_health  # noqa: E402
+from bldc_propulsion.core.health import FAULT_UNITS, UNNAMED, HealthConfig, run_health  # noqa: E402
 from bldc_propulsion.recordings import decode_speed, load_signals  # noqa: E402
 from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
@@ -41,9 +42,19 @@ from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
 from bldc_propulsion.sim.record import TACH_BATCH, write_sim_bag  # noqa: E402
 from bldc_propulsion.training.fit_physics import train_physics  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from results import check_record_path, write_record  # noqa: E402
+
 #: The issue's goal sizes.
 GOALS = {"propeller_damage": 0.1, "pack_resistance": 2.0, "motor_heating": 30.0}
 DETECT_WITHIN_S = 5.0
+#: The issue's goals: this share of the faults detected within DETECT_WITHIN_S and named right
+#: first, and no false alarm in this many hours of healthy flight.
+GOAL_SHARE = 0.95
+GOAL_HEALTHY_HOURS = 10.0
+#: What the monitor's settings (core.health.HealthConfig) were tuned on: never reported.
+TUNING_BENCHES = [1]
+TUNING_FLIGHT_SEEDS = [30, 31, 32, 33]
 FLIGHT_S = 120.0
 HEALTHY_FLIGHT_S = 300.0
 ONSET_RANGE_S = (55.0, 100.0)
@@ -93,11 +104,13 @@ def judge(events: list[Any], fault: Fault | None) -> dict[str, Any]:
     before = [e for e in events if e.detected_s < fault.onset_s]
     after = [e for e in events if e.detected_s >= fault.onset_s]
     first = after[0] if after else None
-    detected = first is not None and first.detected_s - fault.onset_s <= DETECT_WITHIN_S
+    detected = bool(first is not None and first.detected_s - fault.onset_s <= DETECT_WITHIN_S)
     out: dict[str, Any] = {"false_alarms": len(before), "detected": detected,
                            "delay_s": None if first is None else first.detected_s - fault.onset_s,
-                           "name": None if first is None else first.name, "size": None if first is None else first.size}
-    out["named_right"] = first is not None and first.name == fault.name
+                           "name": None if first is None else first.name, "size": None if first is None else first.size,
+                           "named_delay_s": None if first is None or first.named_s is None
+                           else first.named_s - fault.onset_s}
+    out["named_right"] = bool(first is not None and first.name == fault.name)
     sized = out["named_right"] and first is not None and first.size is not None
     out["size_error"] = (first.size - fault.size) if sized and first is not None and first.size is not None else None
     return out
@@ -109,8 +122,10 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=200, help="first bench seed (default 200; tuning used 1)")
     ap.add_argument("--flights", type=int, default=2, help="flights per fault and bench (default 2)")
     ap.add_argument("--hours", type=float, default=0.5, help="healthy flight hours in all (default 0.5)")
-    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    ap.add_argument("--json", metavar="PATH",
+                    help="also write the figures to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args()
+    check_record_path(args.json)
     t_start = time.perf_counter()
     rng = np.random.default_rng(12345)
     per_bench_healthy = max(1, math.ceil(args.hours * 3600.0 / HEALTHY_FLIGHT_S / args.seeds))
@@ -135,7 +150,7 @@ def main() -> None:
                     j = judge(run.events, fault)
                     j.update(bench=bench_seed, seed=seed, onset_s=onset)
                     results[name].append(j)
-                    print(f"  {name} @{onset:.1f}: {j}", file=sys.stderr)
+                    print(f"  {name} @{onset:.1f}: {j} ({time.perf_counter() - t_start:.0f} s)", file=sys.stderr)
             for k in range(per_bench_healthy):
                 seed = 10_000 * bench_seed + 5000 + k
                 res = simulate("random_steps", HEALTHY_FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
@@ -143,17 +158,26 @@ def main() -> None:
                 healthy.append({"bench": bench_seed, "seed": seed, "monitored_s": run.monitored_s,
                                 "false_alarms": len(run.events),
                                 "events": [e.as_dict() for e in run.events]})
-                print(f"  healthy {seed}: {len(run.events)} alarms over {run.monitored_s:.0f} s", file=sys.stderr)
+                print(f"  healthy {seed}: {len(run.events)} alarms over {run.monitored_s:.0f} s "
+                      f"({time.perf_counter() - t_start:.0f} s)", file=sys.stderr)
     summary = summarize(results, healthy)
-    summary.update(benches=list(range(args.first_seed, args.first_seed + args.seeds)), tuning_benches=[1],
-                   fits=fits, seconds=time.perf_counter() - t_start)
+    summary.update(benches=list(range(args.first_seed, args.first_seed + args.seeds)), tuning_benches=TUNING_BENCHES,
+                   tuning_flight_seeds=TUNING_FLIGHT_SEEDS, fits=fits, seconds=time.perf_counter() - t_start)
+    print_table(summary)
     if args.json:
-        print(json.dumps(summary, default=float))
-    else:
-        print_table(summary)
+        summary.update(fault_order=list(GOALS), sizes=GOALS, units={name: FAULT_UNITS[name] for name in GOALS},
+                       detect_within_s=DETECT_WITHIN_S, name_within_s=HealthConfig().name_within_s,
+                       goal_share=GOAL_SHARE, goal_healthy_hours=GOAL_HEALTHY_HOURS,
+                       flights_per_fault=args.flights, flight_s=FLIGHT_S, healthy_flight_s=HEALTHY_FLIGHT_S,
+                       onset_range_s=list(ONSET_RANGE_S), runs=results,
+                       healthy_flights=[{k: v for k, v in h.items() if k != "events"} for h in healthy])
+        write_record(args.json, json.loads(json.dumps(summary, default=float)), seconds=summary["seconds"])
 
 
 def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, Any]]) -> dict[str, Any]:
+    """Shares (and, under "counts", the numbers of runs) per fault, and the healthy flights' alarms.
+    The first name after the onset puts each run in one of named right / wrong / unnamed / missed;
+    the goal counts a run only when that name is right AND the change was found within 5 s."""
     out: dict[str, Any] = {"faults": {}}
     for name, rows in results.items():
         n = len(rows)
@@ -162,7 +186,23 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
         per_bench: dict[int, list[bool]] = {}
         for r in rows:
             per_bench.setdefault(r["bench"], []).append(bool(r["detected"] and r["named_right"]))
+        counts = {
+            "detected_within_5s": sum(bool(r["detected"]) for r in rows),
+            "named_right_first": sum(bool(r["named_right"]) for r in rows),
+            "detected_and_named_right": sum(bool(r["detected"] and r["named_right"]) for r in rows),
+            "named_right_within_5s": sum(bool(r["named_right"] and r["named_delay_s"] is not None
+                                              and r["named_delay_s"] <= DETECT_WITHIN_S) for r in rows),
+            "named_wrong": sum(r["name"] not in (None, name, UNNAMED) for r in rows),
+            "unnamed": sum(r["name"] == UNNAMED for r in rows),
+            "missed": sum(r["name"] is None for r in rows),
+        }
+        named_delays = [r["named_delay_s"] for r in rows if r["named_right"] and r["named_delay_s"] is not None]
         out["faults"][name] = {
+            "counts": counts,
+            "detected_and_named_right": counts["detected_and_named_right"] / n if n else None,
+            "named_delay_median_s": float(np.median(named_delays)) if named_delays else None,
+            "per_bench": {str(k): {"runs": len(v), "detected_and_named_right": int(sum(v))}
+                          for k, v in per_bench.items()},
             "runs": n,
             "detected_within_5s": sum(r["detected"] for r in rows) / n if n else None,
             "named_right_first": sum(r["named_right"] for r in rows) / n if n else None,
@@ -178,9 +218,15 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
         }
     hours = sum(h["monitored_s"] for h in healthy) / 3600.0
     alarms = sum(h["false_alarms"] for h in healthy)
+    healthy_per_bench: dict[str, dict[str, float]] = {}
+    for h in healthy:
+        b = healthy_per_bench.setdefault(str(h["bench"]), {"hours_monitored": 0.0, "false_alarms": 0})
+        b["hours_monitored"] += h["monitored_s"] / 3600.0
+        b["false_alarms"] += h["false_alarms"]
     out["healthy"] = {"flights": len(healthy), "hours_monitored": hours, "false_alarms": alarms,
                       "false_alarms_per_hour": alarms / hours if hours else None,
-                      "alarms": [e for h in healthy for e in h["events"]]}
+                      "per_bench": healthy_per_bench,
+                      "alarms": [{"bench": h["bench"], "seed": h["seed"], **e} for h in healthy for e in h["events"]]}
     return out
 
 
@@ -192,12 +238,13 @@ def print_table(s: dict[str, Any]) -> None:
         return "-" if x is None else format(x, fmt)
 
     print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
-    print("| fault | runs | detected <= 5 s | named right first | named wrong | unnamed | missed | "
+    print("| fault | runs | detected <= 5 s | named right first | both (goal) | named wrong | unnamed | missed | "
           "delay median / max (s) | size error median / max abs | per bench (detected and named) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, f in s["faults"].items():
         spread = ", ".join(f"{k}: {pct(v)}" for k, v in f["detected_and_named_per_bench"].items())
         print(f"| {name} | {f['runs']} | {pct(f['detected_within_5s'])} | {pct(f['named_right_first'])} | "
+              f"{pct(f['detected_and_named_right'])} | "
               f"{pct(f['named_wrong'])} | {pct(f['unnamed'])} | {pct(f['missed'])} | "
               f"{num(f['delay_median_s'])} / {num(f['delay_max_s'])} | "
               f"{num(f['size_error_median'], '.3f')} / {num(f['size_error_max_abs'], '.3f')} | {spread} |")

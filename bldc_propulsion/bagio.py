@@ -25,13 +25,20 @@ from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, BinaryIO, Protocol, TypeAlias, cast
 
 import numpy as np
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.stores.ros2_jazzy import builtin_interfaces__msg__Time as TimeMsg
+from rosbags.typesys.stores.ros2_jazzy import diagnostic_msgs__msg__DiagnosticArray as DiagnosticArrayMsg
+from rosbags.typesys.stores.ros2_jazzy import diagnostic_msgs__msg__DiagnosticStatus as DiagnosticStatusMsg
+from rosbags.typesys.stores.ros2_jazzy import diagnostic_msgs__msg__KeyValue as KeyValueMsg
 from rosbags.typesys.stores.ros2_jazzy import sensor_msgs__msg__BatteryState as BatteryStateMsg
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__Float32MultiArray as Float32MultiArrayMsg
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__Header as HeaderMsg
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__MultiArrayLayout as MultiArrayLayoutMsg
 
 from . import contract as c
 from .atomic import RECORDING, RECORDING_MARK, atomic_output, recording_custom_data
@@ -39,6 +46,12 @@ from .errors import BagError, one_line
 from .specs import split_spec
 
 if TYPE_CHECKING:
+    from mcap.records import Message as McapMessage
+    from numpy.typing import NDArray
+    from rosbags.interfaces import Connection
+    from rosbags.rosbag2.storage_mcap import McapReader, McapWriter
+
+    from .core.status import CoreStatus
     from .sim.faults import Fault
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -100,6 +113,20 @@ def check_namespace(namespace: str | None) -> str | None:
     return ns
 
 
+class _Typed(Protocol):
+    """A connection's message type: all that decoding a message needs."""
+
+    @property
+    def msgtype(self) -> str: ...
+
+
+#: A connection as Recording reads it: rosbags' own, or a salvaged MCAP file's channel.
+_ReadConn: TypeAlias = "Connection | _SalvageConn"
+#: One topic's messages as Recording.bulk decodes them: the values of Float64 or BatteryState
+#: messages, or the samples of each Float32MultiArray.
+BulkValues: TypeAlias = "NDArray[np.float64] | list[NDArray[np.float32]]"
+
+
 class Recording:
     """A rosbag2 recording opened for streaming reads; use as a context manager.
 
@@ -134,7 +161,7 @@ class Recording:
             self.salvaged = (f"{self.path}: recording is damaged ({reason}); readable part "
                              f"ends after {salvage.readable_s:.3f} s ({salvage.why})")
         conns = self._reader.connections
-        self._conns: dict[str, list[Any]] = {}
+        self._conns: dict[str, list[_ReadConn]] = {}
         for conn in conns:
             self._conns.setdefault(c.bare(conn.topic), []).append(conn)
         self.t0_ns: int = int(self._reader.start_time) if self._reader.message_count else 0
@@ -210,7 +237,7 @@ class Recording:
         conns = self._conns.get(self.resolve(topic), [])
         return bool(conns) and (msgtype is None or conns[0].msgtype == msgtype)
 
-    def require(self, topic: str, msgtype: str) -> list[Any]:
+    def require(self, topic: str, msgtype: str) -> list[_ReadConn]:
         """Connections of ``topic``; BagError naming the file and topic if absent or mistyped."""
         name = self.resolve(topic)
         conns = self._conns.get(name)
@@ -224,7 +251,7 @@ class Recording:
         return conns
 
     # -- streaming -------------------------------------------------------------------------
-    def raw(self, topics: Iterable[str], tolerant: bool = False) -> Iterator[tuple[str, int, Any, bytes]]:
+    def raw(self, topics: Iterable[str], tolerant: bool = False) -> Iterator[tuple[str, int, _ReadConn, bytes]]:
         """(bare topic, bag time ns, connection, raw CDR) in bag-time order.
 
         With ``tolerant`` a damaged part ends the stream and is recorded in ``read_error``
@@ -234,7 +261,8 @@ class Recording:
         conns = [conn for name in logical for conn in self._conns.get(name, [])]
         if not conns:
             return
-        it = self._reader.messages(connections=conns)
+        # each reader is only ever given its own connections (rosbags' Reader: Connection)
+        it: Iterator[tuple[_ReadConn, int, bytes]] = self._reader.messages(connections=conns)  # type: ignore[arg-type]
         if self.salvaged is not None and not tolerant:
             # a truncated recording is only good for tolerant readers (replay): a model
             # trained or evaluated on part of a file must not pass for the whole file
@@ -283,13 +311,14 @@ class Recording:
             return None
         code_of_topic = {f"/{name}": k for k, name in enumerate(names)}
         try:
-            rows = _bulk_rows(self._reader, conns, code_of_topic, start_ns, stop_ns)
+            # not salvaged (checked above): the reader is rosbags' own
+            rows = _bulk_rows(cast(Reader, self._reader), conns, code_of_topic, start_ns, stop_ns)
         except Exception:  # anything unexpected: the streaming path decides what it means
             return None
         if rows is None:
             return None
         code, ns, payload = rows
-        values: dict[str, Any] = {}
+        values: dict[str, BulkValues] = {}
         for k, (name, topic) in enumerate(zip(names, logical, strict=True)):
             sel = np.flatnonzero(code == k)
             msgtype = self._conns[name][0].msgtype if name in self._conns else c.FLOAT64
@@ -318,7 +347,7 @@ class Recording:
                 return
             start = stop
 
-    def _decode_bulk(self, payload: _Payload, sel: np.ndarray, msgtype: str, name: str) -> Any:
+    def _decode_bulk(self, payload: _Payload, sel: np.ndarray, msgtype: str, name: str) -> BulkValues:
         """Messages ``sel`` of ``payload``, decoded as :meth:`_decode` decodes them."""
         start, length = payload.start[sel], payload.length[sel]
         n = len(sel)
@@ -377,16 +406,17 @@ class Recording:
                 gaps=int(np.count_nonzero(big)), max_gap_s=float(dt.max()) if len(dt) else math.nan))
         return out
 
-    def _done_s(self, conns: list[Any]) -> str:
+    def _done_s(self, conns: list[_ReadConn]) -> str:
         ns = getattr(self, "_last_ns", None)
         return "the start" if ns is None else f"{(ns - self.t0_ns) * 1e-9:.3f} s"
 
     def messages(self, topics: Iterable[str], tolerant: bool = False) -> Iterator[tuple[str, float, Any]]:
-        """(bare topic, t [s from t0], decoded message) in time order."""
+        """(bare topic, t [s from t0], decoded message) in time order. The message is whatever
+        rosbags' typestore decodes (or a ``_Float64``): callers read its fields by name."""
         for name, ns, conn, data in self.raw(topics, tolerant=tolerant):
             yield name, (ns - self.t0_ns) * 1e-9, self._decode(data, conn, name)
 
-    def _decode(self, data: bytes, conn: Any, name: str) -> Any:
+    def _decode(self, data: bytes, conn: _Typed, name: str) -> Any:  # a rosbags message
         if conn.msgtype == c.FLOAT64 and len(data) == 12 and data[:4] == _CDR_LE:
             return _Float64(_FLOAT64.unpack_from(data, 4)[0])  # fast path: 12-byte CDR
         try:
@@ -447,7 +477,9 @@ class Bulk:
     topics: list[str]  #: contract names; message k is of topic ``topics[code[k]]``
     code: np.ndarray  #: (n,) int, topic index of each message
     ns: np.ndarray  #: (n,) int64, bag time of each message
-    values: dict[str, Any]  #: per topic, its messages decoded in order (see Recording.bulk)
+    #: per topic, its messages decoded in order (see Recording.bulk): a BulkValues, held untyped
+    #: because each reader (replay) uses the form it knows the topic's type gives
+    values: dict[str, Any]
 
 
 @dataclass
@@ -480,7 +512,7 @@ class _Payload:
         return np.where(inside, u8[np.where(inside, idx, 0)], 0).astype(np.uint8)
 
 
-def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int],
+def _bulk_rows(reader: Reader, conns: list[_ReadConn], code_of_topic: dict[str, int],
                start_ns: int | None = None, stop_ns: int | None = None
                ) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
     """(topic code, bag time ns, raw CDR) of every message of ``conns``, in the order rosbags'
@@ -513,11 +545,11 @@ def _bulk_rows(reader: Any, conns: list[Any], code_of_topic: dict[str, int],
     return _mcap_rows(storage, ids, start_ns, stop_ns)
 
 
-def _mcap_rows(storage: Any, ids: dict[int, int], start_ns: int | None, stop_ns: int | None
+def _mcap_rows(storage: McapReader, ids: dict[int, int], start_ns: int | None, stop_ns: int | None
                ) -> tuple[np.ndarray, np.ndarray, _Payload] | None:
     from rosbags.rosbag2.storage_mcap import decompress
 
-    bio = storage.bio
+    bio = cast("BinaryIO", storage.bio)  # the reader is open: its file is
     bufs: list[bytes] = []
     parts: list[tuple[np.ndarray, ...]] = []
     base = 0
@@ -655,7 +687,7 @@ class _SalvageReader:
     def readable_s(self) -> float:
         return (self.end_time - self.start_time) * 1e-9
 
-    def _scan(self, by_id: dict[int, _SalvageConn]) -> Iterator[tuple[Any, None]]:
+    def _scan(self, by_id: dict[int, _SalvageConn]) -> Iterator[tuple[McapMessage, None]]:
         from mcap.records import Channel, Message, Schema
         from mcap.stream_reader import StreamReader
 
@@ -679,7 +711,7 @@ class _SalvageReader:
                 elif isinstance(rec, Message):
                     yield rec, None
 
-    def messages(self, connections: Iterable[_SalvageConn]) -> Iterator[tuple[Any, int, bytes]]:
+    def messages(self, connections: Iterable[_ReadConn]) -> Iterator[tuple[_ReadConn, int, bytes]]:
         wanted = {conn.id: conn for conn in connections}
         by_id = {conn.id: _SalvageConn(conn.id, conn.topic, conn.msgtype) for conn in self.connections}
         for rec, _ in self._scan(by_id):
@@ -730,15 +762,15 @@ class BagWriter:
         self.t0_ns = int(t0_ns)
         self.storage = storage
         self.custom_data = dict(custom_data or {})
-        self._conns: dict[str, Any] = {}
+        self._conns: dict[str, Connection] = {}
         self._stage: contextlib.AbstractContextManager[Path] | None = None
         self._writer: Writer | None = None
         self.messages_written = 0
         #: append MCAP message records directly (the bytes rosbags' McapWriter.write makes,
         #: tested) instead of through Writer.write: 10x less time per message
         self.fast_mcap = True
-        self._mcap: Any = None
-        self._by_topic: dict[tuple[str, str], Any] = {}
+        self._mcap: McapWriter | None = None
+        self._by_topic: dict[tuple[str, str], Connection] = {}
 
     @property
     def single_file(self) -> bool:
@@ -793,7 +825,7 @@ class BagWriter:
                 raise BagError(f"{self.path}: cannot write recording ({one_line(exc)})") from None
         return result
 
-    def _conn(self, topic: str, msgtype: str) -> Any:
+    def _conn(self, topic: str, msgtype: str) -> Connection:
         name = c.bare(topic)
         conn = self._conns.get(name)
         if conn is None:
@@ -807,7 +839,7 @@ class BagWriter:
     def _ns(self, t: float) -> int:
         return self.t0_ns + int(round(t * 1e9))
 
-    def _connection(self, topic: str, msgtype: str) -> Any:
+    def _connection(self, topic: str, msgtype: str) -> Connection:
         conn = self._by_topic.get((topic, msgtype))
         if conn is None:
             conn = self._by_topic[(topic, msgtype)] = self._conn(topic, msgtype)
@@ -828,7 +860,7 @@ class BagWriter:
         by the caller, without their checks (the connection is this writer's own)."""
         self.messages_written += 1
         w, st = self._writer, self._mcap
-        assert w is not None, "called only while the writer is open"
+        assert w is not None and st is not None, "called only while the writer is open, on the fast path"
         w.counts[cid] += 1
         if ts < w.min_timestamp:
             w.min_timestamp = ts
@@ -851,7 +883,7 @@ class BagWriter:
         if at + len(record) > 2**20:
             st.close_chunk()
 
-    def write_msg(self, topic: str, msgtype: str, t: float, msg: Any) -> None:
+    def write_msg(self, topic: str, msgtype: str, t: float, msg: object) -> None:
         self.write_raw(topic, msgtype, t, bytes(TYPESTORE.serialize_cdr(msg, msgtype)))
 
     def write_float64(self, topic: str, t: float, value: float) -> None:
@@ -871,7 +903,7 @@ class BagWriter:
         ns = self._ns(t)
         self.write_raw(topic, c.BATTERY_STATE, t, _BATTERY_TEMPLATE.bytes(ns // 10**9, ns % 10**9, voltage))
 
-    def write_diagnostics(self, topic: str, t: float, statuses: Iterable[Any], prefix: str = "",
+    def write_diagnostics(self, topic: str, t: float, statuses: Iterable[CoreStatus], prefix: str = "",
                           hardware_id: str = "") -> None:
         self.write_msg(topic, c.DIAGNOSTIC_ARRAY, t, diagnostic_array(self._ns(t), statuses, prefix, hardware_id))
 
@@ -906,7 +938,7 @@ _MCAP_MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequ
 _MCAP_FLOAT64 = struct.Struct("<BQHIQQ4sd")  # the same, then a std_msgs/Float64's 12 bytes of CDR
 
 
-def _fast_mcap(writer: Writer) -> Any:
+def _fast_mcap(writer: Writer) -> McapWriter | None:
     """rosbags' MCAP storage writer, if its message writing is the one BagWriter.write_raw repeats."""
     try:
         from rosbags.rosbag2.storage_mcap import McapWriter
@@ -923,7 +955,7 @@ def _fast_mcap(writer: Writer) -> Any:
     return storage
 
 
-def _close_chunk(self: Any) -> None:
+def _close_chunk(self: McapWriter) -> None:
     """``McapWriter.close_chunk`` (rosbags 0.11) with each message index record packed by numpy
     instead of two Python calls per message (the same bytes: test_bagio compares the files)."""
     from rosbags.rosbag2.storage_mcap import PendingChunk, write_record, write_string
@@ -958,23 +990,21 @@ def _close_chunk(self: Any) -> None:
 
 
 # --- message construction (Jazzy definitions through the rosbags typestore) ---------------
-def _stamp(ns: int) -> Any:
-    Time = TYPESTORE.types["builtin_interfaces/msg/Time"]
-    return Time(sec=ns // 10**9, nanosec=ns % 10**9)
+# (the classes are TYPESTORE's own, imported by name so that they are typed)
+def _stamp(ns: int) -> TimeMsg:
+    return TimeMsg(sec=ns // 10**9, nanosec=ns % 10**9)
 
 
-def _header(ns: int, frame_id: str = "") -> Any:
-    Header = TYPESTORE.types["std_msgs/msg/Header"]
-    return Header(stamp=_stamp(ns), frame_id=frame_id)
+def _header(ns: int, frame_id: str = "") -> HeaderMsg:
+    return HeaderMsg(stamp=_stamp(ns), frame_id=frame_id)
 
 
-def _multiarray(samples: np.ndarray) -> Any:
-    T = TYPESTORE.types
-    layout = T["std_msgs/msg/MultiArrayLayout"](dim=[], data_offset=0)
-    return T["std_msgs/msg/Float32MultiArray"](layout=layout, data=samples)
+def _multiarray(samples: np.ndarray) -> Float32MultiArrayMsg:
+    layout = MultiArrayLayoutMsg(dim=[], data_offset=0)
+    return Float32MultiArrayMsg(layout=layout, data=samples)
 
 
-def battery_state(ns: int, voltage: float) -> Any:
+def battery_state(ns: int, voltage: float) -> BatteryStateMsg:
     """BatteryState with the filtered voltage; unknown fields NaN as the message docs ask."""
     BS = BatteryStateMsg  # TYPESTORE's own class, imported by name so that its constants are typed
     nan = math.nan
@@ -1024,23 +1054,21 @@ class _Template:
         return bytes(buf)
 
 
-def diagnostic_array(ns: int, statuses: Iterable[Any], prefix: str = "", hardware_id: str = "") -> Any:
+def diagnostic_array(ns: int, statuses: Iterable[CoreStatus], prefix: str = "", hardware_id: str = ""
+                     ) -> DiagnosticArrayMsg:
     """DiagnosticArray from CoreStatus-like objects (name, level, message, values), each named
     ``prefix`` + its name, for the hardware ``hardware_id`` (the motor or pack: monitors group by it)."""
-    T = TYPESTORE.types
-    KV = T["diagnostic_msgs/msg/KeyValue"]
-    DS = T["diagnostic_msgs/msg/DiagnosticStatus"]
     items = [
-        DS(
+        DiagnosticStatusMsg(
             level=int(s.level),
             name=f"{prefix}{s.name}",
             message=str(s.message),
             hardware_id=hardware_id,
-            values=[KV(key=str(k), value=str(v)) for k, v in s.values.items()],
+            values=[KeyValueMsg(key=str(k), value=str(v)) for k, v in s.values.items()],
         )
         for s in statuses
     ]
-    return T["diagnostic_msgs/msg/DiagnosticArray"](header=_header(ns), status=items)
+    return DiagnosticArrayMsg(header=_header(ns), status=items)
 
 
 _BATTERY_TEMPLATE = _Template()

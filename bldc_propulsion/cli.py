@@ -35,7 +35,7 @@ import json  # noqa: E402
 import traceback  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 from types import ModuleType  # noqa: E402
-from typing import Any, NoReturn  # noqa: E402
+from typing import NoReturn  # noqa: E402
 
 from .commands import MODULES  # noqa: E402
 from .commands.common import CommandResult  # noqa: E402
@@ -112,7 +112,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     return result.exit_code
 
 
-def _json_default(obj: Any) -> Any:
+def _json_default(obj: object) -> object:
+    """What ``json.dumps`` makes of what it cannot write: numpy scalars and arrays as numbers and
+    lists, anything else as its text."""
     import numpy as np
 
     if isinstance(obj, np.generic):

@@ -70,6 +70,16 @@ OUTPUT_TOPICS: dict[str, str] = {
 }
 TRUTH_TOPICS: dict[str, str] = {TOPIC_TRUTH_SPEED: FLOAT64, TOPIC_TRUTH_THRUST: FLOAT64}
 
+# --- The project's outputs beyond the contract (docs/ros.md): written only where they apply ---
+#: one-sigma band of predicted/speed (rad/s), at its times; only for a model with a band
+TOPIC_PREDICTED_SPEED_SIGMA = "predicted/speed_sigma"
+#: one-sigma of predicted/thrust (N), 2 b w sigma_w; only for a model with a band and a b
+TOPIC_PREDICTED_THRUST_SIGMA = "predicted/thrust_sigma"
+ADDED_OUTPUT_TOPICS: dict[str, str] = {
+    TOPIC_PREDICTED_SPEED_SIGMA: FLOAT64,
+    TOPIC_PREDICTED_THRUST_SIGMA: FLOAT64,
+}
+
 # --- Physical effects the discrepancy workflow can name (and the simulator can switch) ---
 EFFECTS: tuple[str, ...] = (
     "battery_voltage",

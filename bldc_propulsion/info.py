@@ -10,7 +10,8 @@ so the answer and its reason are theirs.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import Literal, TypedDict
 
 import numpy as np
 
@@ -49,13 +50,57 @@ def _range(values: np.ndarray) -> dict[str, float] | None:
     return {"min": float(v.min()), "max": float(v.max())} if len(v) else None
 
 
-def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
+class TopicInfo(TypedDict):
+    """One topic of ``RecordingInfo.topics`` (``bagio.TopicStats``)."""
+
+    topic: str
+    type: str
+    count: int
+    rate_hz: float
+    gaps: int
+    max_gap_s: float
+
+
+class TachometerInfo(TypedDict):
+    decodes: bool
+    speeds: int  #: speeds the tachometer decoded (the rotor moving)
+    max_rad_s: float
+
+
+class _InfoCore(TypedDict):
+    path: str
+    namespace: str | None
+    duration_s: float
+    messages: int
+    damaged: str | None
+    topics: list[TopicInfo]
+    namespaces: list[str]
+    pwm: dict[str, float] | None  #: min, max
+    battery_voltage_v: dict[str, float | str] | None  #: min, max (where valid), source
+    tachometer: TachometerInfo | None
+    speed_rad_s: dict[str, float | str] | None  #: min, max (where valid), source
+    import_source: list[str]
+    sample_interval_s: dict[str, float | None]  #: speed, command: where sampled (not sent on change)
+
+
+class RecordingInfo(_InfoCore, total=False):
+    """``recording_info``: what ``info --json`` says of one recording (the keys below are added
+    once the recording is read)."""
+
+    motors_elsewhere: list[str]
+    usable_for: list[str]
+    not_usable: dict[str, str]  #: command -> why not
+    problems: dict[str, str]  #: what could not be read -> why
+    resolution: str | None
+
+
+def recording_info(path: str, namespace: str | None = None) -> RecordingInfo:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
     from .recordings import decode_speed, read_speed, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()
-        out: dict[str, Any] = {
+        out: RecordingInfo = {
             "path": str(path),
             "namespace": rec.namespace,
             "duration_s": rec.duration_s,
@@ -70,7 +115,7 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
         }
         problems: dict[str, str] = {}
 
-        def attempt(key: str, read: Any) -> None:
+        def attempt(key: str, read: Callable[[], None]) -> None:
             try:
                 read()
             except BadInputError as exc:
@@ -120,12 +165,13 @@ def recording_info(path: str, namespace: str | None = None) -> dict[str, Any]:
     return out
 
 
-def _usable(path: str, namespace: str | None, replay_inputs: bool, motors: list[str]) -> dict[str, Any]:
+def _usable(path: str, namespace: str | None, replay_inputs: bool, motors: list[str]
+            ) -> dict[str, Literal[True] | str]:
     """Each command: True when it can use the recording, else why not (loaded exactly as the
     commands load it, so the reason is theirs)."""
     from .recordings import load_signals
 
-    usable: dict[str, Any] = {}
+    usable: dict[str, Literal[True] | str] = {}
     usable["replay"] = True if replay_inputs else "none of /pwm, /battery/adc, /tachometer/adc is recorded"
     if motors:  # a vehicle's recording read at the root: every command needs --namespace
         reason = f"the motor topics are under {', '.join('/' + n for n in motors)}: give --namespace {motors[0]}"
@@ -148,7 +194,7 @@ def _num(x: float | None, fmt: str) -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, fmt)
 
 
-def summary_text(info: dict[str, Any]) -> str:
+def summary_text(info: RecordingInfo) -> str:
     """``ros2 bag info``-like lines for people."""
     lines = [f"Recording:        {info['path']}" + (f" (namespace /{info['namespace']})" if info["namespace"] else ""),
              f"Duration:         {info['duration_s']:.3f} s",

@@ -11,7 +11,7 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 | ``format_version`` | () int64 | all | 2 |
 | ``kind`` | () unicode | all | ``network``, ``physics`` or ``hybrid`` |
 | ``thrust_coefficient`` | () float64 | all | b in thrust = b w^2 (N s^2/rad^2); NaN: none (speed only) |
-| ``metadata_json`` | () unicode | all | JSON object: provenance, costs, ``feature_params`` |
+| ``metadata_json`` | () unicode | all | JSON object: provenance, costs, ``feature_params``, ``band`` (below) |
 | ``input_names`` | (n,) unicode | network, hybrid | inputs in order (core/features.py; a hybrid: + ``physics_speed``) |
 | ``input_min``, ``input_max`` | (n,) float64 | network, hybrid | scaling of inputs to [-1, 1] |
 | ``output_min``, ``output_max`` | () float64 | network, hybrid | scaling of the output (rad/s) to [-1, 1] |
@@ -21,6 +21,9 @@ File format (``format_version`` 2; version 1 files, network models without ``kin
 | ``effect_names``, ``effect_strengths`` | (e,) unicode, float64 | physics, hybrid | strengths (0 off, 1 nominal) |
 | ``supply_v`` | () float64 | physics, hybrid | the stiff supply (V) that battery_voltage strength 0 gives |
 | ``supply_tau_s`` | () float64 | physics, hybrid | the filter the voltage input comes through (s; 0: the terminal's) |
+
+The metadata's ``band`` is the predicted speed's one-sigma band fitted on the validation recordings
+(``core.uncertainty``, versioned); files written before bands lack it, load alike and predict no sigma.
 
 A model trained with no thrust measured or stated has no b (``thrust_coefficient`` None, NaN in
 the file) rather than another propeller's: it predicts speed only.
@@ -43,6 +46,7 @@ import numpy as np
 from . import contract as c
 from .atomic import OutputKind, atomic_output, describe_path, recognised_by
 from .core.features import feature_class, make_features
+from .core.uncertainty import BAND_KEY, band_problem
 from .errors import ModelError, one_line
 from .physics.fallback import NOMINAL_THRUST_COEFFICIENT
 from .physics.plant_model import PHYSICS_KEYS, Fail, PlantModel, check_physics_arrays, thrust_or_none, thrust_problem
@@ -267,6 +271,8 @@ def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
     fp = meta.get("feature_params", {})
     if not isinstance(fp, dict) or not all(isinstance(v, dict) for v in fp.values()):
         fail("metadata_json: feature_params must map input names to parameter objects")
+    if BAND_KEY in meta and (why := band_problem(meta[BAND_KEY])):
+        fail(f"metadata_json: {BAND_KEY}: {why}")
     return meta
 
 

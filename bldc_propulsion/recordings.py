@@ -15,7 +15,6 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -135,7 +134,7 @@ def decode_speed(rec: Recording, config: TachometerConfig | None = None) -> tupl
 MAX_CLOCK_FAULT_FRACTION = 0.01
 
 
-def _check_clock(path: Any, topic: str, faults: int, total: int) -> None:
+def _check_clock(path: str | os.PathLike[str], topic: str, faults: int, total: int) -> None:
     """BagError when a topic's times repeat or overlap: the recording's clock went backwards.
 
     The reader delivers messages in time order, so a clock that jumped back shows up as

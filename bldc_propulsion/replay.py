@@ -9,6 +9,8 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
 - ``predicted/speed`` and ``predicted/thrust`` on the estimator's 100 Hz grid from the first
   PWM message, fed with the published filtered voltage as the node is through ``battery/voltage``
   (no ``predicted/thrust`` for a model without a thrust coefficient, as the node publishes none),
+  and beside them, at the same times, ``predicted/speed_sigma`` and ``predicted/thrust_sigma``
+  (the one-sigma band, ``core.uncertainty``) for a model with a band (and a b, for the thrust's),
 - their stamped forms (``stamped_writer``): ``rotor/state`` once per new measurement, stamped
   with the middle of its revolution; ``predicted/state`` and ``predicted/wrench`` (with a
   thrust coefficient) stamped with the grid time,
@@ -183,6 +185,7 @@ def _replay(
             "read_error": rec.read_error,
             "out_of_training_range": ranged.as_dict() if ranged else None,
             "measured_inputs": ["/" + topic for topic in measured],
+            "band": {"written": est.band is not None, "note": est.band_note},  # predicted/*_sigma, or why not
             "warnings": warnings,
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
@@ -231,6 +234,8 @@ class _Nodes:
          self.rpm_topic) = map(topic_out, (
             c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
             c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM))
+        self.speed_sigma_topic, self.thrust_sigma_topic = map(topic_out, (
+            c.TOPIC_PREDICTED_SPEED_SIGMA, c.TOPIC_PREDICTED_THRUST_SIGMA))
         #: each node's diagnostics: (status name prefix, hardware_id, its statuses now); a stage
         #: whose statuses are empty (not run) publishes nothing
         self.diagnostics: tuple[tuple[str, str, Callable[[], list[Any]]], ...] = (
@@ -252,6 +257,10 @@ class _Nodes:
                 bag.write_float64(self.speed_topic, tick, p.speed_rad_s)
                 if p.thrust_n is not None:
                     bag.write_float64(self.thrust_topic, tick, p.thrust_n)
+                if p.speed_sigma_rad_s is not None:  # the model has a band (core.uncertainty)
+                    bag.write_float64(self.speed_sigma_topic, tick, p.speed_sigma_rad_s)
+                    if p.thrust_sigma_n is not None:
+                        bag.write_float64(self.thrust_sigma_topic, tick, p.thrust_sigma_n)
                 self.stamped.prediction(tick, p.speed_rad_s, p.thrust_n, reaction_torque_nm(
                     self.torque_coefficient, p.speed_rad_s, self.spin_direction))
         while next_diag is not None and next_diag <= t:

@@ -94,6 +94,18 @@ def test_a_propeller_change_is_named_with_its_onset_and_size():
     assert e.size == pytest.approx(0.1, rel=0.2)
 
 
+def test_a_data_gap_while_a_change_is_being_sized_reports_it_as_it_stands():
+    """The same change, then no speed sample from 106 s to 108 s (a rotor too slow for the
+    tachometer) while the named change is still being sized: the window restarts after the gap
+    (it once indexed an empty window and crashed), and the change is reported once, named."""
+    samples = _synthetic(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    events = _events([s for s in samples if not 106.0 <= s.t < 108.0])
+    assert len(events) == 1, [e.as_dict() for e in events]
+    e = events[0]
+    assert e.name == "propeller_damage" and abs(e.onset_s - 100.0) <= 0.5 and e.detected_s <= 105.0
+    assert e.size == pytest.approx(0.1, rel=0.2)
+
+
 @pytest.mark.xfail(strict=True, reason="known limitation: the pack's speed signature (the battery filter's lag "
                    "after an onset) fits a step the data do not explain; it is named pack_resistance")
 def test_a_speed_rise_no_candidate_explains_is_unnamed_never_misnamed():

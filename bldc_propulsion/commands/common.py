@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +20,7 @@ from ..errors import BadInputError
 class CommandResult:
     """What a subcommand returns: JSON data for scripts and a text summary for people."""
 
-    data: dict[str, Any]
+    data: Mapping[str, object]  #: printed as JSON (--json); a command's own TypedDict or dict
     text: str = ""
     exit_code: int = 0
     warnings: list[str] = field(default_factory=list)

@@ -7,7 +7,7 @@ import argparse
 import dataclasses
 import os
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, TypeVar, cast
 
 from .. import contract as c
 from ..atomic import REPORT, check_outputs
@@ -19,6 +19,17 @@ from ..errors import BadInputError
 from ..priors import MotorPriors, add_prior_arguments, priors_from_args
 from ..specs import spec_path
 from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+
+if TYPE_CHECKING:
+    from ..discrepancy.workflow import WorkflowResult
+    from ..model import HybridModel, Model, NetworkModel
+    from ..physics.config import PhysicsConfig
+    from ..physics.plant_model import PlantModel
+    from ..recordings import Signals
+    from ..training.train import ThrustFit
+
+#: The model a discrepancy run hands back (a network, or the bench physics).
+_M = TypeVar("_M")
 
 
 def _effects(text: str) -> list[str]:
@@ -85,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_prior_arguments(p, thrust=False)
 
 
-def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
+def reference_paths(model: Model, model_path: str) -> tuple[list[str], list[str]]:
     """The model's training recordings from its metadata: (found, missing). A relative path is
     tried as written (relative to the working directory), relative to the model file, and
     where it was when the model was trained."""
@@ -107,7 +118,7 @@ def reference_paths(model: Any, model_path: str) -> tuple[list[str], list[str]]:
     return found, missing
 
 
-def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Any], list[Any], list[Any]]:
+def _recordings(args: argparse.Namespace, ref_paths: list[str]) -> tuple[list[Signals], list[Signals], list[Signals]]:
     """The measured, reference and holdout recordings, read through the cores."""
     from ..discrepancy.workflow import check_holdout
     from ..recordings import load_all, load_signals, unique
@@ -176,7 +187,8 @@ def run(args: argparse.Namespace) -> CommandResult:
                    seed=0 if args.seed is None else args.seed, alpha=args.alpha,
                    min_effect=args.min_reduction, report_dir=args.report,
                    report_force=args.force)
-    result = run_workflow(model, measured, reference, holdout, opts, progress)
+    # (not physics: the file's kind says it is a network)
+    result = run_workflow(cast("NetworkModel", model), measured, reference, holdout, opts, progress)
     data = result.data
     data["out_of_training_range"] = {r.where: r.as_dict() for r in ranges}
 
@@ -192,7 +204,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     return _finish(args, result, save, "the model", warnings)
 
 
-def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = None) -> CommandResult:
+def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Model | None = None) -> CommandResult:
     """``--physics [CONFIG]``, or ``--model`` of kind physics or hybrid (``loaded``): the bench
     physics as the model (see discrepancy/physics_kind.py). A hybrid's physics part is checked:
     the workflow fits physical effects, and a network correction on top would hide the very
@@ -211,7 +223,8 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
         base, model = args.physics or None, _physics_input(args.physics)  # a bad CONFIG fails before any work
     else:
         base = str(args.model)
-        plant = loaded.plant if loaded.kind == c.HYBRID else loaded
+        # (the file's kind says which: a hybrid, or a physics model)
+        plant = cast("HybridModel", loaded).plant if loaded.kind == c.HYBRID else cast("PlantModel", loaded)
         model = _physics_of(plant, base)
         if loaded.kind == c.HYBRID:
             out = f"; -o {args.output} gets a physics model" if args.output else ""
@@ -248,7 +261,8 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
             if thrust.coefficient is None:
                 warnings.append(f"-o {args.output}: no thrust coefficient: no /thrust/measured in the recordings "
                                 "and no model's b to keep, so the model predicts speed only")
-            save_model(PlantModel(m.params, m.effects, m.supply_v, thrust.coefficient,
+            # (supply_v is set: the workflow runs the model with_supply)
+            save_model(PlantModel(m.params, m.effects, cast(float, m.supply_v), thrust.coefficient,
                                   metadata={"discrepancy": provenance},
                                   supply_tau_s=supply_tau_s(measured[0])), args.output, force=args.force)
         else:
@@ -258,7 +272,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Any = Non
                    warnings)
 
 
-def _thrust_of(loaded: Any, signals: list[Any]) -> Any:
+def _thrust_of(loaded: object, signals: list[Signals]) -> ThrustFit:
     """b of a physics model that ``discrepancy`` writes: measured thrust in the recordings, else
     the b of the model it started from, else none. Never the CT of the CONFIG or of the
     simulator's 12 in bench: that is a number nobody measured or stated for this propeller."""
@@ -269,7 +283,7 @@ def _thrust_of(loaded: Any, signals: list[Any]) -> Any:
     return fit_thrust_coefficient(signals, stated)
 
 
-def _model_vs_priors(model: Any, priors: MotorPriors, where: str) -> list[str]:
+def _model_vs_priors(model: PhysicsConfig, priors: MotorPriors, where: str) -> list[str]:
     """A model file's constants win over stated priors (it was fitted); one warning per stated
     Kv or CP the model's value is outside the prior's range of (``physics.sizing.physics_start``)."""
     from ..physics.sizing import physics_start
@@ -291,17 +305,17 @@ def _is_npz(path: str | None) -> bool:
     return bool(path) and str(path).lower().endswith(".npz")
 
 
-def _physics_input(path: str) -> Any:
+def _physics_input(path: str) -> PhysicsConfig:
     """``--physics CONFIG``: a JSON CONFIG, or a physics model file (.npz)."""
     from ..model import load_model
     from ..physics.config import load_config
 
     if not _is_npz(path):
         return load_config(path)
-    return _physics_of(load_model(path, kinds=(c.PHYSICS,)), path)
+    return _physics_of(cast("PlantModel", load_model(path, kinds=(c.PHYSICS,))), path)  # kinds: a physics model
 
 
-def _physics_of(m: Any, source: str) -> Any:
+def _physics_of(m: PlantModel, source: str) -> PhysicsConfig:
     """The workflow's physics model of a model file's plant (``physics.plant_model.PlantModel``),
     on the nominal bench's constants where the file has none."""
     from ..physics.config import PhysicsConfig, load_config
@@ -311,7 +325,7 @@ def _physics_of(m: Any, source: str) -> Any:
                          source=source)
 
 
-def _finish(args: argparse.Namespace, result: Any, save: Callable[[], None], what: str,
+def _finish(args: argparse.Namespace, result: WorkflowResult[_M], save: Callable[[], None], what: str,
             warnings: list[str]) -> CommandResult:
     """Step 4's output for either model kind: ``save()`` the model with the added effects (new
     and structural) to -o (nothing is written when nothing was added), then the summary and every

@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, 
 
     from ..model import Model
     from ..recordings import Signals
-    from ..training.evaluate import RecordingScore
+    from ..training.evaluate import BandCoverage, RecordingScore
 
 NAME = "evaluate"
 HELP = "measure a model's speed error on recordings"
@@ -27,7 +27,9 @@ DESCRIPTION = (
     "Run a model over recordings and compare its predicted rotor speed with the "
     "measured one (/rotor/speed if recorded, else decoded from /tachometer/adc): "
     "RMSE, RMSE as % of the speed range, maximum error, and for chirp-like "
-    "recordings the error per command frequency band. Several --model files are "
+    "recordings the error per command frequency band; for a model with an uncertainty "
+    "band (trained by this version), the share of measured speeds inside its +-1 sigma band "
+    "(about 68 % where it is calibrated) and the mean sigma. Several --model files are "
     "compared side by side (a table per recording and band, and with --report one "
     "figure per recording with every model's prediction)."
 )
@@ -58,20 +60,38 @@ class Evaluation:
         """Its name in side-by-side tables and figures: kind and file name."""
         return f"{self.model.kind} ({Path(self.path).name})"
 
+    @property
+    def band(self) -> BandCoverage | None:
+        """The one-sigma band's coverage over every recording together; None: no band."""
+        parts = [s.band for s in self.scores if s.band is not None]
+        return sum(parts[1:], parts[0]) if parts else None
+
+    def band_json(self) -> dict[str, Any]:
+        """``band_coverage`` (overall: percent inside +-1 sigma, mean sigma, samples) or None,
+        and ``band_unavailable``: why there is none (None: there is one)."""
+        from ..core.uncertainty import band_of
+
+        band = self.band
+        return {"band_coverage": band.as_dict() if band else None,
+                "band_unavailable": None if band else band_of(self.model)[1]}
+
     def as_dict(self) -> dict[str, Any]:
         return {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
-                "thrust_coefficient": self.model.thrust_coefficient,
+                "thrust_coefficient": self.model.thrust_coefficient, **self.band_json(),
                 "recordings": [s.as_dict() for s in self.scores]}
 
     def lines(self) -> list[str]:
+        band = self.band
         out = [f"model {self.path} ({self.model.kind}): overall RMSE {self.rmse_rad_s:.2f} rad/s"
                + ("; thrust unavailable: the model has no thrust coefficient"
-                  if self.model.thrust_coefficient is None else "")]
+                  if self.model.thrust_coefficient is None else "")
+               + (f"; {_coverage(band)}" if band else "; no uncertainty band")]
         for s in self.scores:
             out.append(
                 f"  {s.path}: RMSE {s.rmse_rad_s:.2f} rad/s ({s.rmse_percent_of_range:.2f} % of the "
                 f"{s.speed_range_rad_s:.0f} rad/s range), max error {s.max_error_rad_s:.1f} rad/s"
                 + (f"; thrust RMSE {s.thrust_rmse_n:.3f} N" if s.thrust_rmse_n is not None else "")
+                + (f"; {_coverage(s.band)}" if s.band else "")
             )
             for b in s.bands:
                 out.append(
@@ -83,6 +103,11 @@ class Evaluation:
 
 def _band(b: dict[str, float]) -> str:
     return f"{b['low_hz']:.1f}-{b['high_hz']:.1f}"
+
+
+def _coverage(band: BandCoverage) -> str:
+    """The one-sigma band's coverage, as the text says it."""
+    return f"{band.percent:.1f} % inside the +-1 sigma band (mean sigma {band.mean_sigma_rad_s:.2f} rad/s)"
 
 
 def _check_distinct(paths: list[str]) -> None:
@@ -106,7 +131,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models, strict=True)]
     first = evals[0]  # the contract's keys: the first (or only) model's figures
     data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
-                            "thrust_coefficient": first.model.thrust_coefficient,
+                            "thrust_coefficient": first.model.thrust_coefficient, **first.band_json(),
                             "recordings": [s.as_dict() for s in first.scores]}
     lines = [line for e in evals for line in e.lines()]
     rows = comparison(evals) if len(evals) > 1 else []
@@ -212,6 +237,8 @@ def score_row(s: RecordingScore) -> dict[str, Any]:
             "samples": s.samples, "thrust RMSE (N)": s.thrust_rmse_n,
             "thrust % of range": s.thrust_rmse_percent_of_range, "thrust range (N)": s.thrust_range_n,
             "no thrust because": s.thrust_unavailable,
+            "inside +-1 sigma %": s.band.percent if s.band else None,
+            "mean sigma (rad/s)": s.band.mean_sigma_rad_s if s.band else None,
             "outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
 
 

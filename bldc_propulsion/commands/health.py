@@ -4,7 +4,7 @@ recording a timeline of the changes found, named with the contract's fault names
 from __future__ import annotations
 
 import argparse
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from ..errors import BadInputError
 from .common import CommandResult, add_namespace_argument, number
@@ -47,7 +47,7 @@ def config_of(args: argparse.Namespace) -> HealthConfig:
     """The monitor's settings from the command line (defaults where not given)."""
     from ..core.health import HealthConfig
 
-    over: dict[str, Any] = {}
+    over: dict[str, Any] = {}  # HealthConfig's keyword arguments by name, each of its own type
     if args.false_alarms_per_hour is not None:
         over["false_alarms_per_hour"] = args.false_alarms_per_hour
     if args.reference is not None:
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> CommandResult:
                             "signatures: the health monitor needs a physics or hybrid model (train --kind physics)")
     cfg = config_of(args)
     signals = load_all(args.recordings, "health", namespace=args.namespace)
-    out: list[dict[str, Any]] = []
+    out: list[RecordingHealth] = []
     lines: list[str] = []
     for sig in signals:
         with open_recording(sig.path, args.namespace) as rec:
@@ -76,12 +76,24 @@ def run(args: argparse.Namespace) -> CommandResult:
         out.append(recording_dict(sig.path, result, injected))
         lines += timeline(sig.path, result, injected)
     first = out[0]
-    data: dict[str, Any] = {"model": args.model, "kind": model.kind, "threshold": first["threshold"],
+    data: dict[str, object] = {"model": args.model, "kind": model.kind, "threshold": first["threshold"],
                             "recordings": out}
     return CommandResult(data, "\n".join(lines))
 
 
-def recording_dict(path: str, r: HealthRun, injected: list[str]) -> dict[str, Any]:
+class RecordingHealth(TypedDict):
+    """``recording_dict``: one recording's result in --json."""
+
+    path: str
+    duration_s: float
+    monitored_s: float
+    threshold: float
+    events: list[dict[str, object]]
+    injected_faults: list[str]
+    noise: dict[str, dict[str, float]]  #: channel -> the monitor's noise figures (a, b, visit, kappa)
+
+
+def recording_dict(path: str, r: HealthRun, injected: list[str]) -> RecordingHealth:
     """One recording's result as --json gives it."""
     return {"path": path, "duration_s": r.duration_s, "monitored_s": r.monitored_s, "threshold": r.threshold,
             "events": [e.as_dict() for e in r.events], "injected_faults": injected,

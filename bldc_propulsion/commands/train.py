@@ -18,6 +18,7 @@ if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, 
     import numpy as np
 
     from ..recordings import Signals
+    from ..training.fit_physics import PhysicsOutcome
     from ..training.train import ThrustFit, TrainOutcome
 
 NAME = "train"
@@ -60,7 +61,7 @@ def _inputs(text: str) -> list[str]:
 
 #: The network's options and their defaults; with --kind physics they are refused (given
 #: explicitly, they would be silently ignored).
-NETWORK_DEFAULTS: dict[str, Any] = {"inputs": list(c.DEFAULT_INPUTS), "hidden": c.PAPER_HIDDEN, "seed": 0,
+NETWORK_DEFAULTS: dict[str, object] = {"inputs": list(c.DEFAULT_INPUTS), "hidden": c.PAPER_HIDDEN, "seed": 0,
                                     "restarts": DEFAULT_RESTARTS, "max_epochs": 1000, "patience": 6}
 
 
@@ -165,7 +166,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     thrust_line, thrust_warnings = _thrust_summary(outcome.thrust)
     warnings += thrust_warnings
     save_model(outcome.model, out, force=args.force)
-    data: dict[str, Any] = {
+    data: dict[str, object] = {
         "model": str(out),
         "kind": args.kind,
         "inputs": inputs,
@@ -230,9 +231,9 @@ def _train_network(args: argparse.Namespace, train: list[Signals], validation: l
 
 
 def _run_warnings(meta: dict[str, Any], hybrid: bool, out: Path) -> list[str]:
-    """What the LM runs' histories say: BadInputError when the kept network is its initial weights
-    (nothing was learnt), a warning when the hybrid's correction stayed 0 or some runs never
-    improved."""
+    """What the LM runs' histories (in ``meta``, the model's JSON metadata) say: BadInputError when
+    the kept network is its initial weights (nothing was learnt), a warning when the hybrid's
+    correction stayed 0 or some runs never improved."""
     runs = len(meta["restarts"])
     warnings = []
     if meta["best_epoch"] == 0 and hybrid:  # its initial weights: the physics alone
@@ -271,7 +272,7 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
     m, fit = outcome.model, outcome.thrust
     thrust_line, thrust_warnings = _thrust_summary(fit)
     save_model(m, out, force=args.force)
-    data: dict[str, Any] = {
+    data: dict[str, object] = {
         "model": str(out),
         "kind": "physics",
         "fit": m.metadata["fit"],
@@ -286,7 +287,7 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
     }
     if args.report:
         data["report"] = write_training_report(Path(args.report), outcome, force=args.force)
-    consts = ", ".join(f"{k} {v:.4g}" for k, v in data["constants"].items())
+    consts = ", ".join(f"{k} {v:.4g}" for k, v in outcome.candidates[0]["constants"].items())
     strengths = ", ".join(f"{k} {v:.2f}" for k, v in m.effects.items())
     warnings = [*outcome.warnings, *thrust_warnings]  # the start's, and the kept fit's flags
     refused = sum(1 for d in outcome.candidates if d["refused"])  # contradicted the stated motor
@@ -313,7 +314,7 @@ def speed_range_rad_s(signals: list[Signals]) -> float:
     return float(np.ptp(w)) if len(w) else float("nan")
 
 
-def rmse_percent_of_range(outcome: Any) -> dict[str, float | None]:
+def rmse_percent_of_range(outcome: TrainOutcome | PhysicsOutcome) -> dict[str, float | None]:
     """The training and validation RMSE in % of the speed range of their recordings (--json's
     ``train_rmse_percent_of_range``, ``validation_rmse_percent_of_range``): comparable across
     benches of different top speeds, as evaluate's % of range is."""
@@ -325,14 +326,14 @@ def rmse_percent_of_range(outcome: Any) -> dict[str, float | None]:
     return out
 
 
-def write_training_report(path: Path, outcome: Any, force: bool = False) -> str:
+def write_training_report(path: Path, outcome: TrainOutcome | PhysicsOutcome, force: bool = False) -> str:
     """Figures of a training run, written whole to ``path`` (atomic.report_output)."""
     with report_output(path, force=force) as d:
         _training_report(d, outcome)
     return str(path)
 
 
-def training_headline(outcome: Any) -> list[tuple[str, str]]:
+def training_headline(outcome: TrainOutcome | PhysicsOutcome) -> list[tuple[str, str]]:
     """What a reader of the training page needs first, in the summary's figures: the model,
     the RMSE on training and validation recordings (rad/s and % of their speed range), and b
     with where it came from, or that it is not known."""
@@ -359,7 +360,7 @@ def training_headline(outcome: Any) -> list[tuple[str, str]]:
     return rows
 
 
-def _training_report(d: Path, outcome: Any) -> None:
+def _training_report(d: Path, outcome: TrainOutcome | PhysicsOutcome) -> None:
     """The training page: headline (``training_headline``), then the model against each
     validation recording (Fig. 13), its thrust against the load cell where thrust is recorded
     and the model has b, the learning curve (Fig. 12, a network's), the battery filter on the
@@ -380,8 +381,8 @@ def _training_report(d: Path, outcome: Any) -> None:
     with_thrust = [(sig, pred, "validation") for sig, pred in zip(outcome.validation, preds, strict=True)
                    if sig.thrust is not None]
     if not with_thrust:  # b was fitted on the training recordings' thrust: show how well it fits there
-        sig = next((s for s in outcome.train if s.thrust is not None), None)
-        with_thrust = [(sig, predict_speed(outcome.model, sig), "training")] if sig is not None else []
+        with_b = next((s for s in outcome.train if s.thrust is not None), None)
+        with_thrust = [(with_b, predict_speed(outcome.model, with_b), "training")] if with_b is not None else []
     if b is None:
         notes.append("no thrust figure: the model has no thrust coefficient b")
     elif not with_thrust:

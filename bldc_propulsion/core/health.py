@@ -44,7 +44,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 
@@ -60,6 +60,10 @@ from ..physics.plant import (
     start_level,
     throttle,
 )
+
+if TYPE_CHECKING:
+    from ..physics.plant_model import PlantModel
+    from .estimator import SpeedModel
 
 #: The contract's fault names, in the order the monitor reports them.
 FAULTS: tuple[str, ...] = ("propeller_damage", "pack_resistance", "bearing_friction", "motor_heating")
@@ -319,7 +323,7 @@ class HealthEvent:
     candidates: dict[str, float] = field(default_factory=dict)  #: every fault's statistic then
     note: str = ""
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         return {"onset_s": self.onset_s, "detected_s": self.detected_s, "named_s": self.named_s,
                 "name": self.name, "size": self.size, "unit": self.unit, "statistic": self.statistic,
                 "candidates": dict(self.candidates), "note": self.note}
@@ -453,12 +457,14 @@ class HealthMonitor:
             return []
         if self._t_origin is None:
             self._t_origin = t
+        out: list[HealthEvent] = []
         if self._last_t is not None and t - self._last_t > self.config.max_gap_s:
-            self._close_block()
+            # the window restarts, so a change still being named cannot be followed across the gap
+            # (its onset block would be gone): it is reported as it stands, as at the end of data
+            out += self.finish()
             self._reset_window()
         self._last_t = t
         k = int((t - self._t_origin) / self.config.block_s)
-        out: list[HealthEvent] = []
         if self._block is not None and k != self._block_index:
             out += self._close_block()
         if self._block is None:
@@ -903,17 +909,24 @@ class HealthRun:
     noise: dict[str, tuple[float, float, float, float]]  #: channel -> HealthMonitor.noise at the end
 
 
-def physics_part(model: Any) -> Any:
+class _Hybrid(Protocol):
+    """A hybrid model (``model.HybridModel``): its physics part."""
+
+    @property
+    def plant(self) -> PlantModel: ...
+
+
+def physics_part(model: object) -> PlantModel | None:
     """The physics model a model of any kind carries (a hybrid's plant), or None (a network)."""
     kind = getattr(model, "kind", None)
     if kind == "physics":
-        return model
+        return cast("PlantModel", model)  # (its kind says what it is)
     if kind == "hybrid":
-        return model.plant
+        return cast(_Hybrid, model).plant
     return None
 
 
-def run_health(model: Any, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np.ndarray, np.ndarray],
+def run_health(model: SpeedModel, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np.ndarray, np.ndarray],
                speed: tuple[np.ndarray, np.ndarray], config: HealthConfig | None = None) -> HealthRun:
     """Feed a recording's command frames, filtered voltages and measured speeds, merged in time
     order, to the estimator (``ThrustEstimator``: the prediction), the physics twins (current and
@@ -925,6 +938,7 @@ def run_health(model: Any, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np
     if plant is None:
         raise ValueError("the health monitor needs a physics or hybrid model (a network has no physics "
                          "to give the faults' signatures)")
+    assert plant.supply_tau_s is not None, "PlantModel.__post_init__ resolves None"
     tau = float(plant.supply_tau_s)
     twins = PhysicsTwins(plant.params, plant.effects, plant.supply_v, tau)
     mon = HealthMonitor(tau, twins.speed_scale_rad_s, twins.pack_resistance_ohm, config,

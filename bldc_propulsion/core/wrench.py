@@ -17,7 +17,6 @@ a status says so rather than letting a consumer take the 0 for a measurement.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from ..errors import BadInputError
 from .status import WARN, CoreStatus
@@ -27,7 +26,7 @@ NO_TORQUE_MESSAGE = ("torque.z is 0 on predicted/wrench: this model does not kno
                      "propeller's torque (a physics or hybrid model, or the fallback, does)")
 
 
-def torque_coefficient(model: Any) -> float | None:
+def torque_coefficient(model: object) -> float | None:
     """kQ in propeller drag torque = kQ w^2 (N m s^2/rad^2) of a model of any kind, None when
     the model does not know it (a network)."""
     plant = getattr(model, "plant", None)  # a hybrid's physics part

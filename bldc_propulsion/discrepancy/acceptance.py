@@ -28,16 +28,19 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from ..errors import BadInputError
 from ..recordings import Signals
 from . import scoring as sc
+
+if TYPE_CHECKING:
+    from .physics import FittedValue
 
 #: Least fractional reduction of the held-out mean squared error for an effect to be added. 5 %: ~2.5 % of
 #: the RMSE, well above the run-to-run scatter of a retrained network (~0.2 % on the README case) and far
@@ -72,6 +75,75 @@ def check_holdout_disjoint(holdout: Sequence[Signals], **others: Sequence[Signal
                 if key in seen:
                     raise BadInputError(f"--holdout {h.path}: {how} as --{opt} {seen[key]}; the holdout must "
                                         f"be recordings the model is not fitted on")
+
+
+class AcceptanceJson(TypedDict):
+    """``Acceptance.as_json``: the held-out figure as --json, the summary and the report carry it."""
+
+    source: str
+    test: str
+    rmse_before_rad_s: float
+    rmse_after_rad_s: float
+    mse_reduction: float
+    mse_reduction_pct: float
+    p_value: float
+    blocks: int
+    blocks_improved: int
+    min_mse_reduction: float
+    alpha: float
+    at_bound: str | None
+    contradicted: str | None
+    accepted: bool
+
+
+class DecidedBy(TypedDict):
+    """``decided_by``: the test that decided a candidate, and its figure."""
+
+    test: str
+    source: str
+    reduction_pct: float
+    p_value: float
+
+
+class _EvidenceCore(TypedDict):
+    verdict: str
+    measured: sc.ScoreJson
+    measured_alone: sc.ScoreJson
+    reference: sc.ScoreJson | None
+    p_value: float
+    feature: str
+    sentence: str
+
+
+class EvidenceJson(_EvidenceCore, total=False):
+    """``results.Evidence.as_json``: one candidate's --json ``evidence`` entry (defined here, where
+    it is judged; results imports this module). The optional keys are there once known."""
+
+    verdict_residual: str
+    heating: dict[str, float | None]
+    dynamics: dict[str, object]
+    fitted_parameters: dict[str, float]
+    fitted_value: FittedValue
+    acceptance: AcceptanceJson
+    named: bool
+    added_as: str | None
+    status: str
+    label: str
+    decided_by: DecidedBy
+
+
+class Considered(TypedDict):
+    """``considered``: a candidate scored and not added, with its figures and why not."""
+
+    effect: str
+    verdict: str
+    status: str
+    why: str
+    decided_by: DecidedBy
+    measured_mse_reduction: float | None
+    p_value: float | None
+    reference_mse_reduction: float | None
+    acceptance: AcceptanceJson | None
 
 
 @dataclass(frozen=True)
@@ -114,7 +186,7 @@ class Acceptance:
                 f"{100 * self.mse_reduction:.1f} % of the mean squared error, {self.blocks_improved} of "
                 f"{self.blocks} blocks better, p = {self.p_value:.2g}: {verdict}")
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> AcceptanceJson:
         return {"source": self.source, "test": self.test, "rmse_before_rad_s": self.rmse_before,
                 "rmse_after_rad_s": self.rmse_after, "mse_reduction": self.mse_reduction,
                 "mse_reduction_pct": 100.0 * self.mse_reduction, "p_value": self.p_value, "blocks": self.blocks,
@@ -169,7 +241,7 @@ ADDED_LABELS = {"new": "added (new in the measured data)",
                 "structural": "added (structural: the model lacks it on its own training data too)"}
 
 
-def decided_by(ev: dict[str, Any]) -> dict[str, Any]:
+def decided_by(ev: EvidenceJson) -> DecidedBy:
     """The test that decided a candidate (its ``evidence`` entry): the held-out acceptance test
     when it was fitted, else the measured data's step-3 score (it was not proposed)."""
     a = ev.get("acceptance")
@@ -181,7 +253,7 @@ def decided_by(ev: dict[str, Any]) -> dict[str, Any]:
             "reduction_pct": 100.0 * m["mse_reduction"], "p_value": m["p_value"]}
 
 
-def status(ev: dict[str, Any]) -> tuple[str, str]:
+def status(ev: EvidenceJson) -> tuple[str, str]:
     """(status, label): ADDED with its ADDED_LABELS, STRUCTURAL (present on the reference too, not
     added) or NOT_ADDED."""
     if ev.get("named"):
@@ -191,13 +263,14 @@ def status(ev: dict[str, Any]) -> tuple[str, str]:
     return NOT_ADDED, NOT_ADDED
 
 
-def considered(evidence: dict[str, Any], named: Sequence[str]) -> list[dict[str, Any]]:
+def considered(evidence: Mapping[str, EvidenceJson], named: Sequence[str]) -> list[Considered]:
     """Every candidate that was scored and not added, with its figures and why not."""
-    out = []
+    out: list[Considered] = []
     for name, ev in evidence.items():
         if name in named or ev.get("named"):
             continue
         m = ev.get("measured") or {}
+        ref: sc.ScoreJson | dict[str, float] = ev.get("reference") or {}  # {}: no reference data
         acc = ev.get("acceptance")
         if acc is not None and acc.get("at_bound"):
             why = f"fitted, but {acc['at_bound']}: not a basis for a verdict"
@@ -215,17 +288,17 @@ def considered(evidence: dict[str, Any], named: Sequence[str]) -> list[dict[str,
         out.append({"effect": name, "verdict": ev["verdict"], "status": st, "why": why,
                     "decided_by": decided_by(ev),
                     "measured_mse_reduction": m.get("mse_reduction"), "p_value": m.get("p_value"),
-                    "reference_mse_reduction": (ev.get("reference") or {}).get("mse_reduction"),
+                    "reference_mse_reduction": ref.get("mse_reduction"),
                     "acceptance": acc})
     return out
 
 
-def decided_text(d: dict[str, Any]) -> str:
+def decided_text(d: DecidedBy) -> str:
     """The deciding test's figure, one way everywhere: '<test> test: 23.3 %, p = 5e-05'."""
     return f"{d['test']} test: {d['reduction_pct']:.1f} %, p = {d['p_value']:.2g}"
 
 
-def considered_lines(items: Sequence[dict[str, Any]]) -> list[str]:
+def considered_lines(items: Sequence[Considered]) -> list[str]:
     """The console lines of ``considered``."""
     lines = []
     for x in items:

@@ -16,16 +16,23 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Generic, Protocol, TypeVar
 
 from ..recordings import Signals
 from . import acceptance as acc
 from . import scoring as sc
 from .dataset import DataSet
 from .defaults import ALPHA, MIN_EFFECT  # the decision thresholds (see workflow.py)
-from .results import Evidence
+from .physics import FittedValue
+from .results import Evidence, KindFields
 
 Progress = Callable[[str], None]
+
+#: What a kind's trial holds (the network: the retrained ``model.NetworkModel``; the physics: its
+#: ``physics.fit.Fit``): only the kind that made it reads it back.
+FitT = TypeVar("FitT")
+#: The model a kind hands back at the end (``model.NetworkModel``; ``physics.config.PhysicsConfig``).
+ModelT_co = TypeVar("ModelT_co", covariant=True)
 
 
 @dataclass
@@ -63,18 +70,18 @@ class Scores:
 
 
 @dataclass
-class Trial:
+class Trial(Generic[FitT]):
     """Step 4: a model with one more effect, fitted, not yet kept."""
 
-    model: Any
+    model: FitT
     hold: DataSet  #: its predictions on the holdout (the measured recordings without one)
-    parameters: dict[str, Any]  #: the fitted parameters (--json ``fitted_parameters``)
+    parameters: dict[str, float]  #: the fitted parameters (--json ``fitted_parameters``)
     feature: str  #: the fitted feature in words
-    value: dict[str, Any] | None = None  #: the fitted value in physical units (physics.fitted_value)
+    value: FittedValue | None = None  #: the fitted value in physical units (physics.fitted_value)
     #: fitted quantities at a bound of their range or implausibly far from the CONFIG, in words
     #: (physics.fit.FitFlag): the fit is not a basis for a verdict
     flags: list[str] = field(default_factory=list)
-    extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific fields of the round
+    extra: dict[str, str] = field(default_factory=dict)  #: kind-specific fields of the round
 
 
 @dataclass
@@ -98,7 +105,7 @@ class Refined:
     reference_params: dict[str, float] | None = None  #: the effect's parameters on the reference itself
 
 
-class ModelKind(Protocol):
+class ModelKind(Protocol[ModelT_co, FitT]):
     """A model the loop can check against measurements and extend by one effect at a time."""
 
     #: the model as the sentences name it ("the model", "the calibrated physics model")
@@ -129,26 +136,26 @@ class ModelKind(Protocol):
         its scores (the effect tried first, at the parameters the identification fixed)."""
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
-            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:
+            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial[FitT]:
         """Step 4: the effect added (at ``params`` when the identification fixed them)."""
 
-    def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
+    def heldout(self, name: str, trial: Trial[FitT], scores: Scores, alpha: float) -> acc.Acceptance:
         """Step 5 without --holdout: the trial judged on the kind's own held-out data."""
 
     def contradicted(self, name: str) -> str | None:
         """Why the kind's identification on measured vs reference contradicts adding ``name``
         whatever the held-out figure (in words), or None."""
 
-    def keep(self, trial: Trial) -> None:
+    def keep(self, trial: Trial[FitT]) -> None:
         """The trial becomes the current model."""
 
     @property
-    def model(self) -> Any:
+    def model(self) -> ModelT_co:
         """The current model."""
 
-    def fitted(self, name: str) -> tuple[dict[str, Any], str, dict[str, Any] | None] | None:
+    def fitted(self, name: str) -> tuple[dict[str, float], str, FittedValue | None] | None:
         """A named effect's parameters, feature and physical value in the CURRENT model (the
         one number reported everywhere), or None when they do not change after it is added."""
 
-    def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
+    def finish(self, named: Sequence[str]) -> tuple[KindFields, list[str], list[str]]:
         """The kind's own --json fields, summary lines before and after the shared ones."""

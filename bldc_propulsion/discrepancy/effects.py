@@ -21,7 +21,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -239,5 +238,5 @@ def candidates_for(model_inputs: Sequence[str], restrict: Sequence[str] | None =
     return out
 
 
-def summary(cand: Candidate, params: Params) -> dict[str, Any]:
+def summary(cand: Candidate, params: Params) -> dict[str, object]:
     return {"input": cand.input_name, "parameters": cand.model_params(params), "feature": cand.describe(params)}

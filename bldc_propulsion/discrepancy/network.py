@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -40,6 +40,10 @@ from . import identify as idf
 from . import scoring as sc
 from .base import Options, Progress, Proposal, Refined, Scores, Trial
 from .dataset import DataSet, rmse
+from .results import KindFields
+
+if TYPE_CHECKING:
+    from ..model import NetworkModel
 
 #: The measured recordings' share kept out of the retraining (early stopping, and the held-out
 #: evidence without a --holdout): every VALIDATION_EVERY-th of VALIDATION_CHUNKS equal chunks of
@@ -51,7 +55,7 @@ VALIDATION_EVERY = 5
 VALIDATION_FRACTION = 1.0 / VALIDATION_EVERY
 
 
-def check_inputs_computable(model: Any, signals: Sequence[Signals]) -> None:
+def check_inputs_computable(model: NetworkModel, signals: Sequence[Signals]) -> None:
     """BadInputError naming the input that cannot be computed from the recordings."""
     for name in model.input_names:
         for s in signals:
@@ -65,7 +69,7 @@ def check_inputs_computable(model: Any, signals: Sequence[Signals]) -> None:
                 raise BadInputError(f"model input '{name}' cannot be computed from {s.path} (no valid value)")
 
 
-def run_model(model: Any, signals: Sequence[Signals]) -> DataSet:
+def run_model(model: NetworkModel, signals: Sequence[Signals]) -> DataSet:
     ds = DataSet(list(signals))
     for s in signals:
         ds.predictions.append(predict_speed(model, s))
@@ -160,9 +164,9 @@ def split_measured(s: Signals) -> tuple[list[Signals], list[Signals]]:
     return train, val
 
 
-def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference: Sequence[Signals],
+def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], reference: Sequence[Signals],
             measured: Sequence[Signals], opts: Options, progress: Progress,
-            reference_params: dict[str, float] | None = None) -> Any:
+            reference_params: dict[str, float] | None = None) -> NetworkModel:
     """The network with the effect's input added, trained on reference + measured recordings.
 
     ``reference_params``: the effect's parameters identified on the reference itself; with a
@@ -200,20 +204,22 @@ def retrain(model: Any, cand: fx.Candidate, params: dict[str, float], reference:
              + (", starting from the model's own weights with the new input's weights at 0"
                 + (", " + ", ".join(f"{k}'s carried over to {v}" for k, v in rename.items()) if rename else "")
                 + ")" if warm else ")"))
+    # (train_model's keyword arguments by name, each of its own type)
     kw: dict[str, Any] = {
         "inputs": inputs, "hidden": hidden, "seed": opts.seed, "pwm_tau_s": float(model.pwm_tau_s),
         "feature_params": feature_params, "thrust_coefficient": model.thrust_coefficient,
         "max_epochs": opts.max_epochs, "patience": opts.patience,
     }
+    # (train_model makes a network: a hybrid comes from fit_physics.train_hybrid)
     if not warm:
-        return train_model(train, val, **kw).model
+        return cast("NetworkModel", train_model(train, val, **kw).model)
     units = {old: cand.carried_as(params or {}) for old in rename} if cand.carried_as else None
     phi0 = warm_start_weights(model, inputs, train, {c.INPUT_PWM_FILTERED: {"tau_s": float(model.pwm_tau_s)},
                                                      **feature_params}, rename, units)
-    return train_model(train, val, phi0=phi0, **kw).model
+    return cast("NetworkModel", train_model(train, val, phi0=phi0, **kw).model)
 
 
-def warm_start_weights(model: Any, inputs: Sequence[str], train: Sequence[Signals],
+def warm_start_weights(model: NetworkModel, inputs: Sequence[str], train: Sequence[Signals],
                        params: dict[str, dict[str, float]], rename: dict[str, str] | None = None,
                        units: dict[str, tuple[float, float]] | None = None) -> np.ndarray:
     """The base network's weights re-expressed in the scaling train_model will use for ``train``,
@@ -265,15 +271,15 @@ class NetworkKind:
     no_reference = ("no reference recordings (give --reference or keep the model's training recordings where "
                     "its metadata says): new and structural findings cannot be told apart")
 
-    def __init__(self, model: Any, opts: Options) -> None:
+    def __init__(self, model: NetworkModel, opts: Options) -> None:
         self._model = model
         self.opts = opts
         self.speed_scale = max(float(model.output_max), 1.0)
         self.added_inputs: list[str] = []
-        self._pending: dict[str, Any] = {}
+        self._pending: dict[str, DataSet] = {}
 
     @property
-    def model(self) -> Any:
+    def model(self) -> NetworkModel:
         return self._model
 
     def start(self, measured: Sequence[Signals], reference: Sequence[Signals], hold: Sequence[Signals],
@@ -317,7 +323,7 @@ class NetworkKind:
                                   cd.describe(s_meas[cd.effect].params)) for cd in cands}
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
-            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:
+            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial[NetworkModel]:
         cand = fx.CANDIDATES[name]
         if params is None:
             params = fitted_params(self.cur_meas, cand, self.speed_scale) if len(cand.grid) > 1 else {}
@@ -328,7 +334,7 @@ class NetworkKind:
         return Trial(new, run_model(new, hold), params, cand.describe(params) if params else scores.feature,
                      extra={"input": cand.input_name})
 
-    def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
+    def heldout(self, name: str, trial: Trial[NetworkModel], scores: Scores, alpha: float) -> acc.Acceptance:
         """The measured recordings' validation chunks (early stopping only, ``split_measured``),
         or, when they are too short to block, step 3's held-out blocks."""
         chunks, before, after = [], [], []
@@ -348,7 +354,7 @@ class NetworkKind:
     def contradicted(self, name: str) -> str | None:
         return None  # the identification already decided what was proposed (identify.refine)
 
-    def keep(self, trial: Trial) -> None:
+    def keep(self, trial: Trial[NetworkModel]) -> None:
         self._model = trial.model
         self.added_inputs.append(trial.extra["input"])
         self.cur_meas = self._pending["meas"]
@@ -357,5 +363,5 @@ class NetworkKind:
     def fitted(self, name: str) -> None:
         return None  # an added input's parameters are not refitted later
 
-    def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
+    def finish(self, named: Sequence[str]) -> tuple[KindFields, list[str], list[str]]:
         return {"added_inputs": list(self.added_inputs)}, [], []

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -78,9 +78,27 @@ def blocked(signals: Sequence[Signals], what: str) -> BlockedData:
     return BlockedData(list(signals), data.rows, np.concatenate(labels), int(sum(blocks)))
 
 
+class _FittedValueCore(TypedDict):
+    quantity: str
+    value: float
+    unit: str
+    strength: float
+
+
+class FittedValue(_FittedValueCore, total=False):
+    """``fitted_value``: an effect's strength as the physical quantity it sets, and what the
+    recordings identify of it (for some effects, and only with the model's supply voltage)."""
+
+    thermal_time_constant_s: float
+    time_constant_ms: float
+    at_speed_rad_s: float
+    warm_speed_loss_percent: float
+    supply_v: float
+
+
 #: The physical quantity each effect's strength scales (sim.bench.EFFECT_DOCS): name, unit, and its
 #: value at a strength on a bench.
-def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | None = None) -> dict[str, Any]:
+def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | None = None) -> FittedValue:
     """An effect's strength as the physical quantity it sets: {quantity, value, unit, strength}.
 
     With the model's ``supply_v``, also what the recordings identify whatever the CONFIG's split of
@@ -96,7 +114,7 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
         "spin_down_asymmetry": ("share of the ESC's active braking removed", 100.0 * strength, "%"),
         "motor_heating": ("winding resistance rise", 100.0 * strength * p.copper_temperature_coefficient_per_k, "%/K"),
     }[name]
-    out = {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
+    out: FittedValue = {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
     if name == "motor_heating":  # fitted along with it (COMPANIONS)
         out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
     if supply_v is not None and name in ("rotor_lag", "motor_heating"):
@@ -111,7 +129,7 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
     return out
 
 
-def value_text(value: dict[str, Any]) -> str:
+def value_text(value: FittedValue) -> str:
     """A ``fitted_value`` for people, e.g. 'dead time 52 ms': the one text of it in the console,
     the report and ``describe``."""
     text = f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()

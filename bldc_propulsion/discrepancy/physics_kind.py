@@ -30,7 +30,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -44,6 +43,8 @@ from . import residuals as rs
 from .base import Progress, Proposal, Refined, Scores, Trial
 from .dataset import DataSet, rmse
 from .identify import identify_heating
+from .physics import FittedValue
+from .results import KindFields, ReferenceFitJson
 
 
 def constants_text(model: PhysicsConfig) -> str:
@@ -79,7 +80,7 @@ class PhysicsKind:
     def __init__(self, model: PhysicsConfig) -> None:
         self.config = model  #: the CONFIG as given (what "implausibly far" is measured from)
         self.flags: list[pf.FitFlag] = []
-        self.reference_fit: dict[str, Any] | None = None
+        self.reference_fit: ReferenceFitJson | None = None
         self._fits: dict[str, list[pf.Fit]] = {}
         self._trial_strength: dict[str, float] = {}
         #: the base effects' strengths the reference fit found (empty without a reference)
@@ -202,7 +203,7 @@ class PhysicsKind:
         return out
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
-            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial:
+            scores: Scores, hold: Sequence[Signals], progress: Progress) -> Trial[pf.Fit]:
         fit = ph.fit_strength(self.cur, name, self.meas_data, self._fits[name])
         strength = fit.model.effects[name]
         progress(f"step 4: fitted {name} at {ph.describe(name, strength, fit.model)}; constants "
@@ -217,7 +218,7 @@ class PhysicsKind:
                      ph.fitted_value(name, strength, fit.model.params, fit.model.supply_v),
                      [f.text() for f in flags if f.blocks])
 
-    def heldout(self, name: str, trial: Trial, scores: Scores, alpha: float) -> acc.Acceptance:
+    def heldout(self, name: str, trial: Trial[pf.Fit], scores: Scores, alpha: float) -> acc.Acceptance:
         # step 3's score refits the constants per fold: its blocks are held out of the fit
         return acc.from_score(name, scores.measured, "held-out blocks of the measured data (step 3)", alpha)
 
@@ -241,19 +242,19 @@ class PhysicsKind:
             return None
         return f"the speed's response to the thermal state is the reference's ({heat.describe()})"
 
-    def keep(self, trial: Trial) -> None:
+    def keep(self, trial: Trial[pf.Fit]) -> None:
         self.cur = trial.model
         self._ref_pending.append(next(n for n in self.cur.free if n not in self._named))
         self._named.append(self._ref_pending[-1])
 
-    def fitted(self, name: str) -> tuple[dict[str, Any], str, dict[str, Any]]:
+    def fitted(self, name: str) -> tuple[dict[str, float], str, FittedValue]:
         m = self.cur.model
         s = m.effects[name]
         return ({"strength": s, **m.constants(), **self.cur.companions()}, ph.describe(name, s, m),
                 ph.fitted_value(name, s, m.params, m.supply_v))
 
-    def finish(self, named: Sequence[str]) -> tuple[dict[str, Any], list[str], list[str]]:
-        fields = {"holdout_rmse_uncalibrated": self.uncal_rmse, "reference_fit": self.reference_fit,
+    def finish(self, named: Sequence[str]) -> tuple[KindFields, list[str], list[str]]:
+        fields: KindFields = {"holdout_rmse_uncalibrated": self.uncal_rmse, "reference_fit": self.reference_fit,
                   "calibrated_base": self.base.config(), "physics": self.cur.model.config(),
                   "fit_flags": [f.as_json() for f in self.flags]}
         head = [f"physics model calibrated on the measured data: {constants_text(self.base)}"

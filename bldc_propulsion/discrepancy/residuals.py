@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 from scipy import stats
@@ -106,6 +106,28 @@ def time_under_load(t: np.ndarray, pwm: np.ndarray) -> np.ndarray:
     return out
 
 
+class WindowConditions(TypedDict):
+    """The operating conditions of a ``Window`` in --json."""
+
+    pwm: float
+    pwm_rate_per_s: float
+    pwm_direction: str
+    battery_voltage_v: float
+    time_under_load_s: float
+
+
+class WindowJson(TypedDict):
+    """``Window.as_dict``: a disagreement window as --json and the summary carry it."""
+
+    path: str
+    t_start_s: float
+    t_end_s: float
+    duration_s: float
+    rms_residual_rad_s: float
+    mean_residual_rad_s: float
+    conditions: WindowConditions
+
+
 @dataclass
 class Window:
     """A stretch of one recording where the model disagrees with the measurement."""
@@ -121,7 +143,7 @@ class Window:
     voltage_mean_v: float
     time_under_load_s: float
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> WindowJson:
         return {
             "path": self.path,
             "t_start_s": self.t_start_s,
@@ -202,6 +224,36 @@ def ljung_box(acf: np.ndarray, n: int) -> tuple[float, float]:
     return q, float(stats.chi2.sf(q, m))
 
 
+class Whiteness(TypedDict):
+    """The residual's autocorrelation test in --json."""
+
+    lags_outside_bounds: int
+    lags_tested: int
+    max_abs_autocorrelation: float
+    ljung_box_q: float
+    ljung_box_p: float
+    white: bool
+
+
+class CrossCorrelation(TypedDict):
+    """The residual's cross-correlation with one input in --json."""
+
+    max_abs: float
+    at_lag_s: float
+    lags_outside_bounds: int
+    independent: bool
+
+
+class ResidualTestsJson(TypedDict):
+    """``ResidualTests.as_dict``: the residual tests as --json and the summary carry them."""
+
+    decimated_rate_hz: float
+    samples: int
+    bound_95: float
+    whiteness: Whiteness
+    cross_correlation: dict[str, CrossCorrelation]
+
+
 @dataclass
 class ResidualTests:
     samples: int
@@ -211,8 +263,8 @@ class ResidualTests:
     ljung_box_p: float
     xcorr: dict[str, np.ndarray] = field(default_factory=dict)
 
-    def as_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
+    def as_dict(self) -> ResidualTestsJson:
+        out: ResidualTestsJson = {
             "decimated_rate_hz": 100.0 / TEST_DECIMATION,
             "samples": self.samples,
             "bound_95": self.bound,

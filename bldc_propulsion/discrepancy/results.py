@@ -5,10 +5,10 @@ report are written from that same object, so every figure is one number everywhe
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
@@ -17,7 +17,11 @@ from . import acceptance as acc
 from . import residuals as rs
 from . import scoring as sc
 from .dataset import DataSet, rmse
-from .physics import value_text
+from .physics import FittedValue, value_text
+
+if TYPE_CHECKING:
+    from ..physics.config import ConfigJson
+    from ..physics.fit import FitFlagJson
 
 #: An effect is new only if the share of the residual it removes on the reference is less than
 #: this fraction of the share it removes on the measured data (else structural).
@@ -55,9 +59,9 @@ class Evidence:
     noun: str = "the model"
     verdict_residual: str | None = None  #: the scores' verdict when the identification overrode it
     heating: dict[str, float | None] | None = None  #: identify.Heating.as_dict(), when identified
-    dynamics: dict[str, Any] | None = None  #: identify.Dynamics of both sets, when identified
-    fitted_parameters: dict[str, Any] | None = None
-    fitted_value: dict[str, Any] | None = None  #: physics: the fitted value in physical units
+    dynamics: dict[str, object] | None = None  #: identify.Dynamics of both sets, when identified
+    fitted_parameters: dict[str, float] | None = None
+    fitted_value: FittedValue | None = None  #: physics: the fitted value in physical units
     acceptance: acc.Acceptance | None = None
     named: bool = False  #: added to the model (new or structural: ``added_as``)
     added_as: str | None = None  #: 'new' or 'structural' once added
@@ -66,7 +70,7 @@ class Evidence:
         """The identification's verdict replaces the scores' (kept in ``verdict_residual``)."""
         self.verdict_residual, self.verdict, self.sentence = self.verdict, verdict, text
 
-    def refit(self, parameters: dict[str, Any], feature: str, value: dict[str, Any] | None) -> None:
+    def refit(self, parameters: dict[str, float], feature: str, value: FittedValue | None) -> None:
         """The effect's fitted parameters (step 4, or refitted in a later round): the feature and,
         unless the identification wrote it, the sentence say the same number."""
         self.fitted_parameters, self.fitted_value = parameters, value
@@ -75,8 +79,8 @@ class Evidence:
                                      self.added_as or self.verdict, self.noun)
         self.feature = feature
 
-    def as_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
+    def as_json(self) -> acc.EvidenceJson:
+        out: acc.EvidenceJson = {
             "verdict": self.verdict,
             "measured": self.measured.as_dict(),
             "measured_alone": self.measured_alone.as_dict(),
@@ -85,9 +89,17 @@ class Evidence:
             "feature": self.feature,
             "sentence": self.sentence,
         }
-        for key in ("verdict_residual", "heating", "dynamics", "fitted_parameters", "fitted_value"):
-            if getattr(self, key) is not None:
-                out[key] = getattr(self, key)
+        # the optional keys, each once known (a TypedDict's keys are set by name)
+        if self.verdict_residual is not None:
+            out["verdict_residual"] = self.verdict_residual
+        if self.heating is not None:
+            out["heating"] = self.heating
+        if self.dynamics is not None:
+            out["dynamics"] = self.dynamics
+        if self.fitted_parameters is not None:
+            out["fitted_parameters"] = self.fitted_parameters
+        if self.fitted_value is not None:
+            out["fitted_value"] = self.fitted_value
         if self.acceptance is not None:
             out["acceptance"] = self.acceptance.as_json()
         if self.named:
@@ -104,17 +116,17 @@ class Round:
 
     evidence: dict[str, Evidence]
     proposed: str | None = None
-    parameters: dict[str, Any] | None = None
+    parameters: dict[str, float] | None = None
     holdout_rmse: float | None = None
     acceptance: acc.Acceptance | None = None
     named: str | None = None
-    extra: dict[str, Any] = field(default_factory=dict)  #: kind-specific (the network's added input)
+    extra: dict[str, str] = field(default_factory=dict)  #: kind-specific (the network's added input)
     #: every candidate fitted this round, in the order tried (the last is ``proposed``)
-    trials: list[dict[str, Any]] = field(default_factory=list)
+    trials: list[dict[str, object]] = field(default_factory=list)
 
-    def as_json(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"evidence": {k: v.as_json() for k, v in self.evidence.items()},
-                               "trials": list(self.trials)}
+    def as_json(self) -> dict[str, object]:
+        out: dict[str, object] = {"evidence": {k: v.as_json() for k, v in self.evidence.items()},
+                                  "trials": list(self.trials)}
         if self.proposed is not None:
             out.update(proposed=self.proposed, **self.extra, parameters=self.parameters,
                        holdout_rmse_rad_s=self.holdout_rmse,
@@ -130,9 +142,102 @@ class Disagreement:
 
     threshold: float  #: rad/s: THRESHOLD_SIGMAS x the robust sigma of the reference residual
     windows: list[rs.Window]
-    tests: Any  #: residuals.residual_tests on the measured data
-    tests_ref: Any  #: the same on the reference data, or None
-    conditions: Any  #: residuals.condition_bins on the measured data (the disagreement map)
+    tests: rs.ResidualTests  #: residuals.residual_tests on the measured data
+    tests_ref: rs.ResidualTests | None  #: the same on the reference data, or None
+    conditions: dict[str, list[dict[str, float | str]]]  #: residuals.condition_bins on the measured data (the map)
+
+
+class StructuralJson(TypedDict):
+    """An effect found structural on the measured data (step 3), as --json ``structural`` lists it."""
+
+    effect: str
+    sentence: str
+    measured_mse_reduction: float
+    reference_mse_reduction: float | None
+
+
+class GapJson(TypedDict):
+    """``gap_fields``: step 5's figures (rad/s)."""
+
+    holdout_rmse_before: float
+    holdout_rmse_after: float
+    holdout_rmse_in_windows_before: float | None
+    holdout_rmse_in_windows_after: float | None
+
+
+class DecisionJson(TypedDict):
+    """The deciding rule's levels, as --json ``decision`` states them."""
+
+    alpha: float
+    holdout_alpha: float | None
+    min_mse_reduction: float
+    structural_ratio: float
+    test: str
+
+
+class ResidualTestsPair(TypedDict):
+    """The residual tests on the measured data and on the reference (None without one)."""
+
+    measured: rs.ResidualTestsJson
+    reference: rs.ResidualTestsJson | None
+
+
+class _ReferenceFitCore(TypedDict):
+    constants: dict[str, float]
+    strengths: dict[str, float]
+    in_base: dict[str, str]  #: base effect -> its fitted value in words
+    rmse_rad_s: float
+    at_bound: list[str]
+    implausible: list[str]
+
+
+class ReferenceFitJson(_ReferenceFitCore, total=False):
+    """The physics kind's fit on the reference recordings (--json ``reference_fit``)."""
+
+    speed_noise_rad_s: float  #: once the reference is judged explained or not
+
+
+class KindFields(TypedDict, total=False):
+    """A model kind's own --json fields (``ModelKind.finish``): the network's, or the physics'."""
+
+    added_inputs: list[str]  #: network
+    holdout_rmse_uncalibrated: float  #: physics, and below
+    reference_fit: ReferenceFitJson | None
+    calibrated_base: ConfigJson
+    physics: ConfigJson
+    fit_flags: list[FitFlagJson]
+
+
+class _ResultCore(TypedDict):
+    named: list[str]
+    added: list[str]
+    added_structural: list[str]
+    no_verdict: str | None
+    structural: list[StructuralJson]
+    considered_not_added: list[acc.Considered]
+    verdicts: dict[str, dict[str, object]]
+    holdout_in_sample: bool
+    holdout_recordings: list[str]
+    windows: list[rs.WindowJson]
+    holdout_windows: list[rs.WindowJson]
+    window_threshold_rad_s: float
+    residual_tests: ResidualTestsPair
+    conditions: dict[str, list[dict[str, float | str]]]
+    reference_recordings: list[str]
+    measured_recordings: list[str]
+    decision: DecisionJson
+    evidence: dict[str, acc.EvidenceJson]
+    iterations: list[dict[str, object]]
+    model: str | None  #: where -o saved the model, once saved
+
+
+class ResultJson(_ResultCore, GapJson, KindFields, total=False):
+    """``Result.as_json``: the --json object of ``discrepancy`` (the summary and the report are
+    written from it); the command adds the keys below."""
+
+    warnings: list[str]
+    report: str
+    out_of_training_range: dict[str, dict[str, object]]
 
 
 @dataclass
@@ -140,23 +245,23 @@ class Result:
     """Everything one discrepancy run found (``as_json``: the --json object)."""
 
     named: list[str]
-    structural: list[dict[str, Any]]
+    structural: list[StructuralJson]
     evidence: dict[str, Evidence]
     rounds: list[Round]
-    gap: dict[str, float | None]  #: holdout RMSE before/after, overall and in its windows
+    gap: GapJson  #: holdout RMSE before/after, overall and in its windows
     found: Disagreement
     hold_windows: list[rs.Window]
     recordings: dict[str, list[str]]  #: reference, measured, holdout paths
     holdout_in_sample: bool
-    decision: dict[str, Any]
+    decision: DecisionJson
     warnings: list[str]
-    kind_fields: dict[str, Any] = field(default_factory=dict)
+    kind_fields: KindFields = field(default_factory=lambda: KindFields())
     #: why nothing was scored or named (the reference is not explained), None when the loop ran
     no_verdict: str | None = None
     #: every effect added, in order: ``named`` (new in the measured data) and structural ones
     added: list[str] = field(default_factory=list)
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> ResultJson:
         evidence = {k: v.as_json() for k, v in self.evidence.items()}
         found = self.found
         added = list(self.added or self.named)
@@ -189,7 +294,7 @@ class Result:
         }
 
 
-def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.ndarray]) -> dict[str, float | None]:
+def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.ndarray]) -> GapJson:
     """Step 5's figures: holdout RMSE before and after, overall and inside the holdout's windows."""
     any_win = any(m.any() for m in hold_masks)
     return {
@@ -201,7 +306,7 @@ def gap_fields(hold_base: DataSet, hold_final: DataSet, hold_masks: Sequence[np.
 
 
 # --- for people --------------------------------------------------------------------------------------
-def kept_text(kept: dict[str, Any]) -> str:
+def kept_text(kept: acc.AcceptanceJson) -> str:
     """The held-out figure that kept an effect, with the margin and significance it had to meet."""
     return (f"on {kept['source']}: RMSE {kept['rmse_before_rad_s']:.2f} -> {kept['rmse_after_rad_s']:.2f} rad/s, "
             f"{100 * kept['mse_reduction']:.1f} % of the mean squared error ({kept['blocks_improved']} of "
@@ -209,7 +314,7 @@ def kept_text(kept: dict[str, Any]) -> str:
             f"{100 * kept['min_mse_reduction']:.0f} % and p < {kept['alpha']:g})")
 
 
-def summary_lines(data: dict[str, Any]) -> list[str]:
+def summary_lines(data: ResultJson) -> list[str]:
     """The summary for people: new effects, then structural ones, each added or not with the
     figure of the test that decided (the same statuses and % as --json and the report)."""
     lines = []
@@ -261,7 +366,7 @@ def summary_lines(data: dict[str, Any]) -> list[str]:
 
 
 def write_report(final: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
-                 hold_windows: Sequence[rs.Window], data: dict[str, Any], force: bool = False) -> str:
+                 hold_windows: Sequence[rs.Window], data: ResultJson, force: bool = False) -> str:
     """Disagreement map and before/after figures (training/report.py) and an index.html,
     written whole to ``final`` (atomic.report_output)."""
     with report_output(final, force=force) as d:
@@ -270,7 +375,7 @@ def write_report(final: Path, meas: DataSet, hold_base: DataSet, hold_final: Dat
 
 
 def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSet,
-                  hold_windows: Sequence[rs.Window], data: dict[str, Any]) -> None:
+                  hold_windows: Sequence[rs.Window], data: ResultJson) -> None:
     from ..training import report as rp
 
     figs = []
@@ -298,7 +403,7 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
              "p (deciding test)": f"{v['decided_by']['p_value']:.2g}",
              "measured: reduction": pct(v["measured"]["mse_reduction"]),
              "measured: p": f"{v['measured']['p_value']:.2g}",
-             "reference: reduction": pct((v["reference"] or {}).get("mse_reduction")),
+             "reference: reduction": pct(None if v["reference"] is None else v["reference"]["mse_reduction"]),
              "reference: p": "" if v["reference"] is None else f"{v['reference']['p_value']:.2g}",
              "feature": v["feature"]}
             for k, v in data["evidence"].items()]
@@ -307,9 +412,9 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
             "in windows after": data["holdout_rmse_in_windows_after"]}]
     # a named effect's fitted value and held-out figure as the summary states them (the same text)
     added = []
-    for k in data.get("added", data["named"]):
-        ev = data["evidence"][k]
-        row: dict[str, Any] = {"effect": k, "status": ev["label"], "feature": ev["feature"]}
+    for name in data.get("added", data["named"]):
+        ev = data["evidence"][name]
+        row: dict[str, object] = {"effect": name, "status": ev["label"], "feature": ev["feature"]}
         if ev.get("fitted_value"):
             row["fitted value"] = value_text(ev["fitted_value"])
             row["strength"] = f"{ev['fitted_value']['strength']:.3g}"
@@ -322,9 +427,10 @@ def _write_report(d: Path, meas: DataSet, hold_base: DataSet, hold_final: DataSe
                 "measured: reduction (proposal only)": pct(x["measured_mse_reduction"]),
                 "reference: reduction": pct(x["reference_mse_reduction"])}
                for x in data.get("considered_not_added", [])]
-    tables = [("candidate effects: what each ended as, and the test that decided", rows),
-              ("added: the test that decided each", added),
-              ("not added (structural, or considered, not added)", skipped), ("the gap", gap)]
+    tables: list[tuple[str, Sequence[Mapping[str, object]]]] = [
+        ("candidate effects: what each ended as, and the test that decided", rows),
+        ("added: the test that decided each", added),
+        ("not added (structural, or considered, not added)", skipped), ("the gap", gap)]
     flags = data.get("fit_flags") or []
     if flags:
         tables.append(("fit flags: a fitted quantity at a bound of its range, or implausibly far from the CONFIG",

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -112,6 +112,19 @@ def _standardise(X: np.ndarray) -> np.ndarray:
     return out
 
 
+class ScoreJson(TypedDict):
+    """``Score.as_dict``: a score as --json and the report carry it."""
+
+    mse_reduction: float
+    residual_explained: float
+    p_value: float
+    blocks: int
+    blocks_improved: int
+    parameters: dict[str, float]
+    heldout_rmse_null_rad_s: float
+    heldout_rmse_with_effect_rad_s: float
+
+
 @dataclass
 class Score:
     """A candidate's held-out performance on one data set (measured or reference)."""
@@ -127,7 +140,7 @@ class Score:
     rmse_null: float = float("nan")
     rmse_candidate: float = float("nan")
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> ScoreJson:
         return {
             "mse_reduction": self.fraction,
             "residual_explained": self.fraction_of_residual,

@@ -38,7 +38,7 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from ..recordings import Signals
 from . import acceptance as acc
 from . import residuals as rs
 from . import scoring as sc
-from .base import ALPHA, MIN_EFFECT, ModelKind, Options, Progress, Proposal, Refined, Scores, Trial
+from .base import ALPHA, MIN_EFFECT, FitT, ModelKind, Options, Progress, Proposal, Refined, Scores, Trial
 from .dataset import DataSet, rmse
 from .network import NetworkKind
 from .physics_kind import PhysicsKind
@@ -57,21 +57,31 @@ from .results import (
     Disagreement,
     Evidence,
     Result,
+    ResultJson,
     Round,
+    StructuralJson,
     gap_fields,
     sentence,
     summary_lines,
     write_report,
 )
 
+if TYPE_CHECKING:
+    from ..model import NetworkModel
+    from ..physics.config import PhysicsConfig
+
 __all__ = ["ALPHA", "MIN_EFFECT", "Options", "WorkflowResult", "check_effect_names", "check_holdout",
            "classify", "run", "run_physics_workflow", "run_workflow"]
 
 
+#: The model a run hands back (a network, or the bench physics).
+ModelT = TypeVar("ModelT")
+
+
 @dataclass
-class WorkflowResult:
-    data: dict[str, Any]  #: the --json object (``result.as_json()``)
-    model: Any  #: final model (the base model if nothing was added)
+class WorkflowResult(Generic[ModelT]):
+    data: ResultJson  #: the --json object (``result.as_json()``)
+    model: ModelT  #: final model (the base model if nothing was added)
     lines: list[str]  #: the summary for people
     result: Result | None = None
 
@@ -141,8 +151,8 @@ def added_as(ev: Evidence) -> str:
     return "new" if m > 0 and max(ev.reference.fraction, 0.0) < STRUCTURAL_RATIO * m else "structural"
 
 
-def decide(kind: ModelKind, name: str, trial: Trial, scores: Scores, hold: Sequence[Signals], hold_cur: DataSet,
-           holdout: bool, opts: Options, tried: int = 1) -> acc.Acceptance:
+def decide(kind: ModelKind[object, FitT], name: str, trial: Trial[FitT], scores: Scores, hold: Sequence[Signals],
+           hold_cur: DataSet, holdout: bool, opts: Options, tried: int = 1) -> acc.Acceptance:
     """The deciding test of one fitted candidate (RULE): the --holdout against the current model,
     else the kind's own held-out data of the measured recordings, at the level divided by the
     ``tried`` candidates of the round (Bonferroni: the first of several that passes is added, so
@@ -188,7 +198,7 @@ def find_disagreement(meas: DataSet, ref: DataSet | None, progress: Progress) ->
     threshold = rs.THRESHOLD_SIGMAS * max(noise, 1e-6)
     windows, _ = windows_of(meas, threshold)
 
-    def tests(ds: DataSet) -> Any:
+    def tests(ds: DataSet) -> rs.ResidualTests:
         return rs.residual_tests(ds.residuals, [{"pwm": s.pwm, "pwm_rate": rs.pwm_rate(s.t, s.pwm)}
                                                 for s in ds.signals])
 
@@ -200,30 +210,31 @@ def find_disagreement(meas: DataSet, ref: DataSet | None, progress: Progress) ->
     return Disagreement(threshold, windows, tests(meas), tests(ref) if ref else None, conditions)
 
 
-def run_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
-                 holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+def run_workflow(model: NetworkModel, measured: Sequence[Signals], reference: Sequence[Signals],
+                 holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult[NetworkModel]:
     """``discrepancy --model``: the loop with a trained network."""
     return run(NetworkKind(model, opts), measured, reference, holdout, opts, progress)
 
 
-def run_physics_workflow(model: Any, measured: Sequence[Signals], reference: Sequence[Signals],
-                         holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+def run_physics_workflow(model: PhysicsConfig, measured: Sequence[Signals], reference: Sequence[Signals],
+                         holdout: Sequence[Signals], opts: Options, progress: Progress
+                         ) -> WorkflowResult[PhysicsConfig]:
     """``discrepancy --physics``: the loop with the bench physics (``physics.config.PhysicsConfig``)."""
     return run(PhysicsKind(model), measured, reference, holdout, opts, progress)
 
 
-class _Rounds:
+class _Rounds(Generic[FitT]):
     """Steps 3-5 round by round: what the rounds found (every effect added, the new ones among
     them, the structural ones, the evidence and the rounds) and the current model's prediction on
     the holdout."""
 
-    def __init__(self, kind: ModelKind, hold: Sequence[Signals], holdout: bool, hold_base: DataSet, opts: Options,
-                 progress: Progress) -> None:
+    def __init__(self, kind: ModelKind[object, FitT], hold: Sequence[Signals], holdout: bool, hold_base: DataSet,
+                 opts: Options, progress: Progress) -> None:
         self.kind, self.hold, self.holdout, self.opts, self.progress = kind, hold, holdout, opts, progress
         self.hold_cur = hold_base
         self.added: list[str] = []  # every effect added, in order (new and structural)
         self.named: list[str] = []  # the new ones
-        self.structural: list[dict[str, Any]] = []
+        self.structural: list[StructuralJson] = []
         self.evidence: dict[str, Evidence] = {}
         self.rounds: list[Round] = []
 
@@ -257,7 +268,7 @@ class _Rounds:
         return round_ev, best
 
     def try_in_turn(self, tried: Sequence[str], refined: Refined,
-                    scores: dict[str, Scores]) -> tuple[str, Trial] | None:
+                    scores: dict[str, Scores]) -> tuple[str, Trial[FitT]] | None:
         """Steps 4 and 5 for each proposal in turn: the first one the deciding test accepts, and its
         trial (None: every one failed)."""
         kind, progress = self.kind, self.progress
@@ -286,7 +297,7 @@ class _Rounds:
                 return name, trial
         return None
 
-    def add(self, name: str, kept: Trial) -> None:
+    def add(self, name: str, kept: Trial[FitT]) -> None:
         """The accepted trial becomes the model; ``name`` is added (new or structural)."""
         self.kind.keep(kept)
         self.added.append(name)
@@ -302,8 +313,8 @@ class _Rounds:
         self.hold_cur = kept.hold
 
 
-def run(kind: ModelKind, measured: Sequence[Signals], reference: Sequence[Signals],
-        holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult:
+def run(kind: ModelKind[ModelT, FitT], measured: Sequence[Signals], reference: Sequence[Signals],
+        holdout: Sequence[Signals], opts: Options, progress: Progress) -> WorkflowResult[ModelT]:
     """Steps 1-5 (see the module docstring) with ``kind``'s model."""
     restrict = check_effect_names(opts.restrict) or list(c.EFFECTS)
     warnings: list[str] = []

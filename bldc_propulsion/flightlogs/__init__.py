@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
 
 from ..atomic import RECORDING, check_output
 from ..errors import BadInputError
 from . import betaflight, dataflash, ulog
-from .common import check_pole_count, parse_motors, summary_text, write_recording
+from .common import ImportSummary, check_pole_count, parse_motors, summary_text, write_recording
 
 FORMATS: dict[str, str] = {
     "betaflight-csv": betaflight.KIND,
@@ -87,7 +86,7 @@ def import_log(
     motors: str | list[int] | None = None,
     motor_protocol: str | None = None,
     force: bool = False,
-) -> dict[str, Any]:
+) -> ImportSummary:
     """Convert a flight log into a vehicle recording at ``out_path``; returns the summary
     (``path``, ``rows``, ``motors``, ``duration_s``, ``command_mapping``, ``speed_source``,
     ``warnings`` and more). ``pole_count`` is the motor's magnet poles (Betaflight eRPM needs

@@ -26,7 +26,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -162,6 +162,20 @@ class Series:
         self.t, self.values = self.t[keep], self.values[keep]
 
 
+class LogDetails(TypedDict, total=False):
+    """``FlightLog.details``: what an importer adds to the summary, by format."""
+
+    pole_count: int | None  #: the magnet poles eRPM was divided by (Betaflight); None: none needed
+    motor_protocol: str | None  #: Betaflight: how motor values were read (dshot, pwm)
+    motor_protocol_from: str  #: Betaflight: why
+    skipped_rows: int  #: Betaflight
+    header_lines: int  #: Betaflight
+    motors_from: str  #: ArduPilot: how the motors were found
+    servo_blh_poles: float | None  #: ArduPilot's SERVO_BLH_POLES, if logged
+    command_topic: str  #: PX4: actuator_motors or actuator_outputs
+    mot_pole_count: float | None  #: PX4's MOT_POLE_COUNT, if logged
+
+
 @dataclass
 class FlightLog:
     """What a reader found in a log, in the contract's units."""
@@ -176,7 +190,7 @@ class FlightLog:
     command_mapping: str  #: one sentence: which fields became which topics, in which units
     speed_source: str | None  #: e.g. "eRPM (electrical RPM / 100) / 7 pole pairs"; None = no speed
     warnings: list[str] = field(default_factory=list)
-    details: dict[str, Any] = field(default_factory=dict)  #: format-specific summary
+    details: LogDetails = field(default_factory=lambda: LogDetails())  #: format-specific summary
 
 
 def _frames(t: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -186,7 +200,29 @@ def _frames(t: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return frames, zero_order_hold(t, level, frames + _SAME_INSTANT_S)
 
 
-def write_recording(log: FlightLog, out_path: str | os.PathLike[str], *, force: bool = False) -> dict[str, Any]:
+class ImportSummary(LogDetails):
+    """``write_recording``: what ``import-log --json`` prints (and the format's ``LogDetails``)."""
+
+    path: str
+    source: str
+    format: str
+    rows: int
+    motors: list[int]
+    duration_s: float
+    command_mapping: str
+    speed_source: str | None
+    motors_with_speed: list[int]
+    pwm_frames: int
+    pwm_range: dict[str, dict[str, float] | None]  #: motor -> min, max
+    speed_max_rad_s: dict[str, float]
+    voltage_v: dict[str, float] | None  #: min, max
+    current_a: dict[str, float] | None
+    topics: dict[str, int]  #: topic -> messages
+    messages: int
+    warnings: list[str]
+
+
+def write_recording(log: FlightLog, out_path: str | os.PathLike[str], *, force: bool = False) -> ImportSummary:
     """Write ``log`` as a vehicle recording at ``out_path`` (see the module's table); returns
     the summary that ``import-log --json`` prints."""
     out = Path(out_path)
@@ -246,7 +282,7 @@ def write_recording(log: FlightLog, out_path: str | os.PathLike[str], *, force: 
     }
 
 
-def summary_text(info: dict[str, Any]) -> str:
+def summary_text(info: ImportSummary) -> str:
     """Human summary of what ``import-log`` wrote."""
     lines = [
         f"wrote {info['path']}: {info['format']}, {info['rows']} rows over {info['duration_s']:.2f} s, "
@@ -256,7 +292,8 @@ def summary_text(info: dict[str, Any]) -> str:
         + (f"{info['speed_source']} ({', '.join(f'motor{m}' for m in info['motors_with_speed'])})"
            if info["speed_source"] else "none"),
     ]
-    if info.get("voltage_v"):
-        lines.append(f"  battery voltage {info['voltage_v']['min']:.2f}..{info['voltage_v']['max']:.2f} V")
+    volts = info.get("voltage_v")
+    if volts:
+        lines.append(f"  battery voltage {volts['min']:.2f}..{volts['max']:.2f} V")
     lines.append(f"  read one motor with --namespace motor{info['motors'][0]}")
     return "\n".join(lines)

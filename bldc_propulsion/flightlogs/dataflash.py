@@ -21,7 +21,6 @@ import contextlib
 import io
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -37,7 +36,7 @@ RCOU_CHANNELS = 14
 _MAX_NOTES = 5
 
 
-def _number(m: Any, name: str) -> float:
+def _number(m: object, name: str) -> float:
     try:
         v = float(getattr(m, name))
     except (AttributeError, TypeError, ValueError):
@@ -45,7 +44,7 @@ def _number(m: Any, name: str) -> float:
     return v if math.isfinite(v) else math.nan
 
 
-def _read(path: Path) -> tuple[dict[str, list[Any]], dict[str, float], list[str]]:
+def _read(path: Path) -> tuple[dict[str, list[list[float]]], dict[str, float], list[str]]:
     """(the RCOU/ESC/BAT rows as lists, the PARM values, what pymavlink printed)."""
     try:
         from pymavlink import DFReader
@@ -53,7 +52,7 @@ def _read(path: Path) -> tuple[dict[str, list[Any]], dict[str, float], list[str]
         raise BadInputError(f"{path}: reading an ArduPilot DataFlash log needs pymavlink (LGPL-3.0, an "
                             "optional extra): pip install bldc_propulsion[ardupilot]") from None
     printed = io.StringIO()
-    rows: dict[str, list[Any]] = {"RCOU": [], "ESC": [], "BAT": []}
+    rows: dict[str, list[list[float]]] = {"RCOU": [], "ESC": [], "BAT": []}
     params: dict[str, float] = {}
     try:
         with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):

@@ -19,19 +19,22 @@ from __future__ import annotations
 import contextlib
 import io
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import BadInputError, one_line
 from .common import FlightLog, Series, normalized_to_level, pulse_levels, rpm_to_rad_s, select_motors
 
+if TYPE_CHECKING:
+    from pyulog import ULog  # an optional extra (pip install bldc_propulsion[px4]), without type information
+
 KIND = "PX4 ULog"
 MAGIC = b"ULog\x01\x12\x35"
 TOPICS = ("actuator_motors", "actuator_outputs", "esc_status", "battery_status")
 
 
-def _load(path: Path) -> tuple[Any, list[str]]:
+def _load(path: Path) -> tuple[ULog, list[str]]:
     """The parsed log and what pyulog printed (it prints warnings on stdout, which belongs to --json)."""
     try:
         from pyulog import ULog
@@ -49,7 +52,7 @@ def _load(path: Path) -> tuple[Any, list[str]]:
     return ulog, notes
 
 
-def _dataset(ulog: Any, name: str) -> dict[str, np.ndarray] | None:
+def _dataset(ulog: ULog, name: str) -> dict[str, np.ndarray] | None:
     for d in ulog.data_list:
         if d.name == name and d.multi_id == 0 and len(d.data.get("timestamp", ())):
             return d.data
@@ -110,7 +113,7 @@ def read_ulog(path: Path, *, pole_count: int | None = None, motors: list[int] | 
     )
 
 
-def _commands(path: Path, ulog: Any, motors: list[int] | None,
+def _commands(path: Path, ulog: ULog, motors: list[int] | None,
               warnings: list[str]) -> tuple[dict[int, Series], int, str, str]:
     """The chosen motors' commands as PWM levels: from actuator_motors when it was ever armed, else
     actuator_outputs; with the rows read, how they were mapped (in words) and the topic."""
@@ -152,7 +155,7 @@ def _commands(path: Path, ulog: Any, motors: list[int] | None,
 
 
 
-def _battery(ulog: Any) -> tuple[Series | None, Series | None, str | None]:
+def _battery(ulog: ULog) -> tuple[Series | None, Series | None, str | None]:
     """The battery's voltage (the filtered one where logged) and current, each None when not
     measured, and the voltage's field."""
     voltage = current = None

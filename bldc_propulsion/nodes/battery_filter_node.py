@@ -46,8 +46,8 @@ class BatteryFilterNode(Node):
         params = declare_parameters(self, BATTERY_FILTER_PARAMS)
         config = BatteryFilterConfig(**core_kwargs(BATTERY_FILTER_PARAMS, params))
         self.core = BatteryFilter(config)  # BadInputError if the core refuses a value
-        self.stream = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
-                                   params['use_source_timestamps'])
+        self.stream: SampleStream[float] = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
+                                                        params['use_source_timestamps'])
         self.output = Ticker(params['publish_rate_hz'])
 
         self.voltage_pub = self.create_publisher(BatteryState, contract.TOPIC_BATTERY_VOLTAGE, 10)

@@ -22,9 +22,10 @@ import rclpy.logging
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.clock import JumpThreshold, ROSClock
+from rclpy.clock import JumpThreshold, ROSClock, TimeJump
+from rclpy.context import Context
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -54,7 +55,8 @@ from bldc_propulsion.nodes.params import (
 
 
 def declare_parameters(node: Node, table: Sequence[Param]) -> dict[str, Any]:
-    """Declare every parameter of ``table`` on ``node``; return {name: effective value}.
+    """Declare every parameter of ``table`` on ``node``; return {name: effective value} (rclpy's
+    parameter value: of the type of the table's default, which the caller reads it as).
 
     The value is the override (parameter file, ``-p``) if any, else the table's default. A value
     of the wrong type or out of range makes rclpy raise here, naming the parameter. An override
@@ -144,7 +146,7 @@ def input_qos(depth: int) -> QoSProfile:
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def events_executor(context: Any = None) -> Any:
+def events_executor(context: Context | None = None) -> Executor:
     """rclpy's EventsExecutor (about a third of the CPU per message of the single-threaded one;
     callbacks get the message info through :class:`WithInfo`); where it is missing, the
     single-threaded executor."""
@@ -170,10 +172,10 @@ class WithInfo:
         inspect.Parameter("msg", inspect.Parameter.POSITIONAL_ONLY),
         inspect.Parameter("info", inspect.Parameter.POSITIONAL_ONLY)])
 
-    def __init__(self, fn: Callable[[Any, dict], None]) -> None:
+    def __init__(self, fn: Callable[[Any, dict], None]) -> None:  # fn(an rclpy message, its info)
         self.fn = fn
 
-    def __call__(self, *args: Any) -> None:
+    def __call__(self, *args: Any) -> None:  # what rclpy's executors pass a callback
         if len(args) == 1:  # the EventsExecutor's (msg, info)
             args = args[0]
         self.fn(args[0], args[1])
@@ -202,7 +204,7 @@ def stop_on_signals() -> Iterator[threading.Event]:
             signal.signal(signum, handler)
 
 
-def spin(executor: Any, stop: threading.Event) -> None:
+def spin(executor: Executor, stop: threading.Event) -> None:
     """Spin until ``stop`` is set or the context shuts down, in slices of at most
     ``SPIN_SLICE_S`` (a signal does not end a wait: without rclpy's handlers nothing wakes it).
 
@@ -229,16 +231,16 @@ SHUTDOWN_TIMEOUT_S = 2.0
 
 #: Which executor spins which nodes: the first pair on the calling thread, the others each on
 #: a thread of its own (propulsion_all's mixed mode).
-Plan = Callable[[list[Node]], list[tuple[Any, list[Node]]]]
+Plan = Callable[[list[Node]], list[tuple[Executor, list[Node]]]]
 
 
-def single_threaded(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
+def single_threaded(nodes: list[Node]) -> list[tuple[Executor, list[Node]]]:
     """Every node on one single-threaded executor (``LeanExecutor``: rclpy's, with a cheap
     path for messages and timers; for an rclpy whose EventsExecutor misbehaves)."""
     return [(LeanExecutor(), nodes)]
 
 
-def on_events(nodes: list[Node]) -> list[tuple[Any, list[Node]]]:
+def on_events(nodes: list[Node]) -> list[tuple[Executor, list[Node]]]:
     """Every node on the EventsExecutor (the default: cheapest; message info through
     :class:`WithInfo`)."""
     return [(events_executor(), nodes)]
@@ -278,7 +280,7 @@ def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] 
         print(f"{name}: {rcl_error_line(str(e))}", file=sys.stderr)
         return 2
     nodes: list[Node] = []
-    executors: list[Any] = []
+    executors: list[Executor] = []
     threads: list[threading.Thread] = []
     try:
         built = build()
@@ -318,7 +320,8 @@ class ListenedOutput:
     fields set once): publishing serializes it before returning.
     """
 
-    def __init__(self, node: Node, msg_type: Any, topic: str, msg: Any, depth: int = 10) -> None:
+    def __init__(self, node: Node, msg_type: type, topic: str, msg: Any, depth: int = 10) -> None:
+        # msg: a message of a generated package (no type information), whose fields subclasses set
         self.publisher = node.create_publisher(msg_type, topic, depth)
         self.msg = msg
         self.listened = True  #: until the first refresh: publish
@@ -407,7 +410,7 @@ class NodeClock:
             JumpThreshold(min_forward=None, min_backward=None, on_clock_change=True),
             post_callback=self._changed)
 
-    def _changed(self, _jump: Any) -> None:
+    def _changed(self, _jump: TimeJump) -> None:
         self._sim = self._clock.ros_time_is_active
 
     def __call__(self) -> float:

@@ -28,10 +28,12 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable, Mapping
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any, NamedTuple
 
 import rclpy.logging
+from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
@@ -66,7 +68,7 @@ def rclpy_version() -> str:
     return "unknown"
 
 
-def missing_private_api(executor: Any = None, subscription: Any = None) -> list[str]:
+def missing_private_api(executor: object = None, subscription: object = None) -> list[str]:
     """The names of ``PRIVATE_API`` this rclpy lacks ("Executor._guard", ...); [] when all are
     there. The executor's and the subscription's attributes are looked up on the instances given
     (they are set in ``__init__``), the C extension's on its classes."""
@@ -81,13 +83,16 @@ def missing_private_api(executor: Any = None, subscription: Any = None) -> list[
 
 
 class _Lean(NamedTuple):
-    """What one wait of the lean path adds and looks up (rebuilt when an entity changes)."""
+    """What one wait of the lean path adds and looks up (rebuilt when an entity changes). The
+    handles and the wait set are the C extension's (``_rclpy``, which has no type information):
+    untyped where the lean path calls them, object where it only hands them to the wait set."""
 
-    subscriptions: list[Any]
-    by_sub: dict[int, Any]
-    by_timer: dict[int, Any]
-    services: list[Any]
-    clients: list[Any]
+    subscriptions: list[object]
+    #: pointer -> (handle, callback, message type, raw, with message info)
+    by_sub: Mapping[int, tuple[Any, Callable[..., None], object, bool, bool]]
+    by_timer: Mapping[int, tuple[Any, Callable[[], None]]]  #: pointer -> (handle, callback)
+    services: list[object]
+    clients: list[object]
     guards: list[Any]
     wait_set: Any
 
@@ -95,7 +100,7 @@ class _Lean(NamedTuple):
 class LeanExecutor(SingleThreadedExecutor):
     """Single-threaded; subscriptions and timers on a lean path, the rest by the base class."""
 
-    def __init__(self, *, context: Any = None) -> None:
+    def __init__(self, *, context: Context | None = None) -> None:
         super().__init__(context=context)
         self._lean: _Lean | None = None
         self._next_poll_s = 0.0

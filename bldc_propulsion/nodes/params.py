@@ -136,8 +136,9 @@ NODE_PARAMS: dict[str, tuple[Param, ...]] = {
 }
 
 
-def core_kwargs(table: Sequence[Param], values: Mapping[str, Any]) -> dict[str, Any]:
-    """The values of the table's core parameters, as keyword arguments of the core config."""
+def core_kwargs(table: Sequence[Param], values: Mapping[str, object]) -> dict[str, Any]:
+    """The values of the table's core parameters, as keyword arguments of the core config (each
+    of the type of its field: ``Config(**kwargs)`` checks them by name)."""
     return {p.name: values[p.name] for p in table if p.core}
 
 
@@ -296,7 +297,7 @@ def hardware_id(node_namespace: str, node_name: str) -> str:
     return namespace or "motor"
 
 
-def key_values(values: Mapping[str, Any]) -> list[tuple[str, str]]:
+def key_values(values: Mapping[str, object]) -> list[tuple[str, str]]:
     """CoreStatus.values as (key, value) string pairs, in the core's order."""
     return [(str(k), str(v)) for k, v in values.items()]
 

@@ -44,7 +44,7 @@ import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Generic, TypeVar
 
 #: Window (s, on the observing clock) over which the transport latency floor is the minimum.
 FLOOR_WINDOW_S = 2.0
@@ -72,7 +72,7 @@ class Arrival:
     seq: int | None = None  #: publisher's sequence number, None if not known
 
 
-def arrival(receipt_s: float, info: Mapping[str, Any] | None) -> Arrival:
+def arrival(receipt_s: float, info: Mapping[str, int] | None) -> Arrival:
     """An :class:`Arrival` from rclpy's message-info dict (None: the executor gave none)."""
     if not info:
         return Arrival(receipt_s)
@@ -123,18 +123,22 @@ class Placement:
     late_s: float = 0.0  #: lateness beyond the floor that broke the stream (LATE)
 
 
+#: What a message carries to its placement (a node's samples), handed back as it was given.
+PayloadT = TypeVar("PayloadT")
+
+
 @dataclass
-class _Suspect:
+class _Suspect(Generic[PayloadT]):
     """A message later than the floor allows, held until the next one says why."""
 
     arrival: Arrival
     observed: float
-    payload: Any
+    payload: PayloadT
     t_contiguous: float  #: its time if nothing is missing before it
     excess: float  #: its lateness beyond the floor (s)
 
 
-class SampleStream:
+class SampleStream(Generic[PayloadT]):
     """Times of a fixed-rate sampled stream (module docstring, rules 1-2).
 
     A message later than the latency floor by more than the tolerance is *held* until the next
@@ -160,9 +164,9 @@ class SampleStream:
         self._floor = LatencyFloor()
         self._t: float | None = None
         self._seq: int | None = None
-        self._held: _Suspect | None = None
+        self._held: _Suspect[PayloadT] | None = None
 
-    def push(self, a: Arrival, n: int, payload: Any = None) -> list[tuple[Placement, Any]]:
+    def push(self, a: Arrival, n: int, payload: PayloadT) -> list[tuple[Placement, PayloadT]]:
         """Place message ``a`` of ``n`` samples; returns the (placement, payload) pairs that are
         settled now, in order: none while the message is held, two when a held one is settled."""
         self.messages += 1
@@ -170,7 +174,7 @@ class SampleStream:
         source = a.source_s if self.use_source else None
         observed = source if source is not None else a.receipt_s
         self.witness = "source" if source is not None else "receipt"
-        out: list[tuple[Placement, Any]] = []
+        out: list[tuple[Placement, PayloadT]] = []
         restart = a.seq is not None and self._seq is not None and a.seq <= self._seq
         if self._t is None or restart:
             out += self.release_held()
@@ -208,7 +212,7 @@ class SampleStream:
             out.append((Placement(t, CONTIGUOUS), payload))
         return out
 
-    def release_held(self) -> list[tuple[Placement, Any]]:
+    def release_held(self) -> list[tuple[Placement, PayloadT]]:
         """Settle a held message with no successor to judge it: as a break (nothing bridged)."""
         if self._held is None:
             return []
@@ -219,7 +223,7 @@ class SampleStream:
     def holding(self) -> Arrival | None:
         return None if self._held is None else self._held.arrival
 
-    def _settle(self, held: _Suspect, late: bool) -> tuple[Placement, Any]:
+    def _settle(self, held: _Suspect[PayloadT], late: bool) -> tuple[Placement, PayloadT]:
         if late:  # data missing before it: break, with the gap its lateness shows
             self.late_breaks += 1
             self._t = held.t_contiguous + held.excess
@@ -242,7 +246,7 @@ class SampleStream:
         self._floor.floor(observed, observed - t)
         return Placement(t, NEW_STREAM)
 
-    def counters(self) -> dict[str, Any]:
+    def counters(self) -> dict[str, str | int]:
         """For diagnostics: what the timing rules saw."""
         return {
             "timing_witness": self.witness,

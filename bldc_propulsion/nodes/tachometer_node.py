@@ -29,7 +29,7 @@ from std_msgs.msg import Float32MultiArray
 from bldc_propulsion import contract
 from bldc_propulsion.core.status import ERROR, OK, CoreStatus, counters
 from bldc_propulsion.core.tach_output import SpeedOutput
-from bldc_propulsion.core.tachometer import TachometerConfig, TachometerDecoder
+from bldc_propulsion.core.tachometer import Samples, TachometerConfig, TachometerDecoder
 from bldc_propulsion.nodes.common import (
     JointStateOutput,
     NodeClock,
@@ -60,8 +60,8 @@ class TachometerNode(Node):
         config = TachometerConfig(**core_kwargs(TACHOMETER_PARAMS, params))
         self.core = TachometerDecoder(config)  # BadInputError if the core refuses a value
         self.output = SpeedOutput(self.core)
-        self.stream = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
-                                   params['use_source_timestamps'])
+        self.stream: SampleStream[Samples] = SampleStream(params['sample_rate_hz'], params['clock_tolerance_s'],
+                                                          params['use_source_timestamps'])
         self.timeout_s = params['timeout_s']
         self.last_receipt_s: float | None = None
 
@@ -83,7 +83,7 @@ class TachometerNode(Node):
         data = msg.data
         self.decode(self.stream.push(arrival(received, info), len(data), data))
 
-    def decode(self, settled: list[tuple[Placement, Any]]) -> None:
+    def decode(self, settled: list[tuple[Placement, Samples]]) -> None:
         """Decode the batches the timing rules have placed; publish what may be published."""
         for place, data in settled:
             if place.event == NEW_STREAM and self.stream.streams > 1:

@@ -30,6 +30,11 @@ predicted/wrench (WrenchStamped in frame_id: force.z = thrust, torque.z = the re
 on the body, signed by spin_direction, where the model knows the propeller's torque, else 0
 and a WARN saying so: ``core.wrench``).
 
+The project's additions beyond the contract (docs/ros.md): predicted/speed_sigma and
+predicted/thrust_sigma (Float64, rad/s and N), the one-sigma band of each prediction
+(``core.uncertainty``), at the same grid times as predicted/speed; advertised only while the
+model has a band (and, for the thrust's, a b); without one, diagnostics say why (``band``).
+
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
 time (``ros2 param set``), such a file is refused and the last good model kept.
@@ -101,6 +106,9 @@ class ThrustEstimatorNode(Node):
         self.thrust_out: ScalarOutput | None = None
         self.wrench_out: WrenchOutput | None = None
         self.match_thrust_output()
+        self.speed_sigma_out: ScalarOutput | None = None
+        self.thrust_sigma_out: ScalarOutput | None = None
+        self.match_band_output()
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         qos = input_qos(params['queue_depth'])
@@ -153,12 +161,35 @@ class ThrustEstimatorNode(Node):
             self.destroy_publisher(self.wrench_out.publisher)
             self.thrust_out = self.wrench_out = None
 
+    def match_band_output(self) -> None:
+        """predicted/speed_sigma exists while the model has a band, predicted/thrust_sigma while
+        it has a band and a b (as predicted/thrust: no silent topic; the estimator's status
+        value ``band`` says why there is none)."""
+        band = self.core.band is not None
+        self.speed_sigma_out = self.scalar_output_if(
+            band, self.speed_sigma_out, contract.TOPIC_PREDICTED_SPEED_SIGMA)
+        self.thrust_sigma_out = self.scalar_output_if(
+            band and self.core.thrust_coefficient is not None, self.thrust_sigma_out,
+            contract.TOPIC_PREDICTED_THRUST_SIGMA)
+
+    def scalar_output_if(self, wanted: bool, out: ScalarOutput | None, topic: str) -> ScalarOutput | None:
+        """``out`` kept, made or destroyed so that it exists exactly when ``wanted``."""
+        if wanted and out is None:
+            return ScalarOutput(self, topic)
+        if not wanted and out is not None:
+            self.destroy_publisher(out.publisher)
+            return None
+        return out
+
     def on_timer(self) -> None:
         self.speed_out.refresh()
         self.state_out.refresh()
         if self.thrust_out is not None and self.wrench_out is not None:
             self.thrust_out.refresh()
             self.wrench_out.refresh()
+        for out in (self.speed_sigma_out, self.thrust_sigma_out):
+            if out is not None:
+                out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
 
     def count_late(self, t: float) -> None:
@@ -183,6 +214,10 @@ class ThrustEstimatorNode(Node):
                 w = float(p.speed_rad_s)
                 self.speed_out.publish(w)
                 self.state_out.publish(tick, w)  # stamped with the grid time it answers
+                if self.speed_sigma_out is not None and p.speed_sigma_rad_s is not None:
+                    self.speed_sigma_out.publish(float(p.speed_sigma_rad_s))
+                    if self.thrust_sigma_out is not None and p.thrust_sigma_n is not None:
+                        self.thrust_sigma_out.publish(float(p.thrust_sigma_n))
                 if self.thrust_out is not None and self.wrench_out is not None and p.thrust_n is not None:
                     self.thrust_out.publish(float(p.thrust_n))
                     self.wrench_out.publish(tick, float(p.thrust_n), reaction_torque_nm(
@@ -229,6 +264,7 @@ class ThrustEstimatorNode(Node):
                 return SetParametersResult(successful=False, reason=str(e))
             self.core, self.model_path, self.reload_error = core, p.value, ''
             self.match_thrust_output()
+            self.match_band_output()
             self.get_logger().info(f'model: {p.value or "first-principles fallback"}')
         return SetParametersResult(successful=True)
 

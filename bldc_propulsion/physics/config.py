@@ -14,10 +14,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypedDict
 
 import numpy as np
 
@@ -74,6 +74,14 @@ def median_voltage(signals: Sequence[Recorded]) -> float | None:
     return float(np.median(v)) if len(v) else None
 
 
+class ConfigJson(TypedDict):
+    """``PhysicsConfig.config``: what a CONFIG file holds (``load_config`` reads it back)."""
+
+    params: dict[str, object]  #: BenchParams field -> value, where it differs from the package's bench
+    effects: dict[str, float]
+    supply_v: float | None
+
+
 @dataclass(frozen=True)
 class PhysicsConfig:
     """Bench constants and effect strengths: what ``--physics CONFIG`` describes (see the module doc)."""
@@ -122,6 +130,7 @@ class PhysicsConfig:
         return dataclasses.replace(self, effects={**self.effects, name: float(strength)})
 
     def with_constants(self, values: Sequence[float]) -> PhysicsConfig:
+        # (untyped: replace(**) checks each field's type by name, which a name -> value dict cannot state)
         calibrated: dict[str, Any] = dict(zip(CALIBRATED, map(float, values), strict=True))
         return dataclasses.replace(self, params=dataclasses.replace(self.params, **calibrated))
 
@@ -137,7 +146,7 @@ class PhysicsConfig:
             return "CONFIG", True
         return ("start (not stated)" if self.stated else "nominal (no CONFIG given)"), False
 
-    def config(self) -> dict[str, Any]:
+    def config(self) -> ConfigJson:
         """JSON-able CONFIG: the constants that differ from the package's bench, all strengths."""
         base = BenchParams()
         params = {f.name: getattr(self.params, f.name) for f in dataclasses.fields(base)
@@ -169,7 +178,8 @@ def load_config(path: str | None, base: BenchParams | None = None, option: str =
 
 
 def _config_file(path: str, option: str) -> dict[str, Any]:
-    """The CONFIG file's JSON object, its keys and the types of 'params' and 'effects' checked."""
+    """The CONFIG file's JSON object, its keys and the types of 'params' and 'effects' checked (the
+    values are the file's, checked where they are used)."""
     try:
         with open(path, encoding="utf-8") as fh:
             cfg = json.load(fh)
@@ -219,7 +229,7 @@ def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float
     return dataclasses.replace(model, stated=stated, ranges=ranges), list(start.notes), warnings
 
 
-def save_config(model: PhysicsConfig, path: str, force: bool, provenance: dict[str, Any]) -> None:
+def save_config(model: PhysicsConfig, path: str, force: bool, provenance: Mapping[str, object]) -> None:
     """Write the model as a CONFIG that ``load_config`` reads back (atomically)."""
     with atomic_output(path, force=force, kind=CONFIG) as tmp:
         tmp.write_text(json.dumps({**model.config(), "discrepancy": provenance}, indent=2) + "\n",

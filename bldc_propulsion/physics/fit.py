@@ -17,7 +17,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -161,6 +161,7 @@ def calibrate(model: PhysicsConfig, data: Data, anchor: np.ndarray, log_range: n
         for name, v in zip(free, x[len(live):len(live) + len(free)], strict=True):
             m = m.with_effect(name, v)
         if comp:
+            # (untyped: replace(**) checks each field's type by name, which a name -> value dict cannot state)
             compensation: dict[str, Any] = {
                 n: comp_anchor[n] * math.exp(v) for n, v in zip(comp, x[len(live) + len(free):], strict=True)}
             m = dataclasses.replace(m, params=dataclasses.replace(m.params, **compensation))
@@ -286,6 +287,23 @@ PLAUSIBLE_FACTOR = 2.0
 LOADED_SPEED_RANGE = (0.3, 0.98)
 
 
+class FitFlagJson(TypedDict):
+    """``FitFlag.as_json``: a flag as --json and the discrepancy report carry it."""
+
+    fit: str
+    quantity: str
+    value: float
+    config: float
+    low: float
+    high: float
+    at_bound: bool
+    config_given: bool
+    basis: str
+    not_a_basis_for_a_verdict: bool
+    why: str
+    text: str
+
+
 @dataclass(frozen=True)
 class FitFlag:
     """A fitted quantity at a bound of its range, or implausibly far (PLAUSIBLE_FACTOR) from the
@@ -335,7 +353,7 @@ class FitFlag:
                 "missing effect: give --physics a CONFIG of the bench, or your motor's --motor-kv, "
                 "--prop-diameter-in and --prop-pitch-in, to have it held against the verdicts")
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> FitFlagJson:
         return {"fit": self.fit, "quantity": self.quantity, "value": self.value, "config": self.config,
                 "low": self.low, "high": self.high, "at_bound": self.at_bound, "config_given": self.stated,
                 "basis": self.label, "not_a_basis_for_a_verdict": self.blocks, "why": self.why, "text": self.text()}

@@ -298,7 +298,7 @@ def check_params(p: BenchParams) -> BenchParams:
 def params_with_overrides(base: BenchParams, overrides: Mapping[str, float]) -> BenchParams:
     """``base`` with ``{name: value}`` replaced; BadInputError for unknown names or bad values."""
     known = [f.name for f in dataclasses.fields(base) if f.name not in _TABLES]
-    #: field -> value; the names are checked here, the values by check_params (hence Any: the
+    #: field -> value; the names are checked here, the values by check_params (untyped: the
     #: fields have several types, which replace(**changes) cannot see per name)
     changes: dict[str, Any] = {}
     for name, value in overrides.items():

@@ -14,7 +14,7 @@ import enum
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, NoReturn
+from typing import Any, ClassVar, NoReturn, cast
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class _FromCT(enum.Enum):
 FROM_CT = _FromCT.FROM_CT
 #: FROM_CT typed as the field it is the default of: ``__post_init__`` replaces it, so what a
 #: PlantModel holds (and the estimator's SpeedModel reads) is a float or None.
-_B_FROM_CT: Any = FROM_CT
+_B_FROM_CT = cast("float | None", FROM_CT)
 
 
 def thrust_or_none(b: float | None) -> float | None:
@@ -66,7 +66,7 @@ class PlantModel:
     supply_v: float  #: V: the stiff supply battery_voltage strength 0 gives (plant.Supply's v_ref)
     #: b (N s^2/rad^2); FROM_CT (default): the constants' CT gives it; None: no b (speed only)
     thrust_coefficient: float | None = _B_FROM_CT
-    metadata: dict[str, Any] = field(default_factory=dict)
+    metadata: dict[str, Any] = field(default_factory=dict)  #: the file's metadata_json (provenance, fit figures)
     #: time constant (s) of the filter the voltage input comes through: the paper's battery
     #: filter's (None), 0 for a supply measured directly (plant.Supply)
     supply_tau_s: float | None = None

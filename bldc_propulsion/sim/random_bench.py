@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
 
 import numpy as np
 
@@ -161,7 +160,7 @@ def model_strength(effect: str, strength: float, bench: BenchParams, model: Benc
     return float(strength * ratio)
 
 
-def describe(bench: BenchParams) -> dict[str, Any]:
+def describe(bench: BenchParams) -> dict[str, object]:
     """The drawn constants that differ from the nominal bench (for experiment logs)."""
     nominal = BenchParams()
     return {f.name: getattr(bench, f.name) for f in dataclasses.fields(bench)

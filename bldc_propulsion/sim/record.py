@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -25,7 +25,7 @@ TRUTH_RATE_HZ = 200.0
 THRUST_RATE_HZ = 100.0
 
 
-def _streams(res: SimResult) -> list[tuple[str, np.ndarray, Any]]:
+def _streams(res: SimResult) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(topic, times, values) of every stream, values indexable per message."""
     n_batches = len(res.tach) // TACH_BATCH
     batches = res.tach[: n_batches * TACH_BATCH].reshape(n_batches, TACH_BATCH)
@@ -72,6 +72,24 @@ def write_sim_bag(res: SimResult, path: str | os.PathLike[str], *, force: bool =
         return bag.messages_written
 
 
+class SimulationSummary(TypedDict):
+    """``simulate_to_bag``: what ``simulate --json`` prints."""
+
+    path: str
+    namespace: str | None
+    profile: str
+    duration_s: float
+    seed: int
+    soc: float
+    effects: dict[str, float]
+    faults: list[str]  #: each as its spec (``sim.faults``)
+    messages: int
+    speed_min_rad_s: float
+    speed_max_rad_s: float
+    voltage_end_v: float
+    soc_end: float
+
+
 def simulate_to_bag(
     path: str | os.PathLike[str],
     *,
@@ -85,7 +103,7 @@ def simulate_to_bag(
     force: bool = False,
     namespace: str | None = None,
     faults: Sequence[Fault] = (),
-) -> dict[str, Any]:
+) -> SimulationSummary:
     """Simulate and record (one motor of a vehicle under ``namespace``, ``faults`` injected
     from their onsets); returns what ``simulate --json`` prints."""
     namespace = check_namespace(namespace)

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
+from ..core.uncertainty import band_of, command_changes
 from ..model import Model, RangeReport, range_report
 from ..recordings import Signals
 from .train import features_of
@@ -86,6 +87,8 @@ class RecordingScore:
     thrust_rmse_percent_of_range: float | None = None
     #: why there is no thrust RMSE (None: there is one)
     thrust_unavailable: str | None = None
+    #: the model's one-sigma band here (``band_coverage``); None: the model has no band
+    band: BandCoverage | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -101,6 +104,7 @@ class RecordingScore:
             "thrust_range_n": self.thrust_range_n,
             "thrust_rmse_percent_of_range": self.thrust_rmse_percent_of_range,
             "thrust_unavailable": self.thrust_unavailable,
+            "band_coverage": self.band.as_dict() if self.band else None,
         }
 
 
@@ -134,7 +138,52 @@ def score(model: Model, sig: Signals) -> tuple[RecordingScore, np.ndarray]:
             out.thrust_rmse_percent_of_range = (100.0 * out.thrust_rmse_n / out.thrust_range_n
                                                 if out.thrust_range_n > 0 else None)
     out.bands = band_errors(sig.t, sig.pwm, err, rng)
+    out.band = band_coverage(model, sig, pred)
     return out, pred
+
+
+@dataclass
+class BandCoverage:
+    """How many measured speeds lie within the model's one-sigma band (``core.uncertainty``)
+    around its prediction: about 68 % where the band is calibrated."""
+
+    inside: int  #: samples with |measured - predicted| <= sigma
+    samples: int  #: samples with a measured and a predicted speed
+    sigma_sum_rad_s: float  #: sum of sigma over them (rad/s), for means over several recordings
+
+    @property
+    def percent(self) -> float:
+        return 100.0 * self.inside / self.samples if self.samples else float("nan")
+
+    @property
+    def mean_sigma_rad_s(self) -> float:
+        return self.sigma_sum_rad_s / self.samples if self.samples else float("nan")
+
+    def __add__(self, other: BandCoverage) -> BandCoverage:
+        return BandCoverage(self.inside + other.inside, self.samples + other.samples,
+                            self.sigma_sum_rad_s + other.sigma_sum_rad_s)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"percent": self.percent, "mean_sigma_rad_s": self.mean_sigma_rad_s, "samples": self.samples}
+
+
+def band_sigma(model: Model, sig: Signals, pred: np.ndarray) -> np.ndarray | None:
+    """The model's one-sigma band (rad/s) around ``pred`` on the recording's grid, as the
+    estimator computes it; None for a model without a band (``core.uncertainty.band_of``)."""
+    band, _ = band_of(model)
+    if band is None:
+        return None
+    return band.sigma_array(pred, *command_changes(band, sig.t, *sig.pwm_events))
+
+
+def band_coverage(model: Model, sig: Signals, pred: np.ndarray) -> BandCoverage | None:
+    """``BandCoverage`` of ``pred`` against the recording's measured speed (None: no band)."""
+    sigma = band_sigma(model, sig, pred)
+    if sigma is None:
+        return None
+    err = np.abs(sig.speed - pred)
+    ok = np.isfinite(err) & np.isfinite(sigma)
+    return BandCoverage(int(np.count_nonzero(err[ok] <= sigma[ok])), int(ok.sum()), float(np.sum(sigma[ok])))
 
 
 def band_errors(t: np.ndarray, pwm: np.ndarray, err: np.ndarray, speed_range_rad_s: float) -> list[dict[str, float]]:

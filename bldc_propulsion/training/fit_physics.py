@@ -27,6 +27,7 @@ from ..physics.config import CALIBRATED, PhysicsConfig, median_voltage, start_mo
 from ..physics.plant_model import PlantModel
 from ..priors import MotorPriors
 from ..recordings import Signals
+from .band import band_metadata
 from .evaluate import predict_speed
 from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, train_model
 
@@ -120,6 +121,7 @@ def train_physics(
                             "the physics lacks)")
     warnings += [f.text() for f in best["flags"]]
     thrust = fit_thrust_coefficient(train, thrust_coefficient)
+    band = band_metadata([predict_speed(best["model"], s) for s in validation], validation)
     model = dataclasses.replace(best["model"], thrust_coefficient=thrust.coefficient, metadata={
         "package_version": __version__,
         "sources": {"train": [_source(s) for s in train], "validation": [_source(s) for s in validation]},
@@ -130,6 +132,7 @@ def train_physics(
         "candidates": [{k: v for k, v in d.items() if k not in ("model", "flags")} for d in candidates],
         "training_seconds": time.perf_counter() - t0,
         "thrust_fit": thrust.as_metadata(),  # with the assumption of a b derived from stated numbers
+        **band,  # the speed's one-sigma band, from the validation residuals
     })
     return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
                           best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k not in ("model", "flags")}
@@ -213,7 +216,7 @@ def train_hybrid(
         residual_signals(plant, physics.train), residual_signals(plant, physics.validation),
         inputs=names, hidden=hidden, seed=seed, thrust_coefficient=plant.thrust_coefficient,
         max_epochs=max_epochs, patience=patience, progress=progress, restarts=restarts,
-        feature_params=plant.feature_params(), start_at_zero=True,
+        feature_params=plant.feature_params(), start_at_zero=True, band=False,
     )
     network = outcome.model
     assert isinstance(network, NetworkModel), "train_model trains a network"
@@ -222,5 +225,7 @@ def train_hybrid(
     meta["physics"] = plant.metadata
     meta["thrust_fit"] = plant.metadata["thrust_fit"]
     network.thrust_coefficient = plant.thrust_coefficient
-    return dataclasses.replace(outcome, model=HybridModel(plant, network), train=physics.train,
+    hybrid = HybridModel(plant, network)  # its band: of the hybrid's speed, not of the correction's
+    meta.update(band_metadata([predict_speed(hybrid, s) for s in physics.validation], physics.validation))
+    return dataclasses.replace(outcome, model=hybrid, train=physics.train,
                                validation=physics.validation, thrust=physics.thrust)

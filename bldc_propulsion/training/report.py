@@ -15,10 +15,10 @@ import json
 import math
 import os
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias, TypedDict
 from urllib.parse import quote
 
 import matplotlib
@@ -27,8 +27,10 @@ matplotlib.use("Agg")  # before pyplot: no display needed, same output everywher
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.colors import Normalize  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
+from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
 from ..atomic import atomic_output  # noqa: E402
 from ..errors import BadInputError  # noqa: E402
@@ -37,15 +39,19 @@ DPI = 90
 MAX_LINE_POINTS = 4000  #: per plotted line; longer signals are min/max-enveloped
 MAX_SCATTER_POINTS = 20000
 PathLike = str | os.PathLike[str]
+#: A series a figure function accepts: anything ``np.asarray`` makes a float array of (None: empty).
+Series: TypeAlias = ArrayLike | None
+#: A value ``json.dumps`` writes as it is (what ``_jsonable`` makes of anything).
+JsonValue: TypeAlias = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
 
 # -- helpers ---------------------------------------------------------------------------------
 
 
-def _arr(x: Any) -> np.ndarray:
+def _arr(x: Series) -> NDArray[np.float64]:
     return np.asarray(x if x is not None else [], dtype=float).ravel()
 
 
-def _pair(t: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
+def _pair(t: Series, y: Series) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Same-length finite (t, y); a length mismatch is a caller bug, so it raises."""
     t, y = _arr(t), _arr(y)
     if len(t) != len(y):
@@ -73,12 +79,14 @@ def _envelope(t: np.ndarray, y: np.ndarray, max_points: int = MAX_LINE_POINTS) -
     return np.asarray(tt), np.asarray(yy)
 
 
-def _line(ax: Any, t: Any, y: Any, *args: Any, **kwargs: Any) -> None:
+def _line(ax: Axes, t: Series, y: Series, *args: str, **kwargs: Any) -> None:
+    """``ax.plot`` of the finite samples, enveloped; ``kwargs`` are Line2D properties (colour,
+    width, label, style: matplotlib leaves them untyped)."""
     tt, yy = _envelope(*_pair(t, y))
     ax.plot(tt, yy, *args, **kwargs)
 
 
-def _no_data(ax: Any, what: str = "no data") -> None:
+def _no_data(ax: Axes, what: str = "no data") -> None:
     ax.text(0.5, 0.5, what, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
@@ -98,8 +106,11 @@ def _save(fig: Figure, out: PathLike) -> Path:
     return path
 
 
-def _figure(rows: int, cols: int, size: tuple[float, float], **kwargs: Any) -> tuple[Figure, Any]:
-    fig, axes = plt.subplots(rows, cols, figsize=size, dpi=DPI, squeeze=False, **kwargs)
+def _figure(rows: int, cols: int, size: tuple[float, float], sharex: bool = False,
+            gridspec_kw: dict[str, object] | None = None) -> tuple[Figure, NDArray[np.object_]]:
+    """A figure and its (rows, cols) array of Axes (``plt.subplots``' defaults for the rest)."""
+    fig, axes = plt.subplots(rows, cols, figsize=size, dpi=DPI, squeeze=False, sharex=sharex,
+                             gridspec_kw=gridspec_kw)
     return fig, axes
 
 
@@ -114,12 +125,12 @@ def _name_recording(fig: Figure, recording: str) -> None:
 
 
 def fig_battery_filter(
-    t: Any,
-    raw_battery_v: Any,
-    filtered_v: Any,
+    t: Series,
+    raw_battery_v: Series,
+    filtered_v: Series,
     out: PathLike,
-    pwm_t: Any = None,
-    pwm: Any = None,
+    pwm_t: Series = None,
+    pwm: Series = None,
     recording: str = "",
 ) -> Path:
     """Paper Fig. 1 (and Fig. 2 below it when ``pwm`` is given).
@@ -159,7 +170,7 @@ def fig_battery_filter(
 HELD_STEP_S = 0.2
 
 
-def describe_command(t: Any, pwm: Any) -> str:
+def describe_command(t: Series, pwm: Series) -> str:
     """What a PWM command is, in words a title can carry ("held in 27 steps between 0.050 and
     0.100", "ramps between ...", "varying between ..."), so that a figure says what its data
     is rather than what the paper's figure of the same number showed."""
@@ -186,7 +197,7 @@ def describe_command(t: Any, pwm: Any) -> str:
     return f"a varying command {span}"
 
 
-def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike, recording: str = "") -> Path:
+def fig_ramp(t: Series, pwm: Series, speed: Series, out: PathLike, recording: str = "") -> Path:
     """The paper's Figs. 5-6 for any recording: its PWM command and the angular speed it
     produces (rotation starts near 0.055). The titles say what the command is (steps, ramps),
     since the paper's "sweeping the applicable range" would mislabel a staircase."""
@@ -205,7 +216,7 @@ def fig_ramp(t: Any, pwm: Any, speed: Any, out: PathLike, recording: str = "") -
     return _save(fig, out)
 
 
-def fig_training(history_train: Any, history_val: Any, best_epoch: int | None, out: PathLike) -> Path:
+def fig_training(history_train: Series, history_val: Series, best_epoch: int | None, out: PathLike) -> Path:
     """Paper Fig. 12: training and validation cost per epoch (log scale), best epoch marked.
 
     Index ``k`` of each history is epoch ``k``; the validation curve shows where early stopping
@@ -241,11 +252,11 @@ def fig_training(history_train: Any, history_val: Any, best_epoch: int | None, o
 
 
 def fig_validation(
-    t: Any,
-    pwm: Any,
-    voltage: Any,
-    speed_measured: Any,
-    speed_predicted: Any,
+    t: Series,
+    pwm: Series,
+    voltage: Series,
+    speed_measured: Series,
+    speed_predicted: Series,
     out: PathLike,
     title: str = "",
 ) -> Path:
@@ -281,7 +292,7 @@ def fig_validation(
     return _save(fig, out)
 
 
-def fig_prediction_scatter(measured: Any, predicted: Any, out: PathLike, recording: str = "") -> Path:
+def fig_prediction_scatter(measured: Series, predicted: Series, out: PathLike, recording: str = "") -> Path:
     """Predicted vs measured speed with the identity line: bias and saturation show at a glance."""
     m, p = _pair(measured, predicted)
     fig, axes = _figure(1, 1, (5.2, 5.0))
@@ -335,10 +346,10 @@ def fig_band_error(bands: Sequence[dict[str, float]], out: PathLike, recording: 
 
 
 def fig_compare(
-    t: Any,
-    pwm: Any,
-    speed_measured: Any,
-    predictions: Sequence[tuple[str, Any]],
+    t: Series,
+    pwm: Series,
+    speed_measured: Series,
+    predictions: Sequence[tuple[str, Series]],
     out: PathLike,
     recording: str = "",
 ) -> Path:
@@ -373,7 +384,7 @@ def fig_compare(
     return _save(fig, out)
 
 
-def thrust_error(measured_n: Any, predicted_n: Any) -> tuple[float, float, float]:
+def thrust_error(measured_n: Series, predicted_n: Series) -> tuple[float, float, float]:
     """(RMSE N, measured thrust range N, RMSE in % of that range) of predicted thrust, over the
     samples where both are finite: the figures ``fig_thrust`` states."""
     m, p = _arr(measured_n), _arr(predicted_n)
@@ -387,7 +398,7 @@ def thrust_error(measured_n: Any, predicted_n: Any) -> tuple[float, float, float
     return rmse, span, 100.0 * rmse / span if span > 0 else math.nan
 
 
-def thrust_error_text(measured_n: Any, predicted_n: Any) -> str:
+def thrust_error_text(measured_n: Series, predicted_n: Series) -> str:
     """"RMSE 0.031 N (1.2 % of the 2.53 N thrust range)": the figure's title and a report's
     headline say it in the same words."""
     rmse, span, pct = thrust_error(measured_n, predicted_n)
@@ -395,9 +406,9 @@ def thrust_error_text(measured_n: Any, predicted_n: Any) -> str:
 
 
 def fig_thrust(
-    t: Any,
-    thrust_measured: Any,
-    thrust_predicted: Any,
+    t: Series,
+    thrust_measured: Series,
+    thrust_predicted: Series,
     out: PathLike,
     recording: str = "",
     coefficient: float | None = None,
@@ -447,7 +458,7 @@ def _edges(x: np.ndarray, bins: int) -> np.ndarray:
 
 
 def binned_mean_2d(
-    x: Any, y: Any, z: Any, bins: tuple[int, int] = (20, 16), min_count: int = 5
+    x: Series, y: Series, z: Series, bins: tuple[int, int] = (20, 16), min_count: int = 5
 ) -> tuple[np.ndarray, np.ndarray, np.ma.MaskedArray, np.ndarray]:
     """(x edges, y edges, mean of z per bin masked where fewer than ``min_count``, counts).
 
@@ -468,11 +479,11 @@ def binned_mean_2d(
 
 
 def fig_disagreement_map(
-    pwm: Any,
-    dpwm_dt: Any,
-    residual: Any,
+    pwm: Series,
+    dpwm_dt: Series,
+    residual: Series,
     out: PathLike,
-    voltage: Any = None,
+    voltage: Series = None,
     *,
     bins: tuple[int, int] = (20, 16),
     min_count: int = 5,
@@ -531,14 +542,23 @@ def fig_disagreement_map(
 #: How the before/after figure draws each line: measured as a wide grey band beneath the models,
 #: so that a model that follows it closely (the point of adding an effect) cannot hide it;
 #: before dashed red, after solid blue, each distinct in colour and style.
-BEFORE_AFTER_STYLE: dict[str, dict[str, Any]] = {
+class LineStyle(TypedDict):
+    """Line2D properties of one line of the before/after figure."""
+
+    color: str
+    lw: float
+    ls: str
+    zorder: int
+
+
+BEFORE_AFTER_STYLE: dict[str, LineStyle] = {
     "measured": {"color": "0.55", "lw": 3.2, "ls": "-", "zorder": 2},
     "model before": {"color": "C3", "lw": 1.1, "ls": "--", "zorder": 3},
     "model after": {"color": "C0", "lw": 1.1, "ls": "-", "zorder": 4},
 }
 
 
-def _fit_axes(ax: Any, t: np.ndarray, *series: np.ndarray) -> None:
+def _fit_axes(ax: Axes, t: np.ndarray, *series: np.ndarray) -> None:
     """x limits = the recording's time span; y limits = the finite values of ``series`` with a
     5 % margin (shaded windows or an empty series never widen them)."""
     tt = t[np.isfinite(t)]
@@ -552,10 +572,10 @@ def _fit_axes(ax: Any, t: np.ndarray, *series: np.ndarray) -> None:
 
 
 def fig_before_after(
-    t: Any,
-    measured: Any,
-    before: Any,
-    after: Any,
+    t: Series,
+    measured: Series,
+    before: Series,
+    after: Series,
     out: PathLike,
     windows: Iterable[tuple[float, float]] = (),
     recording: str = "",
@@ -609,7 +629,7 @@ def fig_before_after(
 # -- index.html ------------------------------------------------------------------------------
 
 
-def _cell(value: Any) -> str:
+def _cell(value: object) -> str:
     if value is None:
         return ""
     if isinstance(value, bool):
@@ -626,13 +646,13 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-def _td(value: Any) -> str:
+def _td(value: object) -> str:
     """A table cell: numbers right-aligned (digits line up), text left-aligned (it reads)."""
     number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
     return ('<td class="n">' if number else "<td>") + html.escape(_cell(value)) + "</td>"
 
 
-def _table_html(caption: str, rows: Sequence[dict[str, Any]]) -> str:
+def _table_html(caption: str, rows: Sequence[Mapping[str, object]]) -> str:
     columns: list[str] = []
     for row in rows:
         for key in row:
@@ -671,7 +691,7 @@ def _headline_html(headline: Sequence[tuple[str, str]]) -> str:
     return f'<dl class="headline">{items}</dl>'
 
 
-def _jsonable(value: Any) -> Any:
+def _jsonable(value: object) -> JsonValue:
     """Plain JSON values (NaN and infinity as None, numpy scalars and arrays as numbers/lists)."""
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
@@ -691,11 +711,42 @@ def _jsonable(value: Any) -> Any:
 REPORT_JSON = "report.json"
 
 
+class ReportHeadline(TypedDict):
+    """One headline figure of ``report.json``."""
+
+    label: str
+    text: str
+
+
+class ReportFigure(TypedDict):
+    """One figure of ``report.json``: its file relative to the report, and its caption."""
+
+    file: str
+    caption: str
+
+
+class ReportTable(TypedDict):
+    """One table of ``report.json``: its caption and rows (column -> plain JSON value)."""
+
+    caption: str
+    rows: list[dict[str, JsonValue]]
+
+
+class ReportJson(TypedDict, total=False):
+    """What ``report.json`` holds. A file of an older version may lack any key: readers use ``get``."""
+
+    title: str
+    headline: list[ReportHeadline]
+    notes: list[str]
+    figures: list[ReportFigure]
+    tables: list[ReportTable]
+
+
 def write_index(
     report_dir: PathLike,
     title: str,
     figures: Sequence[tuple[str, str]],
-    tables: Sequence[tuple[str, Sequence[dict[str, Any]]]] = (),
+    tables: Sequence[tuple[str, Sequence[Mapping[str, object]]]] = (),
     headline: Sequence[tuple[str, str]] = (),
     notes: Sequence[str] = (),
 ) -> Path:
@@ -746,16 +797,16 @@ def write_index(
 # -- an index of several reports (the demo's) ---------------------------------------------------
 
 
-def _number(value: Any) -> float | None:
+def _number(value: object) -> float | None:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
-def headline_from_tables(tables: Sequence[dict[str, Any]]) -> list[tuple[str, str]]:
+def headline_from_tables(tables: Sequence[ReportTable]) -> list[tuple[str, str]]:
     """Headline of a report that states none (the discrepancy report, discrepancy/results.py),
     from its tables as ``report.json`` holds them, found by caption: the effects added ("added
     ..."), those not added ("not added ..." or "considered ..."), each with its status where the
     table has one, and the holdout RMSE before and after ("the gap"). Others are left out."""
-    def effects(rows: list[dict[str, Any]], heading: str) -> str:
+    def effects(rows: list[dict[str, JsonValue]], heading: str) -> str:
         """Effect names, each with its status less what the heading already says."""
         out = []
         for r in rows:
@@ -781,7 +832,7 @@ def headline_from_tables(tables: Sequence[dict[str, Any]]) -> list[tuple[str, st
     return out
 
 
-def read_report(report_dir: PathLike) -> dict[str, Any] | None:
+def read_report(report_dir: PathLike) -> ReportJson | None:
     """A report's ``report.json`` (None when the folder holds no report of this version)."""
     path = Path(report_dir) / REPORT_JSON
     try:

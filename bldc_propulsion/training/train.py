@@ -18,6 +18,7 @@ from ..model import HybridModel, NetworkModel
 from ..priors import AIR_DENSITY_KG_M3, INCH_M, MotorPriors
 from ..recordings import Signals
 from ..specs import split_spec
+from .band import band_metadata
 from .lm import LMResult, train_lm
 from .network import minmax_apply, minmax_fit, nguyen_widrow, pack, unpack
 
@@ -193,6 +194,7 @@ def train_model(
     phi0: np.ndarray | None = None,
     restarts: int = 1,
     start_at_zero: bool = False,
+    band: bool = True,
 ) -> TrainOutcome:
     """Fit an n-H-1 network on ``train``, early-stopped on ``validation`` (separate recordings).
 
@@ -207,7 +209,8 @@ def train_model(
     bundled bags the validation RMSE of single 3-25-1 runs spans 16-30 rad/s over seeds, and the
     validation cost is the unbiased way to choose among them (what trainlm users do by hand).
     ``thrust_coefficient``: the stated b (``stated_thrust``), the model's when ``train`` has no
-    measured thrust (``fit_thrust_coefficient``); None: the model has no b then.
+    measured thrust (``fit_thrust_coefficient``); None: the model has no b then. ``band``: see
+    ``validation_band`` (off for a hybrid's network: the hybrid's band is of its own speed).
     """
     if not train or not validation:
         raise BadInputError("training needs at least one training and one validation recording")
@@ -253,7 +256,18 @@ def train_model(
                          thrust_coefficient=fit.coefficient, metadata=metadata)
     rmse = float(np.sqrt(np.mean((model.forward(X) - y) ** 2)))
     rmse_v = float(np.sqrt(np.mean((model.forward(Xv) - yv) ** 2)))
+    metadata.update(validation_band(model, validation) if band else {})
     return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
+
+
+def validation_band(model: NetworkModel, validation: Sequence[Signals]) -> dict[str, Any]:
+    """The network's one-sigma speed band fitted on its validation residuals, for its metadata
+    (``training.band``); the speed as ``evaluate.predict_speed`` computes it (inputs clipped to
+    the training range, >= 0), which cannot be imported here (evaluate imports this module)."""
+    params = model.feature_params()
+    return band_metadata([np.maximum(model.forward(np.clip(features_of(s, model.input_names, params),
+                                                           model.input_min, model.input_max)), 0.0)
+                          for s in validation], validation)
 
 
 def _check_amounts(n_train: int, n_validation: int, hidden: int, n_in: int) -> None:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -48,8 +47,8 @@ class StepDynamics:
     #: ``start_level_shift`` on the settled holds: None when too few on a set
     start_level_shift: StartLevelShift | None = None
 
-    def as_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {k: (v.as_dict() if v is not None else None) for k, v in
+    def as_dict(self) -> dict[str, object]:
+        out: dict[str, object] = {k: (v.as_dict() if v is not None else None) for k, v in
                                (("dead_time_s", self.dead_time), ("spin_up_time_constant_ratio", self.spin_up),
                                 ("spin_down_time_constant_ratio", self.spin_down),
                                 ("spin_down_driven_time_constant_ratio", self.spin_down_driven))}

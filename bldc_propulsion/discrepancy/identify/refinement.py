@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from ... import contract as c
 from ...recordings import Signals
@@ -92,7 +91,7 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     resp = _response(run, "esc_deadband" in ev, progress)
     choice, why = which_dynamic(resp.measured, resp.reference, steps=resp.steps,
                                 exclude=[*proposal.added, *(set(c.EFFECTS) - set(ev))])
-    info = {"measured": resp.measured.as_dict(), "reference": resp.reference.as_dict(),
+    info: dict[str, object] = {"measured": resp.measured.as_dict(), "reference": resp.reference.as_dict(),
             "step_responses": resp.steps.as_dict(), "changed": choice, "because": why}
     progress(f"  identified dynamics: {why}")
     if choice is None:
@@ -150,7 +149,7 @@ def _response(run: Identification, start_level: bool, progress: Progress) -> Res
     return run.response
 
 
-def _none_changed(ev: dict[str, Evidence], info: dict[str, Any]) -> str | None:
+def _none_changed(ev: dict[str, Evidence], info: dict[str, object]) -> str | None:
     """The response to the command did not change: the residual's dynamic structure is the model's
     own (it is there on the reference too), so none of RESPONSE_EFFECTS is new. The proposal is
     then the other candidate new on the measured data that removes the most, if any."""
