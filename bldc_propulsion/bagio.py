@@ -477,9 +477,9 @@ class Bulk:
     topics: list[str]  #: contract names; message k is of topic ``topics[code[k]]``
     code: np.ndarray  #: (n,) int, topic index of each message
     ns: np.ndarray  #: (n,) int64, bag time of each message
-    #: per topic, its messages decoded in order (see Recording.bulk): a BulkValues, held untyped
-    #: because each reader (replay) uses the form it knows the topic's type gives
-    values: dict[str, Any]
+    #: per topic, its messages decoded in order (see Recording.bulk); each reader (replay) narrows
+    #: it to the form it knows the topic's type gives
+    values: dict[str, BulkValues]
 
 
 @dataclass

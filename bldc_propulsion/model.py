@@ -39,7 +39,7 @@ import os
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar, NoReturn
+from typing import Any, ClassVar, NoReturn, TypeAlias, TypedDict
 
 import numpy as np
 
@@ -57,6 +57,10 @@ FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
 #: The input of a hybrid's network that is the physics part's predicted speed (rad/s).
 PHYSICS_SPEED = c.INPUT_PHYSICS_SPEED
+
+#: A model's metadata_json: arbitrary JSON read back from the file (provenance, fit figures, band),
+#: each reader checking the keys it uses (``_check_metadata`` checks the object and its known keys)
+Metadata: TypeAlias = "dict[str, Any]"
 
 _FLOAT_KEYS_SCALAR = ("output_min", "output_max", "b2", "pwm_tau_s")
 _COMMON_KEYS = ("format_version", "kind", "thrust_coefficient", "metadata_json")
@@ -88,7 +92,7 @@ class NetworkModel:
     b2: float
     pwm_tau_s: float = c.PAPER_PWM_TAU_S
     thrust_coefficient: float | None = NOMINAL_THRUST_COEFFICIENT  #: None: no b, speed only
-    metadata: dict[str, Any] = field(default_factory=dict)
+    metadata: Metadata = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.input_names = tuple(str(n) for n in self.input_names)
@@ -145,7 +149,8 @@ class NetworkModel:
         }
 
 
-def _common_arrays(kind: str, thrust_coefficient: float | None, metadata: dict[str, Any]) -> dict[str, np.ndarray]:
+def _common_arrays(kind: str, thrust_coefficient: float | None,
+                   metadata: Mapping[str, object]) -> dict[str, np.ndarray]:
     return {
         "format_version": np.array(FORMAT_VERSION, dtype=np.int64),
         "kind": np.array(kind, dtype=np.str_),
@@ -175,7 +180,7 @@ class HybridModel:
         return self.network.thrust_coefficient
 
     @property
-    def metadata(self) -> dict[str, Any]:
+    def metadata(self) -> Metadata:
         return self.network.metadata
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -215,7 +220,7 @@ class HybridModel:
 Model = NetworkModel | PlantModel | HybridModel
 
 
-def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) -> tuple[str, dict[str, Any]]:
+def _check(a: Mapping[str, np.ndarray], where: str, check_names: bool = True) -> tuple[str, Metadata]:
     """Validate the arrays of a model of any kind; ModelError(f"{where}: ...") on the first
     problem. Returns the kind and the metadata.
 
@@ -258,7 +263,7 @@ def _check_kind(a: Mapping[str, np.ndarray], fail: Fail) -> str:
     return str(kind)
 
 
-def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
+def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> Metadata:
     mj = a["metadata_json"]
     if mj.shape != () or mj.dtype.kind != "U":
         fail(f"metadata_json must be a scalar unicode string, got {mj.dtype} shape {mj.shape}")
@@ -276,7 +281,7 @@ def _check_metadata(a: Mapping[str, np.ndarray], fail: Fail) -> dict[str, Any]:
     return meta
 
 
-def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any], check_names: bool,
+def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: Metadata, check_names: bool,
                    fail: Fail) -> None:
     name_list = _check_names(a, "input_names", fail)
     features = [nm for nm in name_list if nm != PHYSICS_SPEED]
@@ -335,6 +340,13 @@ def _check_network(a: Mapping[str, np.ndarray], kind: str, meta: dict[str, Any],
 RANGE_WARN_FRACTION = 0.01
 
 
+class RangeJson(TypedDict):
+    """``RangeReport.as_dict``: out_of_training_range in the commands' --json."""
+
+    fraction: float
+    by_input: dict[str, float]
+
+
 @dataclass
 class RangeReport:
     """How much of a recording the model saw only by extrapolation (inputs clipped to the
@@ -344,7 +356,7 @@ class RangeReport:
     fraction: float  #: share of the time with any input outside the range
     by_input: dict[str, float]  #: share of the time per input (inputs that left it only)
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> RangeJson:
         return {"fraction": self.fraction, "by_input": self.by_input}
 
     def warning(self) -> str | None:

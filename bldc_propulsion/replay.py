@@ -30,20 +30,22 @@ from __future__ import annotations
 import bisect
 import os
 from collections.abc import Callable, Iterable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeAlias, TypedDict, cast
 
 import numpy as np
+from numpy.typing import NDArray
 
 from . import contract as c
 from .atomic import RECORDING, check_output
 from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
+from .core.status import CoreStatus
 from .core.tach_output import SpeedOutput
-from .core.tachometer import TachometerConfig, TachometerDecoder
+from .core.tachometer import Samples, TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
 from .core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
-from .model import RangeReport, load_model
+from .model import RangeJson, RangeReport, load_model
 from .nodes.params import BATTERY_FILTER, TACHOMETER, THRUST_ESTIMATOR, diagnostic_name, hardware_id
 from .physics.fallback import fallback_model
 from .stamped_writer import StampedWriter
@@ -53,6 +55,45 @@ VOLTAGE_RATE_HZ = 20.0  #: battery_filter's publish_rate_hz default
 DIAGNOSTICS_RATE_HZ = 1.0
 #: The bulk path reads MCAP recordings in windows of this much bag time (bounded memory)
 BULK_WINDOW_S = 60.0
+
+
+class StatusJson(TypedDict):
+    """One core status as the summary carries it (``CoreStatus``'s fields)."""
+
+    name: str
+    level: int
+    message: str
+    values: dict[str, str]
+
+
+class BandJson(TypedDict):
+    """Whether predicted/*_sigma were written, and the model's band or why not."""
+
+    written: bool
+    note: str
+
+
+class ReplaySummary(TypedDict):
+    """What ``replay_bag`` returns (``replay --json``)."""
+
+    path: str
+    input: str
+    model: str | None
+    namespace: str | None
+    messages_in: int
+    messages_out: int
+    messages_in_per_topic: dict[str, int]
+    duration_s: float
+    read_error: str | None
+    out_of_training_range: RangeJson | None
+    measured_inputs: list[str]
+    band: BandJson
+    warnings: list[str]
+    status: list[StatusJson]
+
+
+#: An event of the bulk path: a Float64 or BatteryState value, or a tachometer batch's samples
+_EventValue: TypeAlias = "float | NDArray[np.float32]"
 
 
 class _StreamingOnly(Exception):
@@ -84,7 +125,7 @@ def replay_bag(
     joint_name: str = c.DEFAULT_JOINT_NAME,
     frame_id: str = c.DEFAULT_FRAME_ID,
     spin_direction: int = c.DEFAULT_SPIN_DIRECTION,
-) -> dict[str, Any]:
+) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
 
     ``joint_name``, ``frame_id`` and ``spin_direction`` are the nodes' parameters of the same
@@ -123,7 +164,7 @@ def _replay(
     stamped: _Stamped,
     *,
     reference: bool,
-) -> dict[str, Any]:
+) -> ReplaySummary:
     check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
@@ -179,7 +220,8 @@ def _replay(
             "input": str(in_path),
             "model": str(model_path) if model_path else None,
             "namespace": ns,
-            **counts,
+            "messages_in": counts["messages_in"],
+            "messages_out": counts["messages_out"],
             "messages_in_per_topic": per_topic_in,
             "duration_s": end,
             "read_error": rec.read_error,
@@ -227,9 +269,9 @@ class _Nodes:
         self.per_topic_in: dict[str, int] = {}
         #: the battery filter's diagnostics; the bulk path hands out statuses taken in advance.
         #: A stage that has no input because the recording holds its output reports nothing.
-        self.filter_status: Callable[[], list[Any]] = (
+        self.filter_status: Callable[[], list[CoreStatus]] = (
             list if c.TOPIC_BATTERY_VOLTAGE in self.measured else filt.status)
-        self.tach_status: Callable[[], list[Any]] = list if c.TOPIC_ROTOR_SPEED in self.measured else tach.status
+        self.tach_status: Callable[[], list[CoreStatus]] = list if c.TOPIC_ROTOR_SPEED in self.measured else tach.status
         (self.speed_topic, self.thrust_topic, self.voltage_topic, self.rotor_topic,
          self.rpm_topic) = map(topic_out, (
             c.TOPIC_PREDICTED_SPEED, c.TOPIC_PREDICTED_THRUST, c.TOPIC_BATTERY_VOLTAGE,
@@ -238,7 +280,7 @@ class _Nodes:
             c.TOPIC_PREDICTED_SPEED_SIGMA, c.TOPIC_PREDICTED_THRUST_SIGMA))
         #: each node's diagnostics: (status name prefix, hardware_id, its statuses now); a stage
         #: whose statuses are empty (not run) publishes nothing
-        self.diagnostics: tuple[tuple[str, str, Callable[[], list[Any]]], ...] = (
+        self.diagnostics: tuple[tuple[str, str, Callable[[], list[CoreStatus]]], ...] = (
             (*diagnostic_source(namespace, BATTERY_FILTER), lambda: self.filter_status()),
             (*diagnostic_source(namespace, TACHOMETER), lambda: self.tach_status()),
             (*diagnostic_source(namespace, THRUST_ESTIMATOR), lambda: [*est.status(), *self.wrench_status()]),
@@ -272,7 +314,7 @@ class _Nodes:
             next_diag += 1.0 / DIAGNOSTICS_RATE_HZ
         self.next_diag = next_diag
 
-    def wrench_status(self) -> list[Any]:
+    def wrench_status(self) -> list[CoreStatus]:
         """The node's status on predicted/wrench's torque (core.wrench)."""
         return wrench_status(self.torque_coefficient, self.est.thrust_coefficient is not None)
 
@@ -303,7 +345,7 @@ class _Nodes:
         self.bag.write_float64(self.rpm_topic, t, w * c.RAD_S_TO_RPM)
         self.stamped.rotor_state(t, t, w)
 
-    def tach_batch(self, t: float, samples: Any) -> None:
+    def tach_batch(self, t: float, samples: Samples) -> None:
         self.tach.process_batch(t, samples, result=False)
         out = self.speed_out
         speed = out.after_batch(t)
@@ -315,7 +357,7 @@ class _Nodes:
             self.est.update_speed(t, speed)  # as the estimator node takes rotor/speed
 
     # --- the reference: every message in turn ----------------------------------------------
-    def run_reference(self, messages: Iterable[tuple[str, float, Any]]) -> None:
+    def run_reference(self, messages: Iterable[tuple[str, float, Any]]) -> None:  # rosbags messages
         counts, per_topic_in = self.counts, self.per_topic_in
         for topic, t, msg in messages:
             self.timers_until(t)
@@ -362,31 +404,33 @@ class _Nodes:
         if self.next_diag is None:
             self.next_diag = times[0] + 1.0 / DIAGNOSTICS_RATE_HZ
         # events: (message index, kind, value); the battery samples that publish are added below
-        events: list[tuple[int, int, Any]] = []
+        events: list[tuple[int, int, _EventValue]] = []
         for k, topic in enumerate(bulk.topics):
             where = np.flatnonzero(code == k).tolist()
-            vals = bulk.values[topic]
+            vals = bulk.values[topic]  # the topic's type decides the form (bagio.BulkValues)
             if topic == c.TOPIC_PWM:
-                events += zip(where, [0] * len(where), vals.tolist(), strict=True)
+                events += zip(where, [0] * len(where), cast("NDArray[np.float64]", vals).tolist(), strict=True)
             elif topic == c.TOPIC_TACH_ADC:
-                events += zip(where, [2] * len(where), vals, strict=True)
-                self.tach.expect(vals)  # their level trackers are computed many at a time
+                batches = cast("list[NDArray[np.float32]]", vals)
+                events += zip(where, [2] * len(where), batches, strict=True)
+                self.tach.expect(batches)  # their level trackers are computed many at a time
             elif topic == c.TOPIC_BATTERY_VOLTAGE:
-                events += zip(where, [3] * len(where), vals.tolist(), strict=True)
+                events += zip(where, [3] * len(where), cast("NDArray[np.float64]", vals).tolist(), strict=True)
             elif topic == c.TOPIC_ROTOR_SPEED:
-                events += zip(where, [4] * len(where), vals.tolist(), strict=True)
+                events += zip(where, [4] * len(where), cast("NDArray[np.float64]", vals).tolist(), strict=True)
             elif topic == c.TOPIC_BATTERY_ADC:
-                events += self._battery(np.asarray(where), np.asarray(times)[where], vals)
+                events += self._battery(np.asarray(where), np.asarray(times)[where],
+                                        cast("NDArray[np.float64]", vals))
         events.sort(key=lambda e: e[0])
         self._visit(times, events)
 
-    def _battery(self, where: np.ndarray, t: np.ndarray, adc: np.ndarray) -> list[tuple[int, int, Any]]:
+    def _battery(self, where: np.ndarray, t: np.ndarray, adc: np.ndarray) -> list[tuple[int, int, float]]:
         """Filter every battery sample; the filter's statuses at the diagnostics times (taken
         now, in order, for :meth:`timers_until`); the (message index, 1, volts) events of the
         samples after which the filter publishes (the Ticker's rule at each accepted sample)."""
         filt, end = self.filt, len(t)
         out = np.empty(end)
-        statuses: list[list[Any]] = []
+        statuses: list[list[CoreStatus]] = []
         diag, a = self._diag_due(), 0
         while a < end:
             b = int(np.searchsorted(t, diag, side="left"))  # samples before diagnostics at `diag`
@@ -399,7 +443,7 @@ class _Nodes:
         self.filter_status = lambda: next(later, None) or self.filt.status()
         accepted = np.flatnonzero(~np.isnan(out))
         ta = t[accepted].tolist()
-        events = []
+        events: list[tuple[int, int, float]] = []
         ticker, i = self.voltage_out, 0
         while i < len(ta):
             if ticker.take(ta[i]):  # the first accepted sample at or after the next grid time
@@ -413,7 +457,7 @@ class _Nodes:
         assert self.next_diag is not None, "set before the bulk events are visited"
         return self.next_diag
 
-    def _visit(self, times: list[float], events: list[tuple[int, int, Any]]) -> None:
+    def _visit(self, times: list[float], events: list[tuple[int, int, _EventValue]]) -> None:
         n, predictions = len(times), self.predictions
         done = 0  # messages before this index have been applied
         for pos, kind, value in events:
@@ -425,16 +469,17 @@ class _Nodes:
                 self.timers_until(times[j])
                 done = j + 1
             t = times[pos]
+            # the kind says which form the value has (casts only: no check in this loop)
             if kind == 0:
-                self.pwm(t, value)
+                self.pwm(t, cast(float, value))
             elif kind == 1:
-                self.voltage_published(t, value)
+                self.voltage_published(t, cast(float, value))
             elif kind == 2:
-                self.tach_batch(t, value)
+                self.tach_batch(t, cast("NDArray[np.float32]", value))
             elif kind == 3:
-                self.voltage_recorded(t, value)
+                self.voltage_recorded(t, cast(float, value))
             else:
-                self.speed_recorded(t, value)
+                self.speed_recorded(t, cast(float, value))
             done = pos + 1
         while True:
             j = bisect.bisect_left(times, min(predictions.next_s, self._diag_due()), done)
@@ -444,7 +489,7 @@ class _Nodes:
             done = j + 1
 
 
-def summary_text(info: dict[str, Any]) -> str:
+def summary_text(info: ReplaySummary) -> str:
     """A few lines a person reads after a replay."""
     lines = [
         f"replayed {info['input']} ({info['duration_s']:.1f} s) -> {info['path']}",

@@ -11,38 +11,43 @@ a second of recording); ``test/test_stamped_outputs.py`` checks the bytes agains
 from __future__ import annotations
 
 import struct
-from typing import Any
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from . import contract as c
 from .bagio import TYPESTORE, BagWriter
 
+if TYPE_CHECKING:  # the classes TYPESTORE.types holds under these names (typed there as MsgType)
+    from rosbags.typesys.stores.ros2_jazzy import builtin_interfaces__msg__Time as TimeMsg
+    from rosbags.typesys.stores.ros2_jazzy import geometry_msgs__msg__WrenchStamped as WrenchStampedMsg
+    from rosbags.typesys.stores.ros2_jazzy import sensor_msgs__msg__JointState as JointStateMsg
+
 _SEC, _NSEC = 0x5EC5EC01, 0x0A5EC0DE  #: sentinel stamp
 _A, _B = 1234.5678125, -8765.4321875  #: sentinel doubles
 
 
-def _stamp(sec: int, nanosec: int) -> Any:
-    return TYPESTORE.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+def _stamp(sec: int, nanosec: int) -> TimeMsg:
+    return cast("TimeMsg", TYPESTORE.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec))
 
 
-def joint_state(joint_name: str, sec: int, nanosec: int, velocity: float) -> Any:
+def joint_state(joint_name: str, sec: int, nanosec: int, velocity: float) -> JointStateMsg:
     """JointState of one joint, velocity only (position and effort empty: unknown)."""
     T = TYPESTORE.types
-    return T[c.JOINT_STATE](
+    return cast("JointStateMsg", T[c.JOINT_STATE](
         header=T["std_msgs/msg/Header"](stamp=_stamp(sec, nanosec), frame_id=""),
         name=[joint_name], position=np.zeros(0),
-        velocity=np.array([velocity], dtype=np.float64), effort=np.zeros(0))
+        velocity=np.array([velocity], dtype=np.float64), effort=np.zeros(0)))
 
 
-def wrench_stamped(frame_id: str, sec: int, nanosec: int, force_z: float, torque_z: float) -> Any:
+def wrench_stamped(frame_id: str, sec: int, nanosec: int, force_z: float, torque_z: float) -> WrenchStampedMsg:
     """WrenchStamped with force.z and torque.z, the rest 0."""
     T = TYPESTORE.types
     V = T["geometry_msgs/msg/Vector3"]
     wrench = T["geometry_msgs/msg/Wrench"](force=V(x=0.0, y=0.0, z=force_z),
                                           torque=V(x=0.0, y=0.0, z=torque_z))
-    return T[c.WRENCH_STAMPED](header=T["std_msgs/msg/Header"](stamp=_stamp(sec, nanosec),
-                                                             frame_id=frame_id), wrench=wrench)
+    return cast("WrenchStampedMsg", T[c.WRENCH_STAMPED](
+        header=T["std_msgs/msg/Header"](stamp=_stamp(sec, nanosec), frame_id=frame_id), wrench=wrench))
 
 
 class _Patch:

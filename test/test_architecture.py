@@ -8,27 +8,19 @@ lost its late or TYPE_CHECKING imports could not pass here unnoticed.
 from __future__ import annotations
 
 import ast
-import importlib.util
 import io
-import sys
 import tokenize
 from pathlib import Path
 
 import pytest
 
+from _scripts import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "bldc_propulsion"
 
 
-def _load_tool():
-    spec = importlib.util.spec_from_file_location("imports_tool", ROOT / "scripts" / "imports.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-tool = _load_tool()
+tool = load_script("scripts/imports.py", "imports_tool")
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,6 @@ Small simulated recordings (6 s), a 3-3-1 network trained for a few epochs, all 
 from __future__ import annotations
 
 import html
-import importlib.util
 import json
 import re
 import shutil
@@ -19,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _scripts import load_script
 from _truth_bags import write_bag
 from bldc_propulsion import cli
 from bldc_propulsion.model import load_model
@@ -269,10 +269,7 @@ def test_ramp_figure_titles_a_staircase_as_steps(tmp_path, monkeypatch) -> None:
 # --- the screenshot script -----------------------------------------------------------------------
 
 def _screenshot_script():
-    spec = importlib.util.spec_from_file_location("screenshot_reports", ROOT / "scripts" / "screenshot_reports.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("scripts/screenshot_reports.py", "screenshot_reports")
 
 
 def test_screenshot_script_finds_pages_and_skips_without_chromium(tmp_path, capsys, monkeypatch):

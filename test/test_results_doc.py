@@ -14,7 +14,6 @@ splits) are produced by their scripts with ``--json``; only their rendering is c
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import re
 import sys
@@ -23,19 +22,12 @@ from typing import Any
 
 import pytest
 
+from _scripts import load_script
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load_results():
-    """benchmarks/results.py (a script, not a package module), loaded by path."""
-    spec = importlib.util.spec_from_file_location("bench_results", ROOT / "benchmarks" / "results.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-results = _load_results()
+results = load_script("benchmarks/results.py", "bench_results")
 
 
 # --- 1. the documents are the JSON's rendering ------------------------------------------------------

@@ -11,7 +11,6 @@ import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 from ..errors import BadInputError
 
@@ -57,11 +56,11 @@ def add_namespace_argument(p: argparse.ArgumentParser) -> None:
 
 
 def number(kind: type = float, lo: float | None = None, hi: float | None = None,
-           lo_open: bool = False) -> Callable[[str], Any]:
+           lo_open: bool = False) -> Callable[[str], float]:
     """An argparse type: a finite ``kind`` (int or float) within [lo, hi] ((lo, hi] with
     ``lo_open``). Every numeric option has a bound, so that no value can make a command run
     for days or exhaust memory."""
-    def parse(text: str) -> Any:
+    def parse(text: str) -> float:
         try:
             value = kind(text)
         except ValueError:

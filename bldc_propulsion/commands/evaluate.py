@@ -8,7 +8,7 @@ import argparse
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypedDict
 
 from ..atomic import REPORT, check_outputs, report_output
 from ..errors import BadInputError
@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, 
 
     from ..model import Model
     from ..recordings import Signals
-    from ..training.evaluate import BandCoverage, RecordingScore
+    from ..training.evaluate import BandCoverage, BandCoverageJson, RecordingScore, RecordingScoreJson
 
 NAME = "evaluate"
 HELP = "measure a model's speed error on recordings"
@@ -45,6 +45,50 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_namespace_argument(p)
 
 
+class BandJson(TypedDict):
+    """``Evaluation.band_json``: the band's overall coverage, or why the model has none."""
+
+    band_coverage: BandCoverageJson | None
+    band_unavailable: str | None
+
+
+class EvaluationJson(BandJson):
+    """``Evaluation.as_dict``: one model's figures (``models`` in --json with several)."""
+
+    model: str
+    kind: str
+    rmse_rad_s: float
+    thrust_coefficient: float | None
+    recordings: list[RecordingScoreJson]
+
+
+class ComparisonRow(TypedDict):
+    """``comparison``: one row of the side-by-side table; per model file, None where a band had
+    too few samples for it."""
+
+    recording: str
+    part: str
+    rmse_rad_s: dict[str, float | None]
+    rmse_percent_of_range: dict[str, float | None]
+
+
+class _EvaluateJsonCore(BandJson):
+    model: str
+    rmse_rad_s: float
+    thrust_coefficient: float | None
+    recordings: list[RecordingScoreJson]
+
+
+class EvaluateJson(_EvaluateJsonCore, total=False):
+    """What ``evaluate --json`` prints: the first (or only) model's figures; with several
+    models, each one's and the side-by-side table; the report's folder with --report."""
+
+    models: list[EvaluationJson]
+    comparison: list[ComparisonRow]
+    report: str
+    warnings: list[str]
+
+
 @dataclass
 class Evaluation:
     """One model's evaluation on the command's recordings (training/evaluate.py ``evaluate``)."""
@@ -66,7 +110,7 @@ class Evaluation:
         parts = [s.band for s in self.scores if s.band is not None]
         return sum(parts[1:], parts[0]) if parts else None
 
-    def band_json(self) -> dict[str, Any]:
+    def band_json(self) -> BandJson:
         """``band_coverage`` (overall: percent inside +-1 sigma, mean sigma, samples) or None,
         and ``band_unavailable``: why there is none (None: there is one)."""
         from ..core.uncertainty import band_of
@@ -75,7 +119,7 @@ class Evaluation:
         return {"band_coverage": band.as_dict() if band else None,
                 "band_unavailable": None if band else band_of(self.model)[1]}
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> EvaluationJson:
         return {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
                 "thrust_coefficient": self.model.thrust_coefficient, **self.band_json(),
                 "recordings": [s.as_dict() for s in self.scores]}
@@ -130,7 +174,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
     evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models, strict=True)]
     first = evals[0]  # the contract's keys: the first (or only) model's figures
-    data: dict[str, Any] = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
+    data: EvaluateJson = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
                             "thrust_coefficient": first.model.thrust_coefficient, **first.band_json(),
                             "recordings": [s.as_dict() for s in first.scores]}
     lines = [line for e in evals for line in e.lines()]
@@ -148,13 +192,13 @@ def run(args: argparse.Namespace) -> CommandResult:
     return CommandResult(data, "\n".join(lines), warnings=warnings)
 
 
-def comparison(evals: list[Evaluation]) -> list[dict[str, Any]]:
+def comparison(evals: list[Evaluation]) -> list[ComparisonRow]:
     """The side-by-side table: one row per recording (``part`` "whole") and per command band of
     a chirp recording, each model's RMSE (rad/s) and its % of the recording's speed range,
     keyed by the model's file. A band a model has too few samples in is None for it."""
-    rows: list[dict[str, Any]] = []
+    rows: list[ComparisonRow] = []
     for k, sig_score in enumerate(evals[0].scores):
-        parts: dict[str, dict[str, Any]] = {"whole": {}}
+        parts: dict[str, dict[str, tuple[float, float]]] = {"whole": {}}  # model -> (rmse, percent)
         for e in evals:
             s = e.scores[k]
             parts["whole"][e.path] = (s.rmse_rad_s, s.rmse_percent_of_range)
@@ -173,7 +217,7 @@ def _cell(rmse: float | None, percent: float | None) -> str:
     return "-" if rmse is None else f"{rmse:.2f} ({percent:.2f} %)"
 
 
-def comparison_lines(evals: list[Evaluation], rows: list[dict[str, Any]]) -> list[str]:
+def comparison_lines(evals: list[Evaluation], rows: list[ComparisonRow]) -> list[str]:
     """The side-by-side table as text: RMSE rad/s (% of the speed range) per model."""
     first = max(len(r["recording"]) if r["part"] == "whole" else len(r["part"]) + 2 for r in rows)
     width = max(18, *(len(e.label) + 2 for e in evals))
@@ -188,7 +232,7 @@ def comparison_lines(evals: list[Evaluation], rows: list[dict[str, Any]]) -> lis
 
 # --- report ---------------------------------------------------------------------------------
 def write_evaluation_report(path: Path, signals: list[Signals], evals: list[Evaluation],
-                            rows: list[dict[str, Any]], force: bool = False) -> str:
+                            rows: list[ComparisonRow], force: bool = False) -> str:
     """Figures and tables of an evaluation, written whole to ``path`` (atomic.report_output):
     one model's figures, or with several models the side-by-side table (``rows``, from
     ``comparison``) and one figure per recording with the measured speed and every model's
@@ -203,7 +247,7 @@ def write_evaluation_report(path: Path, signals: list[Signals], evals: list[Eval
 
 
 def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation],
-                       rows: list[dict[str, Any]]) -> None:
+                       rows: list[ComparisonRow]) -> None:
     from ..training import report
 
     figs: list[tuple[str, str]] = []
@@ -229,7 +273,7 @@ def _comparison_report(d: Path, signals: list[Signals], evals: list[Evaluation],
                        headline=headline)
 
 
-def score_row(s: RecordingScore) -> dict[str, Any]:
+def score_row(s: RecordingScore) -> dict[str, object]:
     """One recording's figures as a report table's row, with headers a reader understands
     (the --json keys say the same with units in their names)."""
     return {"recording": s.path, "RMSE (rad/s)": s.rmse_rad_s, "% of speed range": s.rmse_percent_of_range,
@@ -242,7 +286,7 @@ def score_row(s: RecordingScore) -> dict[str, Any]:
             "outside training range %": 100 * s.out_of_range.fraction if s.out_of_range else None}
 
 
-def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[Any],
+def _evaluation_report(d: Path, signals: list[Signals], preds: list[np.ndarray], scores: list[RecordingScore],
                        coefficient: float | None = None, overall_rmse_rad_s: float | None = None) -> None:
     """One model's report: per recording the paper's Fig. 13, a scatter, the thrust against the
     load cell where both a measured thrust and the model's b exist, the error per band of a

@@ -1,6 +1,6 @@
 """Online speed and thrust prediction from the PWM command and the filtered battery voltage.
 
-Any kind of model (model.py): a network, a physics model (its one input, ``physics_speed``, is
+A model of every kind (model.py): a network, a physics model (its one input, ``physics_speed``, is
 the plant stepped as a stream, physics/stream.py) or a hybrid (the physics speed plus a
 network's correction). The model's inputs are computed by core/features.py (the trainer and
 evaluate use the same code). Inputs

@@ -86,7 +86,7 @@ class SpeedBand:
              + self.slow_rad_s * np.asarray(slow_change, dtype=float))
         return np.where(np.isnan(s), np.nan, np.maximum(s, MIN_SIGMA_RAD_S))
 
-    def as_metadata(self, **provenance: Any) -> dict[str, Any]:
+    def as_metadata(self, **provenance: object) -> dict[str, object]:
         """The metadata's ``band`` object (JSON); ``provenance``: what it was fitted on."""
         return {"version": BAND_VERSION, "quantile": ONE_SIGMA,
                 "form": "base + per_speed w + fast |u - lp(u, fast_tau_s)| + slow |u - lp(u, slow_tau_s)|",
@@ -95,11 +95,12 @@ class SpeedBand:
 
     @classmethod
     def of_metadata(cls, meta: Mapping[str, Any]) -> SpeedBand:
-        """From a checked ``band`` object (``band_problem`` None) of this version."""
+        """From a checked ``band`` object (``band_problem`` None) of this version: JSON read from
+        the model file, whose numbers ``band_problem`` has checked."""
         return cls(*(float(meta[k]) for k in (*COEFFICIENTS, "fast_tau_s", "slow_tau_s")))
 
 
-def band_problem(meta: Any) -> str | None:
+def band_problem(meta: object) -> str | None:
     """What is wrong with a model file's ``band`` object, None if usable or of a newer version
     (``band_of`` says why such a band is not used)."""
     if not isinstance(meta, Mapping):
@@ -118,8 +119,9 @@ def band_problem(meta: Any) -> str | None:
     return None
 
 
-def band_of(model: Any) -> tuple[SpeedBand | None, str]:
-    """The model's band, or None and why it has none (diagnostics and evaluate say it)."""
+def band_of(model: object) -> tuple[SpeedBand | None, str]:
+    """The model's band, or None and why it has none (diagnostics and evaluate say it); any
+    object: what it reads (``is_fallback``, ``metadata``) it looks up with getattr."""
     if getattr(model, "is_fallback", False):
         return None, "first-principles fallback: no validation residuals, so no uncertainty band"
     metadata = getattr(model, "metadata", None) or {}

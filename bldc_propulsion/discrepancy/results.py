@@ -20,6 +20,7 @@ from .dataset import DataSet, rmse
 from .physics import FittedValue, value_text
 
 if TYPE_CHECKING:
+    from ..model import RangeJson
     from ..physics.config import ConfigJson
     from ..physics.fit import FitFlagJson
 
@@ -237,7 +238,7 @@ class ResultJson(_ResultCore, GapJson, KindFields, total=False):
 
     warnings: list[str]
     report: str
-    out_of_training_range: dict[str, dict[str, object]]
+    out_of_training_range: dict[str, RangeJson]
 
 
 @dataclass

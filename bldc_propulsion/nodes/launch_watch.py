@@ -19,7 +19,45 @@ run it with stand-in events.
 from __future__ import annotations
 
 import signal
-from typing import Any
+from typing import Protocol
+
+
+class _RosNode(Protocol):
+    """launch_ros's Node action, as ``node_label`` reads it (a plain process's action lacks
+    these: AttributeError, caught there)."""
+
+    @property
+    def node_name(self) -> str: ...
+
+    def is_node_name_fully_specified(self) -> bool: ...
+
+
+class _ProcessEvent(Protocol):
+    """What launch's process events (ProcessIO, ProcessExited) carry that is read here."""
+
+    @property
+    def process_name(self) -> str: ...
+
+    @property
+    def action(self) -> _RosNode: ...
+
+
+class _ProcessIO(_ProcessEvent, Protocol):
+    @property
+    def text(self) -> bytes: ...
+
+
+class _ProcessExited(_ProcessEvent, Protocol):
+    @property
+    def pid(self) -> int: ...
+
+    @property
+    def returncode(self) -> int: ...
+
+
+class _LaunchContext(Protocol):
+    @property
+    def is_shutdown(self) -> bool: ...
 
 
 class NodeLost(RuntimeError):
@@ -36,7 +74,7 @@ def describe_status(returncode: int) -> str:
     return f"status {returncode}"
 
 
-def node_label(event: Any) -> str:
+def node_label(event: _ProcessEvent) -> str:
     """The process name, with the ROS node's full name when launch_ros knows it
     ('tachometer-2 /motor0/tachometer'): the process name alone does not say which motor."""
     try:
@@ -54,14 +92,14 @@ class LaunchWatch:
     def __init__(self) -> None:
         self.last_line: dict[str, str] = {}
 
-    def on_stderr(self, event: Any) -> None:
+    def on_stderr(self, event: _ProcessIO) -> None:
         """OnProcessIO's on_stderr: keep the last non-empty line of ``event.text`` (bytes)."""
         lines = [ln.strip() for ln in event.text.decode(errors="replace").splitlines()]
         lines = [ln for ln in lines if ln]
         if lines:
             self.last_line[event.process_name] = lines[-1]
 
-    def on_exit(self, event: Any, context: Any) -> None:
+    def on_exit(self, event: _ProcessExited, context: _LaunchContext) -> None:
         """A Node's on_exit (``ProcessExited``, ``LaunchContext``): nothing when the node
         stopped because the launch is shutting down, else raise :class:`NodeLost`."""
         if event.returncode == 0 and context.is_shutdown:

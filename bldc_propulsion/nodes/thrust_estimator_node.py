@@ -43,13 +43,16 @@ time (``ros2 param set``), such a file is refused and the last good model kept.
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
+
+if TYPE_CHECKING:
+    from rclpy.parameter import Parameter
 
 from bldc_propulsion import contract
 from bldc_propulsion.core.estimator import ThrustEstimator
@@ -251,7 +254,7 @@ class ThrustEstimatorNode(Node):
                 'model reload', WARN, self.reload_error, {'model_path': self.model_path}))
         self.diagnostics_pub.publish(diagnostic_array(self, statuses))
 
-    def on_set_parameters(self, parameters: list[Any]) -> SetParametersResult:
+    def on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Load a new model_path before accepting it; keep the last good model otherwise."""
         for p in parameters:
             if p.name != 'model_path':

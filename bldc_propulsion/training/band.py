@@ -15,7 +15,6 @@ lasts tens of them), so a long validation set is thinned to ``MAX_SAMPLES`` even
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from scipy.optimize import linprog
@@ -66,7 +65,7 @@ def quantile_regression(X: np.ndarray, y: np.ndarray, q: float) -> tuple[float, 
     return tuple(float(v) for v in b)
 
 
-def band_metadata(predictions: Sequence[np.ndarray], validation: Sequence[Signals]) -> dict[str, Any]:
+def band_metadata(predictions: Sequence[np.ndarray], validation: Sequence[Signals]) -> dict[str, object]:
     """``{BAND_KEY: ...}`` for a model's metadata: the band fitted on its ``predictions`` of the
     ``validation`` recordings (``residuals``), with what it was fitted on and how much of it lies
     inside (68.27 % by construction, to rounding); with fewer than MIN_SAMPLES residuals,

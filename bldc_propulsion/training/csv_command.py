@@ -26,10 +26,11 @@ import hashlib
 import io
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 from scipy import signal
@@ -147,7 +148,18 @@ def _parse_time(text: str) -> datetime | None:
     return None
 
 
-def csv_header(path: Path, text: str, option: str = "") -> tuple[Any, list[str]]:
+class CsvRows(Protocol):
+    """``csv.reader``'s reader as the readers use it: the rows, and the line reached (errors name it)."""
+
+    @property
+    def line_num(self) -> int: ...
+
+    def __iter__(self) -> Iterator[list[str]]: ...
+
+    def __next__(self) -> list[str]: ...
+
+
+def csv_header(path: Path, text: str, option: str = "") -> tuple[CsvRows, list[str]]:
     """(the csv reader after the header, the header: the first non-blank row); BadInputError
     naming ``path`` (and the option that gave it) when there is none or the CSV is broken."""
     reader = csv.reader(io.StringIO(text, newline=""))

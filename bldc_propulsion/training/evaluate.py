@@ -4,13 +4,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 from scipy import signal, stats
 
 from ..core.uncertainty import band_of, command_changes
-from ..model import Model, RangeReport, range_report
+from ..model import Model, RangeJson, RangeReport, range_report
 from ..recordings import Signals
 from .train import features_of
 
@@ -70,6 +70,32 @@ def is_chirp(t: np.ndarray, pwm: np.ndarray) -> tuple[bool, np.ndarray]:
     return bool(rho > 0.7 and hi > 4.0 * max(lo, 1e-3)), f
 
 
+class BandCoverageJson(TypedDict):
+    """``BandCoverage.as_dict``: band_coverage in evaluate's --json."""
+
+    percent: float
+    mean_sigma_rad_s: float
+    samples: int
+
+
+class RecordingScoreJson(TypedDict):
+    """``RecordingScore.as_dict``: one recording's figures in evaluate's --json."""
+
+    path: str
+    rmse_rad_s: float
+    rmse_percent_of_range: float
+    max_error_rad_s: float
+    speed_range_rad_s: float
+    samples: int
+    bands: list[dict[str, float]]
+    out_of_training_range: RangeJson | None
+    thrust_rmse_n: float | None
+    thrust_range_n: float | None
+    thrust_rmse_percent_of_range: float | None
+    thrust_unavailable: str | None
+    band_coverage: BandCoverageJson | None
+
+
 @dataclass
 class RecordingScore:
     path: str
@@ -90,7 +116,7 @@ class RecordingScore:
     #: the model's one-sigma band here (``band_coverage``); None: the model has no band
     band: BandCoverage | None = None
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> RecordingScoreJson:
         return {
             "path": self.path,
             "rmse_rad_s": self.rmse_rad_s,
@@ -163,7 +189,7 @@ class BandCoverage:
         return BandCoverage(self.inside + other.inside, self.samples + other.samples,
                             self.sigma_sum_rad_s + other.sigma_sum_rad_s)
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> BandCoverageJson:
         return {"percent": self.percent, "mean_sigma_rad_s": self.mean_sigma_rad_s, "samples": self.samples}
 
 

@@ -14,7 +14,7 @@ import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TypedDict, cast
 
 import numpy as np
 
@@ -44,6 +44,26 @@ STRAIGHT_MAP = ("esc_throttle_exponent",)
 HELD = ("battery_series_resistance_ohm",)
 
 
+class CandidateJson(TypedDict):
+    """One training fit as the model's metadata and ``train --json`` record it."""
+
+    fit: str  #: which ESC behaviour and throttle map
+    constants: dict[str, float]
+    effects: dict[str, float]
+    at_bound: list[str]
+    fit_flags: list[pf.FitFlagJson]
+    refused: list[str]
+    train_rmse_rad_s: float
+    validation_rmse_rad_s: float
+
+
+class _Candidate(CandidateJson):
+    """A fit with its model and flags (not JSON: dropped from the record)."""
+
+    model: PlantModel
+    flags: list[pf.FitFlag]
+
+
 @dataclass
 class PhysicsOutcome:
     model: PlantModel
@@ -52,7 +72,7 @@ class PhysicsOutcome:
     thrust: ThrustFit
     train_rmse_rad_s: float
     validation_rmse_rad_s: float
-    candidates: list[dict[str, Any]]  #: every fit tried, with its figures; the kept one first
+    candidates: list[CandidateJson]  #: every fit tried, with its figures; the kept one first
     #: one line each: the start point's (nominal bench, a CONFIG over stated priors) and every flag
     #: of the kept fit (``physics.fit.fit_flags``) that did not refuse it
     warnings: list[str] = dataclasses.field(default_factory=list)
@@ -135,16 +155,17 @@ def train_physics(
         **band,  # the speed's one-sigma band, from the validation residuals
     })
     return PhysicsOutcome(model, list(train), list(validation), thrust, best["train_rmse_rad_s"],
-                          best["validation_rmse_rad_s"], [{k: v for k, v in d.items() if k not in ("model", "flags")}
-                                                          for d in candidates], warnings)
+                          best["validation_rmse_rad_s"],
+                          cast("list[CandidateJson]", [{k: v for k, v in d.items() if k not in ("model", "flags")}
+                                                       for d in candidates]), warnings)
 
 
 def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals], validation: Sequence[Signals],
-                    tau: float, say: Callable[[str], None]) -> list[dict[str, Any]]:
+                    tau: float, say: Callable[[str], None]) -> list[_Candidate]:
     """``train_physics``'s four fits from ``base``: for each ESC (braking actively, letting the
     rotor coast) the throttle map held straight, then bent from the straight fit. Each as its
     JSON metadata record, plus its model and flags (``data``: ``train`` as the fit reads it)."""
-    candidates: list[dict[str, Any]] = []
+    candidates: list[_Candidate] = []
     for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
         start = dataclasses.replace(base, effects=effects).with_supply(train)

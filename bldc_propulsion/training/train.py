@@ -6,7 +6,7 @@ import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict, overload
 
 import numpy as np
 
@@ -52,6 +52,19 @@ HOVER_ASSUMPTION = (
     "an unequal load between motors make it wrong")
 
 
+class _ThrustFitCore(TypedDict):
+    source: str
+    residual_rms_n: float | None
+    samples: int
+
+
+class ThrustFitJson(_ThrustFitCore, total=False):
+    """``ThrustFit.as_metadata``: a model's metadata ``thrust_fit``."""
+
+    assumption: str
+    warnings: list[str]
+
+
 @dataclass
 class ThrustFit:
     """b in thrust = b w^2 (N s^2/rad^2), where it came from and how well it fits.
@@ -66,9 +79,9 @@ class ThrustFit:
     assumption: str | None = None  #: what a b derived from stated numbers takes for granted
     warnings: list[str] = field(default_factory=list)
 
-    def as_metadata(self) -> dict[str, Any]:
+    def as_metadata(self) -> ThrustFitJson:
         """The model's provenance of b (its metadata's ``thrust_fit``)."""
-        out: dict[str, Any] = {"source": self.source, "residual_rms_n": self.residual_rms_n,
+        out: ThrustFitJson = {"source": self.source, "residual_rms_n": self.residual_rms_n,
                                "samples": self.samples}
         if self.assumption:
             out["assumption"] = self.assumption
@@ -134,7 +147,7 @@ def stated_thrust(priors: MotorPriors, signals: Sequence[Signals]) -> ThrustFit 
     """b from what the user stated, the first of: ``--thrust-coefficient``; ``--vehicle-mass-kg``
     with ``--motor-count`` (``hover_thrust`` on ``signals``, the training recordings);
     ``--propeller-ct`` with ``--prop-diameter-in`` (b = CT rho D^4 / (4 pi^2)). None: nothing
-    stated. Any later one stated too is not used, and the warnings say what it would give."""
+    stated. A later one stated too is not used, and the warnings say what it would give."""
     candidates: list[ThrustFit] = []
     if priors.thrust_coefficient is not None:
         candidates.append(ThrustFit(priors.thrust_coefficient, None, 0, "stated --thrust-coefficient"))
@@ -234,7 +247,7 @@ def train_model(
     best_seed, result = min(runs, key=lambda r: r[1].val_cost)
     W1, b1, W2, b2 = unpack(result.phi, len(inputs), hidden)
     fit = fit_thrust_coefficient(train, thrust_coefficient)
-    metadata: dict[str, Any] = {
+    metadata: dict[str, object] = {
         "package_version": __version__,
         "sources": {
             "train": [_source(s) for s in train],
@@ -260,7 +273,7 @@ def train_model(
     return TrainOutcome(model, result, list(train), list(validation), fit, rmse, rmse_v)
 
 
-def validation_band(model: NetworkModel, validation: Sequence[Signals]) -> dict[str, Any]:
+def validation_band(model: NetworkModel, validation: Sequence[Signals]) -> dict[str, object]:
     """The network's one-sigma speed band fitted on its validation residuals, for its metadata
     (``training.band``); the speed as ``evaluate.predict_speed`` computes it (inputs clipped to
     the training range, >= 0), which cannot be imported here (evaluate imports this module)."""
@@ -308,12 +321,18 @@ class _Scaling:
     def inputs(self, X: np.ndarray) -> np.ndarray:
         return minmax_apply(X, self.xmin, self.xmax)
 
-    def speed(self, y: Any) -> Any:
+    @overload
+    def speed(self, y: float) -> float: ...
+
+    @overload
+    def speed(self, y: np.ndarray) -> np.ndarray: ...
+
+    def speed(self, y: float | np.ndarray) -> float | np.ndarray:
         """Speed (rad/s, array or number) in the network's output scale."""
         return 2.0 * (y - self.ymin) / (self.ymax - self.ymin) - 1.0
 
 
-def _lm_metadata(result: LMResult, runs: Sequence[tuple[int | None, LMResult]]) -> dict[str, Any]:
+def _lm_metadata(result: LMResult, runs: Sequence[tuple[int | None, LMResult]]) -> dict[str, object]:
     """The kept LM run's epochs, stop and cost history, and the time all runs took (model metadata)."""
     return {
         "epochs": int(result.epochs),
