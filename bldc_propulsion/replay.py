@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from . import contract as c
 from .atomic import RECORDING, check_output
-from .bagio import MOTOR_TOPICS, BagWriter, Bulk, open_recording, vehicle_topic
+from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, vehicle_topic
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
 from .core.status import CoreStatus
@@ -153,6 +153,31 @@ def replay_bag(
     return _replay(*args, reference=True)
 
 
+def _input_topics(rec: Recording) -> tuple[list[str], bool, list[str]]:
+    """The topics replay reads (raw inputs, then measured ones), whether the recording has a
+    filtered voltage, and the measured topics standing in for raw ones it lacks (used as
+    recorded); a recording with none, or a vehicle's root, is refused in one line."""
+    inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
+    has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
+    if has_voltage:
+        inputs.append(c.TOPIC_BATTERY_VOLTAGE)
+    measured = [topic for topic, raw, ok in (
+        (c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_BATTERY_ADC, has_voltage),
+        (c.TOPIC_ROTOR_SPEED, c.TOPIC_TACH_ADC, rec.has(c.TOPIC_ROTOR_SPEED, c.FLOAT64)),
+    ) if ok and not rec.has(raw)]
+    if c.TOPIC_ROTOR_SPEED in measured:
+        inputs.append(c.TOPIC_ROTOR_SPEED)
+    for topic, msgtype in ((c.TOPIC_PWM, c.FLOAT64), (c.TOPIC_BATTERY_ADC, c.FLOAT64),
+                           (c.TOPIC_TACH_ADC, c.FLOAT32_ARRAY)):
+        if rec.has(topic):
+            rec.require(topic, msgtype)
+    if not inputs:
+        raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
+    if rec.motors_elsewhere():
+        raise rec.missing_error(MOTOR_TOPICS)  # a vehicle's recording: only its battery is at the root
+    return inputs, has_voltage, measured
+
+
 def _replay(
     in_path: str | os.PathLike[str],
     out_path: str | os.PathLike[str],
@@ -169,25 +194,7 @@ def _replay(
     model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
         ns = rec.namespace
-        inputs = [t for t in (c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC) if rec.has(t)]
-        has_voltage = rec.has(c.TOPIC_BATTERY_VOLTAGE, c.BATTERY_STATE)
-        if has_voltage:
-            inputs.append(c.TOPIC_BATTERY_VOLTAGE)
-        # measured topics standing in for raw ones the recording lacks: used as recorded
-        measured = [topic for topic, raw, ok in (
-            (c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_BATTERY_ADC, has_voltage),
-            (c.TOPIC_ROTOR_SPEED, c.TOPIC_TACH_ADC, rec.has(c.TOPIC_ROTOR_SPEED, c.FLOAT64)),
-        ) if ok and not rec.has(raw)]
-        if c.TOPIC_ROTOR_SPEED in measured:
-            inputs.append(c.TOPIC_ROTOR_SPEED)
-        for topic, msgtype in ((c.TOPIC_PWM, c.FLOAT64), (c.TOPIC_BATTERY_ADC, c.FLOAT64),
-                               (c.TOPIC_TACH_ADC, c.FLOAT32_ARRAY)):
-            if rec.has(topic):
-                rec.require(topic, msgtype)
-        if not inputs:
-            raise rec.missing_error([c.TOPIC_PWM, c.TOPIC_BATTERY_ADC, c.TOPIC_TACH_ADC])
-        if rec.motors_elsewhere():
-            raise rec.missing_error(MOTOR_TOPICS)  # a vehicle's recording: only its battery is at the root
+        inputs, has_voltage, measured = _input_topics(rec)
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model)
