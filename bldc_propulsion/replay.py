@@ -66,7 +66,7 @@ class StatusJson(TypedDict):
     values: dict[str, str]
 
 
-class BandJson(TypedDict):
+class BandWrittenJson(TypedDict):
     """Whether predicted/*_sigma were written, and the model's band or why not."""
 
     written: bool
@@ -87,7 +87,7 @@ class ReplaySummary(TypedDict):
     read_error: str | None
     out_of_training_range: RangeJson | None
     measured_inputs: list[str]
-    band: BandJson
+    band: BandWrittenJson
     warnings: list[str]
     status: list[StatusJson]
 

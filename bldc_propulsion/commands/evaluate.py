@@ -45,14 +45,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_namespace_argument(p)
 
 
-class BandJson(TypedDict):
+class BandCoverageOrWhyJson(TypedDict):
     """``Evaluation.band_json``: the band's overall coverage, or why the model has none."""
 
     band_coverage: BandCoverageJson | None
     band_unavailable: str | None
 
 
-class EvaluationJson(BandJson):
+class EvaluationJson(BandCoverageOrWhyJson):
     """``Evaluation.as_dict``: one model's figures (``models`` in --json with several)."""
 
     model: str
@@ -72,7 +72,7 @@ class ComparisonRow(TypedDict):
     rmse_percent_of_range: dict[str, float | None]
 
 
-class _EvaluateJsonCore(BandJson):
+class _EvaluateJsonCore(BandCoverageOrWhyJson):
     model: str
     rmse_rad_s: float
     thrust_coefficient: float | None
@@ -110,7 +110,7 @@ class Evaluation:
         parts = [s.band for s in self.scores if s.band is not None]
         return sum(parts[1:], parts[0]) if parts else None
 
-    def band_json(self) -> BandJson:
+    def band_json(self) -> BandCoverageOrWhyJson:
         """``band_coverage`` (overall: percent inside +-1 sigma, mean sigma, samples) or None,
         and ``band_unavailable``: why there is none (None: there is one)."""
         from ..core.uncertainty import band_of
