@@ -49,6 +49,7 @@ from typing import TYPE_CHECKING, Protocol, cast
 import numpy as np
 
 from ..contract import PWM_STOP
+from ..physics.lag import lag_on_times
 from ..physics.params import PlantParams, resolve_effects
 from ..physics.plant import (
     FRAME_TOLERANCE_S,
@@ -375,6 +376,14 @@ _UNEXPLAINED_SHARE = 0.1
 _VISIT_PRIOR = {"speed": 0.01, "voltage": 0.02}
 
 
+def _lag_of_blocks(t: np.ndarray, values: np.ndarray, tau_s: float) -> np.ndarray:
+    """A first-order lag (physics.lag) of block values, each block's value held over the interval
+    that ends at its time: y[0] = values[0], y[k] = lag of values[k] over t[k-1]..t[k]."""
+    if len(values) == 0:
+        return np.empty(0)
+    return lag_on_times(t, np.append(values[1:], values[-1]), tau_s, float(values[0]))
+
+
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """[start, end) of every run of True in ``flags``."""
     edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
@@ -603,12 +612,7 @@ class HealthMonitor:
         else:
             v = cur[:, _VMEAN]
         # the polarisation's slow response to the current (~30 s), as a nuisance
-        g = 1.0 - math.exp(-cfg.block_s / _POLARISATION_S)
-        pol = np.empty(m)
-        acc = float(ib[0])
-        for k in range(m):
-            acc += g * (float(ib[k]) - acc)
-            pol[k] = acc
+        pol = _lag_of_blocks(np.arange(m) * cfg.block_s, ib, _POLARISATION_S)
         sag = self._sag_per_ampere(v, ib, t_rel, valid)
         dib = cur[:, _S0 + nf:_S0 + 2 * nf]
         # each fault's voltage signature: the sag its current change causes; the pack's: its own
@@ -628,11 +632,7 @@ class HealthMonitor:
         battery filter: lowpass(i) - exp(-(t - t0)/tau) lowpass(i)(t0), the filter being linear."""
         m = len(ib)
         a = np.exp(-np.diff(t, prepend=t[0]) / self.tau_s)
-        x = np.empty(m)
-        acc = float(ib[0])
-        for k in range(m):
-            acc = a[k] * acc + (1.0 - a[k]) * float(ib[k])
-            x[k] = acc
+        x = _lag_of_blocks(t, ib, self.tau_s)
         starts = m - self._post
         out = np.zeros((len(starts), m))
         for o, k0 in enumerate(starts.tolist()):
