@@ -77,6 +77,23 @@ class SpeedModel(Protocol):
     def forward(self, X_raw: np.ndarray) -> np.ndarray: ...
 
 
+class Adapter(Protocol):
+    """What the estimator needs of an online adaptation of its model's parameters
+    (core/adaptation.py's PhysicsAdapter; a protocol, so that the estimator imports none of it)."""
+
+    note: str  #: "on", or why the latest measured speed did not update it
+
+    @property
+    def thrust_factor(self) -> float: ...
+    def update_pwm(self, t: float, level: float) -> None: ...
+    def update_voltage(self, t: float, volts: float) -> None: ...
+    def update(self, t: float, measured_rad_s: float, offline_rad_s: float) -> bool: ...
+    def correction(self, t: float) -> tuple[float, float]: ...
+    def values(self) -> dict[str, tuple[float, float]]: ...
+    def reset(self) -> None: ...
+    def restart(self) -> None: ...
+
+
 class _NetworkWeights(SpeedModel, Protocol):
     """What :func:`_fast_forward` reads from a network model (model.NetworkModel)."""
 
@@ -156,9 +173,11 @@ def _fast_forward(model: SpeedModel) -> Callable[[list[float]], float]:
 class ThrustEstimator:
     """Streaming estimator: ``update_pwm``, ``update_voltage``, ``predict(t)``."""
 
-    def __init__(self, model: SpeedModel, thrust_coefficient: float | None = None) -> None:
+    def __init__(self, model: SpeedModel, thrust_coefficient: float | None = None,
+                 adapter: Adapter | None = None) -> None:
         """``thrust_coefficient``: b overriding the model's (None: the model's, which may be None:
-        no thrust predicted)."""
+        no thrust predicted). ``adapter``: adapt the model's parameters to the measured speed
+        (``core.adaptation.adapter_for(model)``); None (default): the offline model as it is."""
         b = model.thrust_coefficient if thrust_coefficient is None else float(thrust_coefficient)
         if b is not None and not (math.isfinite(b) and b >= 0.0):
             raise BadInputError(f"thrust_coefficient must be finite and >= 0, got {b!r}")
@@ -176,6 +195,8 @@ class ThrustEstimator:
         #: (rad/s)^2 the online adaptation's parameter covariance adds to the band's variance
         #: (issue 34 item 1 sets it; 0 without adaptation): the two are independent, so in quadrature
         self.adaptation_speed_variance = 0.0
+        self.adapter = adapter
+        self._predicted_t = -math.inf  #: the latest prediction's time (the adaptation's status)
         self.pwm_accepted = 0
         self.pwm_rejected_value = 0
         self.pwm_rejected_time = 0
@@ -211,6 +232,9 @@ class ThrustEstimator:
         self.features.reset()
         if self._changes is not None:
             self._changes.reset()
+        if self.adapter is not None:  # back to the offline model
+            self.adapter.reset()
+            self.adaptation_speed_variance = 0.0
         self._last = _NOT_READY
         self._restart_physics_state()
 
@@ -227,6 +251,10 @@ class ThrustEstimator:
                 f.update_voltage(*volt)
         self._restart_physics_state()
         self._volt_last = volt
+        if self.adapter is not None:  # its lanes too (what it adapted stays)
+            self.adapter.restart()
+            if volt is not None:
+                self.adapter.update_voltage(*volt)
 
     # --- inputs ------------------------------------------------------------------------------
 
@@ -245,6 +273,8 @@ class ThrustEstimator:
         self.features.update_pwm(t, pwm)
         if self._changes is not None:
             self._changes.update_pwm(t, pwm)
+        if self.adapter is not None:
+            self.adapter.update_pwm(t, pwm)
         self.pwm_accepted += 1
         return True
 
@@ -260,6 +290,8 @@ class ThrustEstimator:
             return False
         self.features.update_voltage(t, volts)
         self.voltage_accepted += 1
+        if self.adapter is not None:
+            self.adapter.update_voltage(t, volts)
         if self._physics:
             self._volt_last = (t, volts)
             if self._start_log is not None:
@@ -283,7 +315,19 @@ class ThrustEstimator:
             since = t - start_t
             if w >= REST_SPEED_RAD_S and -MEASURED_SPEED_MAX_AGE_S <= since <= START_WINDOW_S:
                 self._start_from(w, log)
+        if self.adapter is not None:
+            self.adapter.update(t, w, self._offline_speed(t))
         return True
+
+    def _offline_speed(self, t: float) -> float:
+        """The offline model's speed (rad/s) at t, NaN if not ready: what ``predict`` gives
+        without adaptation, counting nothing. Inputs held from their latest value (a hybrid's
+        network) are taken as they are now, the physics' speed at t itself."""
+        if not self.features.ready():
+            return math.nan
+        x = [min(max(f.value_at(t), lo), hi) for f, lo, hi in zip(self.features.features, self._lo, self._hi,
+                                                                  strict=True)]
+        return max(self._forward(x), 0.0)
 
     def measured_speed_at(self, t: float) -> float | None:
         """The latest measured speed (rad/s; 0 below REST_SPEED_RAD_S: rest) if it was taken at
@@ -357,9 +401,11 @@ class ThrustEstimator:
         if not math.isfinite(w):  # pragma: no cover - finite weights and inputs
             self.not_ready += 1
             return _NOT_READY
+        b = self.thrust_coefficient
+        if self.adapter is not None:
+            w, b = self._adapted(t, w, b)
         w = max(w, 0.0)
         self.predictions += 1
-        b = self.thrust_coefficient
         sigma_w = sigma_thrust = None
         if self.band is not None and self._changes is not None:
             sigma_w = self.band.sigma(w, *self._changes.at(t))
@@ -370,7 +416,34 @@ class ThrustEstimator:
         self._last = Prediction(w, None if b is None else b * w * w, clipped, True, sigma_w, sigma_thrust)
         return self._last
 
+    def _adapted(self, t: float, w: float, b: float | None) -> tuple[float, float | None]:
+        """The speed and b with the adapted parameters; the band's share of their uncertainty."""
+        assert self.adapter is not None
+        dw, var = self.adapter.correction(t)
+        self.adaptation_speed_variance = var
+        self._predicted_t = t
+        return w + dw, None if b is None else b * self.adapter.thrust_factor
+
     # --- diagnostics -------------------------------------------------------------------------
+
+    def adaptation_state(self) -> str:
+        """"on", or why the adaptation is frozen (a stale measured speed is the estimator's to
+        see: no sample within MEASURED_SPEED_MAX_AGE_S of the latest prediction); "off" without."""
+        if self.adapter is None:
+            return "off"
+        m = self._measured
+        if m is None or self._predicted_t - m[0] > MEASURED_SPEED_MAX_AGE_S:
+            return f"frozen: no measured speed within {MEASURED_SPEED_MAX_AGE_S:g} s"
+        return self.adapter.note
+
+    def _adaptation_values(self) -> dict[str, object]:
+        """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma."""
+        assert self.adapter is not None
+        out: dict[str, object] = {"adaptation": self.adaptation_state()}
+        for name, (value, sigma) in self.adapter.values().items():
+            out[f"adapted_{name}"] = value
+            out[f"adapted_{name}_sigma"] = sigma
+        return out
 
     def status(self) -> list[CoreStatus]:
         """Model in use, inputs received/rejected, predictions clipped since the last report."""
@@ -420,6 +493,8 @@ class ThrustEstimator:
         if self.speed_accepted or self.speed_rejected:  # only where a measured speed comes
             values.update(speed_accepted=self.speed_accepted, speed_rejected=self.speed_rejected,
                           physics_starts_measured=self.physics_starts_measured)
+        if self.adapter is not None:
+            values.update(self._adaptation_values())
         out = [CoreStatus("thrust estimator", level, msg, counters(**values))]
         if self.thrust_coefficient is None:  # a status of its own: the speed's may say more
             out.append(CoreStatus("thrust", WARN, NO_THRUST_MESSAGE, {"thrust_coefficient": "none"}))

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, cast
 
@@ -117,11 +117,13 @@ class PhysicsTwins:
     it), so the nominal lane is the physics model's prediction. theta per fault, in the units the
     monitor estimates: the propeller's loss (fraction), the pack's added series resistance (ohm),
     the friction torque's added share of the model's (factor - 1) and the winding's added
-    temperature (K).
+    temperature (K). ``faults``: the lanes stepped (FAULTS order kept; the sensitivities come in
+    that order) and ``voltage_lane``: whether d speed / d volt is stepped too (0 without it); an
+    online adapter steps only what it adapts, each lane costing a plant step.
     """
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float,
-                 supply_tau_s: float) -> None:
+                 supply_tau_s: float, faults: Sequence[str] = FAULTS, voltage_lane: bool = True) -> None:
         eff = resolve_effects(effects)
         self.params = params
         rs = params.battery_series_resistance_ohm
@@ -134,18 +136,26 @@ class PhysicsTwins:
         self.speed_scale_rad_s = full_drive_speeds(params, eff, supply_v)[0]
         alpha = params.copper_temperature_coefficient_per_k or _COPPER_PER_K
         d_pack = _PACK_STEP * self.pack_resistance_ohm
-        lanes = [
-            (params, 1.0),
-            (dataclasses.replace(params, propeller_ct=params.propeller_ct * (1.0 - _PROPELLER_STEP),
-                                 propeller_cp=params.propeller_cp * (1.0 - _PROPELLER_STEP)), _PROPELLER_STEP),
-            (dataclasses.replace(params, battery_series_resistance_ohm=rs + d_pack), d_pack),
-            (dataclasses.replace(params, motor_no_load_current_a=i0 + _FRICTION_STEP * self.friction_reference_a),
-             _FRICTION_STEP),
-            (dataclasses.replace(params, winding_resistance_ohm=params.winding_resistance_ohm
-                                 * (1.0 + alpha * _HEATING_STEP_K)), _HEATING_STEP_K),
-            (params, _VOLTAGE_STEP_V),  # the supply _VOLTAGE_STEP_V higher: d speed / d volt
-        ]
+        per_fault = {
+            "propeller_damage": (dataclasses.replace(
+                params, propeller_ct=params.propeller_ct * (1.0 - _PROPELLER_STEP),
+                propeller_cp=params.propeller_cp * (1.0 - _PROPELLER_STEP)), _PROPELLER_STEP),
+            "pack_resistance": (dataclasses.replace(params, battery_series_resistance_ohm=rs + d_pack), d_pack),
+            "bearing_friction": (dataclasses.replace(
+                params, motor_no_load_current_a=i0 + _FRICTION_STEP * self.friction_reference_a), _FRICTION_STEP),
+            "motor_heating": (dataclasses.replace(params, winding_resistance_ohm=params.winding_resistance_ohm
+                                                  * (1.0 + alpha * _HEATING_STEP_K)), _HEATING_STEP_K),
+        }
+        unknown = sorted(set(faults) - set(FAULTS))
+        if unknown:
+            raise ValueError(f"PhysicsTwins: no lane for {', '.join(unknown)} (known: {', '.join(FAULTS)})")
+        #: the faults whose lanes are stepped, in FAULTS order (the sensitivities' order)
+        self.faults = tuple(f for f in FAULTS if f in faults)
+        lanes = [(params, 1.0), *(per_fault[f] for f in self.faults)]
+        lanes.append((params, _VOLTAGE_STEP_V))  # the supply _VOLTAGE_STEP_V higher: d speed / d volt
         self._lift = [0.0] * (len(lanes) - 1) + [_VOLTAGE_STEP_V]
+        if not voltage_lane:
+            del lanes[-1], self._lift[-1]
         self._steps: list[Step] = []
         self._rs: list[float] = []
         self._inv: list[float] = []
@@ -231,11 +241,11 @@ class PhysicsTwins:
             vi = 0
         self._pi, self._vi = pi, vi
         inv = self._inv
-        nf = len(steps) - 2  # the nominal lane, a lane per fault, the voltage lane
+        nf = len(self.faults)  # the nominal lane, a lane per fault, the voltage lane (if stepped)
         return TwinSample(float(t), w_now[0], ib[0],
                           tuple((w_now[j] - w_now[0]) * inv[j] for j in range(1, nf + 1)),
                           tuple((ib[j] - ib[0]) * inv[j] for j in range(1, nf + 1)),
-                          (w_now[-1] - w_now[0]) * inv[-1])
+                          (w_now[-1] - w_now[0]) * inv[-1] if len(steps) > nf + 1 else 0.0)
 
 
 # --- the statistics side -------------------------------------------------------------------------

@@ -1,0 +1,210 @@
+"""Online adaptation on randomized benches (issue 34 item 1): recovery after a change, and no harm
+on healthy flights.
+
+Per bench seed (``sim.random_bench.draw_bench``): a physics model fitted on a HEALTHY recording of
+that bench (``bench_health.fit_model``), then flights of random steps on the same bench, with a
+fault injected at a random onset and without; each flight's streams (the tachometer decoded, the
+battery ADC through the battery filter: ``bench_health.streams``) go through the estimator with
+and without adaptation, predicting on a 100 Hz grid, against the simulator's true speed.
+
+Printed per fault (spread over the runs: median and worst): the RMSE after the change
+(onset + 10 s .. + 30 s) over the RMSE before it (onset - 20 s .. onset), adapted and offline; the
+recovery time (the earliest time after the onset from which a 10 s window's RMSE is within 1.2x
+of the pre-change one); the adapted parameter's error. Healthy flights: adapted RMSE / offline
+RMSE over the whole flight. The issue's goals: post/pre <= 1.2 within 10 s; healthy ratio <= 1.05.
+The adapter's settings (core.adaptation.AdaptationConfig) were tuned on bench seeds 1-3 only;
+the reported benches are seeds from --first-seed (default 300), disjoint from them.
+
+    .venv/bin/python benchmarks/bench_adaptation.py --seeds 4 --flights 1 [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_health import fit_model, streams  # noqa: E402
+from results import check_record_path, write_record  # noqa: E402
+
+from bldc_propulsion.core.adaptation import AdaptationConfig, adapter_for  # noqa: E402
+from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
+from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim.faults import Fault  # noqa: E402
+from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
+
+#: The faults judged, at sizes a vehicle meets (the health monitor's goals plus friction).
+FAULTS = {"propeller_damage": 0.1, "bearing_friction": 3.0, "motor_heating": 30.0, "pack_resistance": 2.0}
+TUNING_BENCHES = [1, 2, 3]
+FLIGHT_S = 100.0
+ONSET_RANGE_S = (40.0, 60.0)
+PRE_S = 20.0  #: the pre-change RMSE's window, before the onset
+POST_S = (10.0, 30.0)  #: the post-change RMSE's window, after the onset
+RECOVERY_WINDOW_S = 10.0
+GOAL_RATIO = 1.2
+GOAL_HEALTHY = 1.05
+GRID_HZ = 100.0
+
+
+def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, adapt: bool = True, *,
+               speed: Callable[[float, float], float | None] | None = None, states: bool = False,
+               keep: bool = False) -> dict[str, Any]:
+    """A simulated flight's streams through the estimator (adapting or not), merged in time
+    order as a node receives them, predicting on a GRID_HZ grid: the grid times, the predicted
+    and true speeds there, and the adapted parameters' values after each prediction (with
+    ``states``, the adaptation's state too; with ``keep``, the estimator). ``speed``: what the
+    tachometer says, given the time and the decoded speed (None: no sample)."""
+    pwm, volt, measured = streams(res)
+    if speed is not None:
+        pairs = [(t, speed(t, w)) for t, w in zip(measured[0].tolist(), measured[1].tolist(), strict=True)]
+        kept = [(t, w) for t, w in pairs if w is not None]
+        measured = (np.array([t for t, _ in kept]), np.array([w for _, w in kept]))
+    est = ThrustEstimator(model, adapter=adapter_for(model, config) if adapt else None)
+    grid = np.arange(math.ceil(float(pwm[0][0]) * GRID_HZ), math.floor(float(res.truth_t[-1]) * GRID_HZ)) / GRID_HZ
+    t_all = np.concatenate([pwm[0], volt[0], measured[0], grid])
+    x_all = np.concatenate([pwm[1], volt[1], measured[1], np.zeros(len(grid))])
+    k_all = np.concatenate([np.zeros(len(pwm[0])), np.ones(len(volt[0])), np.full(len(measured[0]), 2.0),
+                            np.full(len(grid), 3.0)])
+    order = np.lexsort((k_all, t_all))
+    out_t, out_w, theta, state = [], [], [], []
+    feed = (est.update_pwm, est.update_voltage, est.update_speed)
+    for t, kind, x in zip(t_all[order].tolist(), k_all[order].tolist(), x_all[order].tolist(), strict=True):
+        if kind < 3.0:
+            feed[int(kind)](t, x)
+            continue
+        p = est.predict(t)
+        if p.ready:
+            out_t.append(t)
+            out_w.append(p.speed_rad_s)
+            theta.append([v for v, _ in est.adapter.values().values()] if est.adapter is not None else [0.0, 1.0])
+            if states:
+                state.append(est.adaptation_state())
+    tt = np.asarray(out_t)
+    out: dict[str, Any] = {"t": tt, "predicted": np.asarray(out_w), "theta": np.asarray(theta),
+                           "truth": np.interp(tt, res.truth_t, res.truth_speed)}
+    if states:
+        out["states"] = state
+    if keep:
+        out["estimator"] = est
+    return out
+
+
+def rmse(run: dict[str, Any], t0: float, t1: float) -> float:
+    """RMSE (rad/s) of the prediction against the truth over [t0, t1)."""
+    sel = (run["t"] >= t0) & (run["t"] < t1)
+    return float(np.sqrt(np.mean((run["predicted"][sel] - run["truth"][sel]) ** 2))) if sel.any() else math.nan
+
+
+def recovery_s(run: dict[str, Any], onset: float, pre: float) -> float | None:
+    """The earliest time after the onset (0.5 s steps) from which a RECOVERY_WINDOW_S window's
+    RMSE is within GOAL_RATIO of ``pre``; None if never before the flight ends."""
+    end = float(run["t"][-1]) - RECOVERY_WINDOW_S
+    for tau in np.arange(0.0, end - onset, 0.5):
+        if rmse(run, onset + tau, onset + tau + RECOVERY_WINDOW_S) <= GOAL_RATIO * pre:
+            return float(tau)
+    return None
+
+
+def judge(model: Any, res: Any, fault: Fault, config: AdaptationConfig | None = None) -> dict[str, Any]:
+    """One faulted flight: post/pre RMSE ratios adapted and offline, recovery time, the adapted
+    parameters at the end."""
+    out: dict[str, Any] = {}
+    for label, adapt in (("adapted", True), ("offline", False)):
+        run = run_flight(model, res, config, adapt)
+        pre = rmse(run, fault.onset_s - PRE_S, fault.onset_s)
+        post = rmse(run, fault.onset_s + POST_S[0], fault.onset_s + POST_S[1])
+        out[label] = {"pre_rad_s": pre, "post_rad_s": post, "ratio": post / pre,
+                      "recovery_s": recovery_s(run, fault.onset_s, pre)}
+        if adapt:
+            out["final"] = {"propeller_damage": float(run["theta"][-1, 0]),
+                            "bearing_friction": float(run["theta"][-1, 1])}
+    return out
+
+
+def healthy_ratio(model: Any, res: Any, config: AdaptationConfig | None = None) -> dict[str, float]:
+    """A healthy flight: adapted and offline RMSE over the flight (after the first 5 s) and their ratio."""
+    a, o = (run_flight(model, res, config, adapt) for adapt in (True, False))
+    t0, t1 = float(a["t"][0]) + 5.0, float(a["t"][-1]) + 1.0
+    ra, ro = rmse(a, t0, t1), rmse(o, t0, t1)
+    return {"adapted_rad_s": ra, "offline_rad_s": ro, "ratio": ra / ro,
+            "propeller_damage": float(a["theta"][-1, 0]), "bearing_friction": float(a["theta"][-1, 1])}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=4, help="benches (default 4)")
+    ap.add_argument("--first-seed", type=int, default=300, help="first bench seed (default 300; tuning used 1-3)")
+    ap.add_argument("--flights", type=int, default=1, help="flights per fault and bench, and healthy ones (default 1)")
+    ap.add_argument("--json", metavar="PATH", help="also write the figures to PATH")
+    args = ap.parse_args()
+    check_record_path(args.json)
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(4321)
+    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in FAULTS}
+    healthy: list[dict[str, Any]] = []
+    benches = list(range(args.first_seed, args.first_seed + args.seeds))
+    with tempfile.TemporaryDirectory() as d:
+        for bench_seed in benches:
+            model, fit_s = fit_model(bench_seed, Path(d))
+            bench = draw_bench(bench_seed)
+            print(f"bench {bench_seed}: model fitted in {fit_s:.0f} s", file=sys.stderr)
+            for k in range(args.flights):
+                for j, (name, size) in enumerate(FAULTS.items()):
+                    fault = Fault(name, size, float(rng.uniform(*ONSET_RANGE_S)))
+                    seed = 10_000 * bench_seed + 100 * k + j
+                    res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)),
+                                   faults=[fault])
+                    r = {"bench": bench_seed, "seed": seed, "onset_s": fault.onset_s, **judge(model, res, fault)}
+                    runs[name].append(r)
+                    print(f"  {fault.spec}: {json.dumps(r, default=float)}", file=sys.stderr)
+                seed = 10_000 * bench_seed + 5000 + k
+                res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
+                healthy.append({"bench": bench_seed, "seed": seed, **healthy_ratio(model, res)})
+                print(f"  healthy: {healthy[-1]}", file=sys.stderr)
+    summary = {"benches": benches, "tuning_benches": TUNING_BENCHES, "faults": FAULTS, "runs": runs,
+               "healthy": healthy, "seconds": time.perf_counter() - t_start}
+    print_table(summary)
+    if args.json:
+        write_record(args.json, json.loads(json.dumps(summary, default=float)), seconds=summary["seconds"])
+
+
+def _spread(xs: list[float | None]) -> str:
+    """median / worst of a list (None: never recovered, counted as worst)."""
+    if not xs:
+        return "-"
+    vals = [math.inf if x is None else x for x in xs]
+    return f"{float(np.median(vals)):.2f} / {max(vals):.2f}"
+
+
+def print_table(s: dict[str, Any]) -> None:
+    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
+    print("| fault (size) | runs | post/pre RMSE adapted: median / worst | offline | recovery to 1.2x (s) | "
+          "within 1.2x by 10 s | adapted values at the end (median) |")
+    print("|---|---|---|---|---|---|---|")
+    for name, rows in s["runs"].items():
+        ok = sum(r["adapted"]["ratio"] <= GOAL_RATIO for r in rows)
+        finals = {k: float(np.median([r["final"][k] for r in rows])) for k in ("propeller_damage", "bearing_friction")}
+        print(f"| {name} ({s['faults'][name]:g}) | {len(rows)} | {_spread([r['adapted']['ratio'] for r in rows])} | "
+              f"{_spread([r['offline']['ratio'] for r in rows])} | "
+              f"{_spread([r['adapted']['recovery_s'] for r in rows])} | {ok}/{len(rows)} | "
+              f"propeller {finals['propeller_damage']:.3f}, friction x{finals['bearing_friction']:.2f} |")
+    h = s["healthy"]
+    ok = sum(r["ratio"] <= GOAL_HEALTHY for r in h)
+    print(f"healthy: {len(h)} flights, adapted/offline RMSE median / worst {_spread([r['ratio'] for r in h])} "
+          f"(goal <= {GOAL_HEALTHY}: {ok}/{len(h)})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,384 @@
+"""Online adaptation of a physics model's parameters from the measured rotor speed (issue 34 item 1).
+
+A fitted physics model is right for the vehicle it was fitted on; in flight a propeller chips or
+bends and a bearing wears, and the model's speed drifts away from the measured one. With the
+measured speed (``rotor/speed``) the estimator can follow such a change: ``PhysicsAdapter``
+estimates a few physical parameters online and the prediction (and the thrust) uses them.
+
+What is adapted (``ADAPTED``, the contract's fault names), and why only these:
+
+* ``propeller_damage``: the fractional loss of the propeller's CT and CP (its drag, so the speed;
+  the thrust coefficient b scales with CT, so the thrust follows: ``thrust_factor``);
+* ``bearing_friction``: a factor on the motor's friction torque (the no-load current).
+
+Both are identifiable from the speed alone once the rotor visits two operating points: the drag
+grows with w^2, the friction is constant. Left out: the pack's series resistance (the model is fed
+the measured battery voltage, sag included, so more resistance barely moves the predicted speed:
+not identifiable from speed; the health monitor sees it in the voltage); the winding's
+resistance (``motor_heating``): in the steady torque balance it scales the drag and the friction
+torque alike, the same direction as a mix of the two adapted, so speed cannot tell it apart from
+them, and the two adapted absorb what it does to the speed.
+
+How: the model's speed is linear in theta near a linearisation point theta_lin,
+w(theta) = w(theta_lin) + S (theta - theta_lin), with S = d speed / d theta from the physics
+stepped once per parameter with it perturbed (``core.health.PhysicsTwins``' lanes, only the
+adapted ones). theta is estimated by recursive least squares with exponential forgetting in time
+(memory ``memory_s``), bounded:
+
+* theta is clamped to physical bounds (``BOUNDS``) after every update;
+* the covariance never exceeds the prior (``prior_sigma``): no windup however long the
+  excitation lacks; forgetting runs only on samples that update (the rotor turning, the speed
+  fresh), and at most ``_MAX_FORGET_S`` of it per sample, so a gap or a stop does not inflate it;
+* an innovation is limited to ``innovation_limit`` of its expected spread, so a tachometer glitch
+  moves theta little;
+* frozen (no update) while the model's lanes settle after their start, while the rotor is at rest
+  or below the ESC start (the speed carries nothing on the parameters there), and, as the
+  estimator sees it, while no measured speed comes (``MEASURED_SPEED_MAX_AGE_S``).
+
+When theta has moved more than a lane's own step from theta_lin, the lanes are rebuilt at theta
+(``_Lanes.rebase``, their states kept), so a large change stays right beyond the linear range.
+The prediction keeps the estimator's own offline speed (its stream, interpolated) and adds the
+lanes' difference ``w(theta) - w(0)``: a lane stepped at theta = 0 (``_ref``) gives w(0) once theta_lin
+is not 0. The lanes are sampled at prediction times and at the measured speeds' stamps, which lag
+them by a batch and half a revolution: a short history (``history_s``) aligns the two.
+
+``reset()`` returns to the offline model (theta = 0). ``adapted_plant()`` is the physics model
+with the adapted constants (``replay --save-adapted`` writes it).
+"""
+
+from __future__ import annotations
+
+import bisect
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from ..errors import BadInputError
+from ..physics.params import PlantParams
+from ..physics.plant import REST_SPEED_RAD_S
+from ..physics.plant_model import PlantModel
+from .health import PhysicsTwins, physics_part
+
+#: The adapted parameters (the contract's fault names), in PhysicsTwins' lane order.
+ADAPTED: tuple[str, ...] = ("propeller_damage", "bearing_friction")
+#: What a published value is: the propeller's fractional loss of CT and CP; the factor on the
+#: friction torque (1: the offline model's). Internally theta is the loss and the factor - 1.
+UNITS: dict[str, str] = {"propeller_damage": "fraction", "bearing_friction": "factor"}
+#: theta's physical bounds: a propeller between 30 % stronger and half gone (sim/faults.py
+#: injects up to 0.9, but half the thrust gone is no flight to adapt to); friction torque >= 0,
+#: at most 50x (the simulator's range).
+BOUNDS: tuple[tuple[float, float], ...] = ((-0.3, 0.5), (-1.0, 49.0))
+#: Most seconds of forgetting one update applies: a gap in the speed or a stop forgets no more.
+_MAX_FORGET_S = 0.1
+#: While theta_lin = 0 the reference lane is only stepped this often (s), to consume its inputs.
+_REF_CATCH_UP_S = 1.0
+#: A lane's step may move the speed by at most this share of it for the sample to be learned from.
+_LINEAR_SHARE = 0.1
+#: The model's slope is taken between two measured speeds at most this far apart (s).
+_SLOPE_GAP_S = 0.1
+
+
+@dataclass(frozen=True)
+class AdaptationConfig:
+    """How the adapter learns (times in s). Tuned on bench seeds 1-3 (benchmarks/bench_adaptation.py)."""
+
+    #: forgetting time constant: data this old weigh 1/e (a change is followed within a few)
+    memory_s: float = 4.0
+    #: one measured speed's error, as a share of the model's full-drive speed (the tachometer's
+    #: noise and the model's own error at a point)
+    noise_fraction: float = 0.02
+    #: a sample's error grows with how fast the model's speed moves: an error of the model's timing
+    #: (dead time, rotor lag) of this long (s) counts as noise, not as a parameter's change
+    timing_s: float = 0.3
+    #: theta's sigma at the start and its ceiling (propeller loss fraction, friction factor)
+    prior_sigma: tuple[float, float] = (0.1, 0.2)
+    #: an innovation beyond this many of its expected sigmas counts as this many
+    innovation_limit: float = 4.0
+    #: no update while the model's speed is below this share of its full-drive speed (rest,
+    #: dead band: the sensitivities vanish and the tachometer's noise differs)
+    min_speed_fraction: float = 0.15
+    #: no update for this long after the lanes start (they start at rest, the rotor may not)
+    settle_s: float = 1.0
+    #: the lanes are rebuilt at theta once it moves this far from where they are (the lanes' steps)
+    relinearise: tuple[float, float] = (0.05, 0.5)
+    #: how far back a measured speed's stamp may lie behind the lanes (s)
+    history_s: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("memory_s", "noise_fraction", "innovation_limit", "settle_s", "history_s", "timing_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0.0) and not (name in ("settle_s", "timing_s") and v == 0.0):
+                raise BadInputError(f"adaptation {name}: {v!r} must be a finite number > 0")
+        for name in ("prior_sigma", "relinearise"):
+            v = getattr(self, name)
+            if len(v) != len(ADAPTED) or not all(math.isfinite(x) and x > 0.0 for x in v):
+                raise BadInputError(f"adaptation {name}: {v!r} must be {len(ADAPTED)} finite numbers > 0")
+        if not 0.0 <= self.min_speed_fraction < 1.0:
+            raise BadInputError(f"adaptation min_speed_fraction: {self.min_speed_fraction!r} must be in [0, 1)")
+
+
+def adapted_params(params: PlantParams, theta: Sequence[float], friction_reference_a: float) -> PlantParams:
+    """``params`` with the propeller's CT and CP reduced by theta[0] and friction_reference_a *
+    theta[1] amperes of no-load current (friction) added (at least 0)."""
+    keep = 1.0 - theta[0]
+    return dataclasses.replace(params, propeller_ct=params.propeller_ct * keep,
+                               propeller_cp=params.propeller_cp * keep,
+                               motor_no_load_current_a=max(params.motor_no_load_current_a
+                                                           + friction_reference_a * theta[1], 0.0))
+
+
+class _Lanes(PhysicsTwins):
+    """The adapted parameters' lanes (no voltage lane), which can be rebuilt at other constants."""
+
+    def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float, tau_s: float) -> None:
+        super().__init__(params, effects, supply_v, tau_s, faults=ADAPTED, voltage_lane=False)
+        self._build = (dict(effects), supply_v, tau_s)
+
+    def rebase(self, params: PlantParams, moves: Sequence[float]) -> None:
+        """Rebuild the lanes at ``params`` keeping their states: the nominal lane's state moves
+        along the lanes' own sensitivities by ``moves`` (per lane, in its units before the
+        rebase), each perturbed lane keeps its distance from it: no jump in the prediction."""
+        fresh = PhysicsTwins(params, *self._build, faults=ADAPTED, voltage_lane=False)
+        for x in (self._w, self._temp, self._ib_lp, self._w_now):
+            lift = sum(m * (x[j + 1] - x[0]) * self._inv[j + 1] for j, m in enumerate(moves))
+            for j in range(len(x)):
+                x[j] += lift
+        self._w[:] = [max(w, 0.0) for w in self._w]
+        self._steps, self._rs, self._inv = fresh._steps, fresh._rs, fresh._inv
+        self.params, self.friction_reference_a = fresh.params, fresh.friction_reference_a
+
+
+class PhysicsAdapter:
+    """Recursive least squares of ``ADAPTED`` on a physics (or hybrid) model's measured speed.
+
+    Fed what the estimator is fed (``update_pwm``, ``update_voltage``), each measured speed with the
+    offline model's speed at its stamp (``update``); ``correction(t)`` is what to add to the
+    offline speed at t and the variance the parameters' uncertainty gives it."""
+
+    def __init__(self, plant: PlantModel, config: AdaptationConfig | None = None) -> None:
+        self.config = config or AdaptationConfig()
+        assert plant.supply_tau_s is not None, "PlantModel.__post_init__ resolves None"
+        self.plant = plant
+        self._tau = float(plant.supply_tau_s)
+        self.updates = 0  #: measured speeds that updated theta
+        self.frozen_samples = 0  #: measured speeds that did not (and ``note`` says why)
+        self.relinearisations = 0
+        self.reset()
+
+    # --- state --------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the offline model: theta = 0, the prior covariance, the lanes restarted."""
+        self.theta = [0.0] * len(ADAPTED)
+        sig = self.config.prior_sigma
+        self._p_max = [s * s for s in sig]
+        self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the inputs (the lanes start again at the next command; theta is kept): the
+        estimator's physics restarted, what the rotor did meanwhile is unknown."""
+        p = self.plant
+        self._lin = list(self.theta)
+        self._lanes = _Lanes(p.params, p.effects, p.supply_v, self._tau)
+        self.speed_scale_rad_s = self._lanes.speed_scale_rad_s
+        self._friction_ref = self._lanes.friction_reference_a  #: A per unit of theta[1]
+        if any(self._lin):
+            self._lanes.rebase(adapted_params(p.params, self._lin, self._friction_ref), self._lin)
+        self._units = self._lane_units()
+        self._ref = PhysicsTwins(p.params, p.effects, p.supply_v, self._tau, faults=(), voltage_lane=False)
+        self._ref_live = any(self._lin)
+        self._ref_t = -math.inf  #: the reference lane's latest sample while not live
+        self._hist_t: list[float] = []  #: lanes' sample times
+        self._hist: list[tuple[float, float, float]] = []  #: (w(theta_lin) - w(0), S0, S1) there
+        self._start_t: float | None = None
+        self._last_update_t: float | None = None
+        self._prev_offline = (-math.inf, 0.0)  #: the previous measured speed's (t, offline speed)
+        sigma = self.config.noise_fraction * self.speed_scale_rad_s
+        self._r = sigma * sigma
+        self.note = "frozen: no measured speed yet"
+
+    def _lane_units(self) -> list[float]:
+        """Per lane: units of theta (relative to the offline model) per unit of the lane's own
+        (relative to the constants it was built at)."""
+        return [1.0 / (1.0 - self._lin[0]), self._friction_ref / self._lanes.friction_reference_a]
+
+    # --- inputs -------------------------------------------------------------------------------
+    def update_pwm(self, t: float, level: float) -> None:
+        """An accepted command frame (PWM level) at t (s)."""
+        if self._start_t is None:
+            self._start_t = t
+        self._lanes.update_pwm(t, level)
+        self._ref.update_pwm(t, level)
+
+    def update_voltage(self, t: float, volts: float) -> None:
+        """An accepted filtered battery voltage (V) at t (s)."""
+        self._lanes.update_voltage(t, volts)
+        self._ref.update_voltage(t, volts)
+
+    def _sample(self, t: float) -> tuple[float, float, float] | None:
+        """Step the lanes to t: (w(theta_lin) - w(0), S) there, kept in the history; None before
+        a command and a voltage."""
+        tw = self._lanes.sample(t)
+        if tw is None:
+            return None
+        dlin = 0.0
+        if self._ref_live:  # w(0) from the reference lane once theta_lin has moved
+            ref = self._ref.sample(t)
+            dlin = tw.speed_rad_s - ref.speed_rad_s if ref is not None else 0.0
+        elif t - self._ref_t >= _REF_CATCH_UP_S:  # else only kept up (its inputs consumed)
+            self._ref.sample(t)
+            self._ref_t = t
+        u = self._units
+        s = tw.speed_sensitivity
+        row = (dlin, s[0] * u[0], s[1] * u[1])
+        ht = self._hist_t
+        if ht and t <= ht[-1]:
+            return self._hist[-1]
+        ht.append(t)
+        self._hist.append(row)
+        old = bisect.bisect_left(ht, t - self.config.history_s)
+        if old > 64:  # amortised
+            del ht[:old], self._hist[:old]
+        return row
+
+    def _aligned(self, t: float) -> tuple[float, float, float] | None:
+        """(w(theta_lin) - w(0), S) at a measured speed's stamp t: the lanes stepped to t if they
+        are not past it, else interpolated in the history; None if t is older than the history."""
+        ht = self._hist_t
+        if not ht or t >= ht[-1]:
+            return self._sample(t)
+        i = bisect.bisect_right(ht, t)
+        if i == 0 or t < ht[-1] - self.config.history_s:
+            return None
+        (t0, a), (t1, b) = (ht[i - 1], self._hist[i - 1]), (ht[i], self._hist[i])
+        g = (t - t0) / (t1 - t0)
+        return a[0] + g * (b[0] - a[0]), a[1] + g * (b[1] - a[1]), a[2] + g * (b[2] - a[2])
+
+    # --- output -------------------------------------------------------------------------------
+    def correction(self, t: float) -> tuple[float, float]:
+        """(speed to add to the offline model's at t (rad/s), its variance from theta's covariance
+        ((rad/s)^2, S P S^T)); (0, 0) before the lanes have inputs."""
+        row = self._sample(t)
+        if row is None:
+            return 0.0, 0.0
+        return self._delta(row), self._variance(row)
+
+    def _delta(self, row: tuple[float, float, float]) -> float:
+        th, lin = self.theta, self._lin
+        return row[0] + row[1] * (th[0] - lin[0]) + row[2] * (th[1] - lin[1])
+
+    def _variance(self, row: tuple[float, float, float]) -> float:
+        P, s0, s1 = self._P, row[1], row[2]
+        return s0 * s0 * P[0][0] + 2.0 * s0 * s1 * P[0][1] + s1 * s1 * P[1][1]
+
+    @property
+    def thrust_factor(self) -> float:
+        """b adapted / b offline: CT scales with the propeller's loss."""
+        return 1.0 - self.theta[0]
+
+    def values(self) -> dict[str, tuple[float, float]]:
+        """name -> (adapted value in ``UNITS``, its one sigma)."""
+        P = self._P
+        return {ADAPTED[0]: (self.theta[0], math.sqrt(max(P[0][0], 0.0))),
+                ADAPTED[1]: (1.0 + self.theta[1], math.sqrt(max(P[1][1], 0.0)))}
+
+    def adapted_plant(self) -> PlantModel:
+        """The physics model with the adapted constants (b scaled by ``thrust_factor``); its
+        metadata says what was adapted from what."""
+        p = self.plant
+        b = p.thrust_coefficient
+        meta = {**p.metadata, "adapted": {n: {"value": v, "sigma": s, "unit": UNITS[n]}
+                                          for n, (v, s) in self.values().items()}}
+        return dataclasses.replace(p, params=adapted_params(p.params, self.theta, self._friction_ref),
+                                   thrust_coefficient=None if b is None else b * self.thrust_factor,
+                                   metadata=meta)
+
+    # --- learning -----------------------------------------------------------------------------
+    def update(self, t: float, measured_rad_s: float, offline_rad_s: float) -> bool:
+        """A measured speed at t (s) and the offline model's speed there (rad/s); True if theta
+        was updated, else ``note`` says why not."""
+        cfg, row = self.config, None
+        prev, self._prev_offline = self._prev_offline, (t, offline_rad_s)
+        if self._start_t is None or t - self._start_t < cfg.settle_s:
+            why = "frozen: settling after the start"
+        elif not (measured_rad_s >= REST_SPEED_RAD_S
+                  and offline_rad_s >= cfg.min_speed_fraction * self.speed_scale_rad_s):  # (NaN: not ready)
+            why = "frozen: rotor at rest or below the ESC start"
+        else:
+            row = self._aligned(t)
+            why = "frozen: measured speed older than the model's history" if row is None else ""
+            if row is not None and not self._linear(row, offline_rad_s):
+                row, why = None, "frozen: the rotor is starting or stopping (the model is not linear in theta there)"
+        if row is None:
+            self.note = why
+            self.frozen_samples += 1
+            return False
+        slope = (offline_rad_s - prev[1]) / (t - prev[0]) if 0.0 < t - prev[0] <= _SLOPE_GAP_S else 0.0
+        r = self._r + (cfg.timing_s * slope) ** 2
+        self._learn(t, measured_rad_s - offline_rad_s - self._delta(row), row[1], row[2], r)
+        self.note = "on"
+        self.updates += 1
+        if any(abs(a - b) > step for a, b, step in zip(self.theta, self._lin, self.config.relinearise, strict=True)):
+            self._rebase()
+        return True
+
+    def _linear(self, row: tuple[float, float, float], w: float) -> bool:
+        """Whether the lanes' own steps move the speed by at most _LINEAR_SHARE of it: where a lane
+        starts or stops at another time than the nominal one (friction decides when the rotor
+        breaks away), the sensitivity is a jump, not a slope, and would collapse the covariance."""
+        step = self.config.relinearise
+        return max(abs(row[1] * step[0]), abs(row[2] * step[1])) <= _LINEAR_SHARE * w
+
+    def _learn(self, t: float, e: float, s0: float, s1: float, r: float) -> None:
+        """One RLS step on the innovation e with the regressor (s0, s1) and the sample's noise
+        variance r ((rad/s)^2). Two parameters in plain
+        floats: ~1 us, where numpy's per-call overhead on 2x2 arrays costs ~20 us."""
+        P = self._P
+        last = self._last_update_t
+        self._last_update_t = t
+        if last is not None and t > last:  # forgetting over the excited time since the last update
+            grow = math.exp(min(t - last, _MAX_FORGET_S) / self.config.memory_s)
+            P[0][0] *= grow
+            P[0][1] *= grow
+            P[1][1] *= grow
+            d = [min(1.0, math.sqrt(self._p_max[i] / P[i][i])) if P[i][i] > 0.0 else 1.0 for i in (0, 1)]
+            P[0][0] *= d[0] * d[0]  # D P D keeps P positive semidefinite, each variance <= its prior
+            P[0][1] *= d[0] * d[1]
+            P[1][1] *= d[1] * d[1]
+        ps0 = P[0][0] * s0 + P[0][1] * s1
+        ps1 = P[0][1] * s0 + P[1][1] * s1
+        den = r + s0 * ps0 + s1 * ps1
+        lim = self.config.innovation_limit * math.sqrt(den)
+        e = min(max(e, -lim), lim)
+        k0, k1 = ps0 / den, ps1 / den
+        th = self.theta
+        th[0] = min(max(th[0] + k0 * e, BOUNDS[0][0]), BOUNDS[0][1])
+        th[1] = min(max(th[1] + k1 * e, BOUNDS[1][0]), BOUNDS[1][1])
+        P[0][0] -= k0 * ps0
+        P[0][1] -= k0 * ps1
+        P[1][1] -= k1 * ps1
+
+    def _rebase(self) -> None:
+        """The lanes rebuilt at theta (their states kept); the history moved to the new point."""
+        new = list(self.theta)
+        moves = [(a - b) / u for a, b, u in zip(new, self._lin, self._units, strict=True)]
+        if not self._ref_live and self._hist_t:
+            self._ref.sample(self._hist_t[-1])  # the reference goes live: at the lanes' time
+        self._ref_live = True
+        self._lanes.rebase(adapted_params(self.plant.params, new, self._friction_ref), moves)
+        d = [a - b for a, b in zip(new, self._lin, strict=True)]
+        self._hist = [(r[0] + r[1] * d[0] + r[2] * d[1], r[1], r[2]) for r in self._hist]
+        self._lin = new
+        self._units = self._lane_units()
+        self.relinearisations += 1
+
+
+def adapter_for(model: object, config: AdaptationConfig | None = None) -> PhysicsAdapter:
+    """The adapter of a physics or hybrid model; BadInputError for a network (it has no physical
+    parameters to adapt)."""
+    plant = physics_part(model)
+    if plant is None:
+        raise BadInputError("adaptation (--adapt / parameter adapt) needs a physics or hybrid model; "
+                            f"this one is a {getattr(model, 'kind', 'network')}")
+    return PhysicsAdapter(plant, config)
