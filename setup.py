@@ -32,7 +32,7 @@ setup(
     extras_require={
         "px4": ["pyulog"],
         "ardupilot": ["pymavlink"],
-        "test": ["pytest", "hypothesis", "mcap", "pyulog", "pymavlink"],
+        "test": ["pytest", "pytest-xdist", "hypothesis", "mcap", "pyulog", "pymavlink"],
     },
     python_requires=">=3.10",
     zip_safe=True,

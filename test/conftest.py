@@ -11,7 +11,28 @@ import os
 
 import pytest
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 100))
+
+def _domain_id() -> int:
+    """This run's ROS domain: from the pid, and under pytest-xdist (scripts/test.sh) from the
+    controller's pid plus the worker's index, so the workers of one run never share a domain."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")  # "gw0", "gw1", ...
+    if worker.startswith("gw") and worker[2:].isdigit():
+        return 1 + (os.getppid() % 50) * MAX_WORKERS + int(worker[2:]) % MAX_WORKERS
+    return 1 + os.getpid() % 100
+
+
+#: Most pytest-xdist workers scripts/test.sh starts (domain ids stay within 1..200).
+MAX_WORKERS = 4
+#: Test files run after the parallel part, one test at a time: they start node processes and
+#: judge wall time (start-up, stop within 2 s of SIGINT, live CPU, messages lost, Ctrl-C at a given
+#: instant), which a second worker's load would falsify. scripts/test.sh runs ``-m serial`` alone.
+SERIAL_FILES = frozenset({
+    "test_nodes_live.py", "test_nodes_stop.py", "test_node_start.py", "test_nodes_cli.py", "test_nodes_ros.py",
+    "test_reliability_sigint.py", "test_quiet_start.py", "test_cli_small.py", "test_bagio.py",
+    "test_launch_files.py",
+})
+
+os.environ.setdefault("ROS_DOMAIN_ID", str(_domain_id()))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 
@@ -43,3 +64,13 @@ def start_node(context):
     yield start
     for harness in started:
         harness.close()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "serial: runs alone after the parallel part (conftest.SERIAL_FILES)")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.path.name in SERIAL_FILES:
+            item.add_marker(pytest.mark.serial)

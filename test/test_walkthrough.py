@@ -84,12 +84,12 @@ def test_readme_walkthrough_runs_as_written_and_names_the_truth(tmp_path):
     assert added[0]["effect"] == TRUTH, added
     assert (work / "reports" / "discrepancy" / "index.html").exists()
 
-    # the walkthrough's model against the demo's on the test recording
-    demo_model = tmp_path / "demo.npz"
-    cli(env, ROOT, "train", *[str(ROOT / "bags" / b) for b in DEMO_TRAIN], "--validation",
-        str(ROOT / "bags" / DEMO_VALIDATION), "-o", str(demo_model))
+    # the walkthrough's model against the demo's on the test recording: the demo's figure as
+    # docs/results/demo.json records it (test_results_doc retrains the demo's model and checks
+    # that figure to 1e-9, so training it again here would only cost time)
+    demo = json.loads((ROOT / "docs" / "results" / "demo.json").read_text(encoding="utf-8"))
+    demo_rmse = demo["figures"]["models"]["network"]["scores"]["chirp"]["rmse_rad_s"]
     chirp = str(ROOT / "bags" / "chirp")
-    demo_rmse = cli(env, ROOT, "evaluate", "--model", str(demo_model), chirp)["rmse_rad_s"]
     evaluated = cli(env, ROOT, "evaluate", "--model", str(work / "models" / "bench.npz"), chirp)
     ours = evaluated["rmse_rad_s"]
     assert ours <= TEST_RMSE_RATIO * demo_rmse, (ours, demo_rmse)
