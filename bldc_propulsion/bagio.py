@@ -37,7 +37,9 @@ from rosbags.typesys.stores.ros2_jazzy import diagnostic_msgs__msg__DiagnosticSt
 from rosbags.typesys.stores.ros2_jazzy import diagnostic_msgs__msg__KeyValue as KeyValueMsg
 from rosbags.typesys.stores.ros2_jazzy import sensor_msgs__msg__BatteryState as BatteryStateMsg
 from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__Float32MultiArray as Float32MultiArrayMsg
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__Float64MultiArray as Float64MultiArrayMsg
 from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__Header as HeaderMsg
+from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__MultiArrayDimension as MultiArrayDimensionMsg
 from rosbags.typesys.stores.ros2_jazzy import std_msgs__msg__MultiArrayLayout as MultiArrayLayoutMsg
 
 from . import contract as c
@@ -899,6 +901,12 @@ class BagWriter:
         msg = _multiarray(np.asarray(samples, dtype=np.float32))
         self.write_msg(topic, c.FLOAT32_ARRAY, t, msg)
 
+    def write_float64_array(self, topic: str, t: float, values: Sequence[float], label: str) -> None:
+        """A Float64MultiArray of ``values`` with one layout dimension named ``label`` (what the
+        values are, e.g. comma-joined names): a few named numbers in one message."""
+        msg = named_values(values, label)
+        self.write_msg(topic, c.FLOAT64_ARRAY, t, msg)
+
     def write_battery_state(self, topic: str, t: float, voltage: float) -> None:
         ns = self._ns(t)
         self.write_raw(topic, c.BATTERY_STATE, t, _BATTERY_TEMPLATE.bytes(ns // 10**9, ns % 10**9, voltage))
@@ -1002,6 +1010,13 @@ def _header(ns: int, frame_id: str = "") -> HeaderMsg:
 def _multiarray(samples: np.ndarray) -> Float32MultiArrayMsg:
     layout = MultiArrayLayoutMsg(dim=[], data_offset=0)
     return Float32MultiArrayMsg(layout=layout, data=samples)
+
+
+def named_values(values: Sequence[float], label: str) -> Float64MultiArrayMsg:
+    """Float64MultiArray of ``values``: one dimension labelled ``label``, of their count."""
+    data = np.asarray(values, dtype=np.float64)
+    dim = MultiArrayDimensionMsg(label=label, size=len(data), stride=len(data))
+    return Float64MultiArrayMsg(layout=MultiArrayLayoutMsg(dim=[dim], data_offset=0), data=data)
 
 
 def battery_state(ns: int, voltage: float) -> BatteryStateMsg:

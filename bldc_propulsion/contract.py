@@ -40,6 +40,7 @@ BATTERY_STATE = "sensor_msgs/msg/BatteryState"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 WRENCH_STAMPED = "geometry_msgs/msg/WrenchStamped"
+FLOAT64_ARRAY = "std_msgs/msg/Float64MultiArray"
 
 # --- Stamped outputs (beside the Float64 ones): header.stamp = the instant the value describes
 TOPIC_ROTOR_STATE = "rotor/state"  #: JointState, velocity[0] = measured speed (rad/s)
@@ -75,9 +76,14 @@ TRUTH_TOPICS: dict[str, str] = {TOPIC_TRUTH_SPEED: FLOAT64, TOPIC_TRUTH_THRUST: 
 TOPIC_PREDICTED_SPEED_SIGMA = "predicted/speed_sigma"
 #: one-sigma of predicted/thrust (N), 2 b w sigma_w; only for a model with a band and a b
 TOPIC_PREDICTED_THRUST_SIGMA = "predicted/thrust_sigma"
+#: the online adaptation's parameters (core/adaptation.py ``ADAPTED`` order, its ``UNITS``: the
+#: propeller's loss fraction, the friction factor), one message per measured speed the estimator
+#: takes; layout.dim[0].label = the names, comma-joined; only with adaptation on
+TOPIC_PREDICTED_ADAPTED = "predicted/adapted"
 ADDED_OUTPUT_TOPICS: dict[str, str] = {
     TOPIC_PREDICTED_SPEED_SIGMA: FLOAT64,
     TOPIC_PREDICTED_THRUST_SIGMA: FLOAT64,
+    TOPIC_PREDICTED_ADAPTED: FLOAT64_ARRAY,
 }
 
 # --- Physical effects the discrepancy workflow can name (and the simulator can switch) ---

@@ -11,6 +11,11 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
   (no ``predicted/thrust`` for a model without a thrust coefficient, as the node publishes none),
   and beside them, at the same times, ``predicted/speed_sigma`` and ``predicted/thrust_sigma``
   (the one-sigma band, ``core.uncertainty``) for a model with a band (and a b, for the thrust's),
+- with ``adapt`` (``replay --adapt``: the online adaptation, ``core.adaptation``, a physics or
+  hybrid model), ``predicted/adapted`` (Float64MultiArray: the adapted parameters in
+  ``ADAPTED`` order, in their ``UNITS``, the names comma-joined as layout.dim[0].label) after each
+  measured speed the estimator takes, as the node publishes it; the adapted model can be saved
+  at the end (``save_adapted``),
 - their stamped forms (``stamped_writer``): ``rotor/state`` once per new measurement, stamped
   with the middle of its revolution; ``predicted/state`` and ``predicted/wrench`` (with a
   thrust coefficient) stamped with the grid time,
@@ -28,6 +33,7 @@ filter, tachometer) is not run: its status is not reported, the summary says so 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import os
 from collections.abc import Callable, Iterable
 from typing import Any, NamedTuple, TypeAlias, TypedDict, cast
@@ -36,8 +42,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import contract as c
-from .atomic import RECORDING, check_output
+from .atomic import RECORDING, check_outputs
 from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, vehicle_topic
+from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
 from .core.status import CoreStatus
@@ -45,9 +52,10 @@ from .core.tach_output import SpeedOutput
 from .core.tachometer import Samples, TachometerConfig, TachometerDecoder
 from .core.ticker import Ticker
 from .core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
-from .model import RangeJson, RangeReport, load_model
+from .errors import BadInputError
+from .model import MODEL, HybridModel, Model, RangeJson, RangeReport, load_model, save_model
 from .nodes.params import BATTERY_FILTER, TACHOMETER, THRUST_ESTIMATOR, diagnostic_name, hardware_id
-from .physics.fallback import fallback_model
+from .physics.fallback import FallbackModel, fallback_model
 from .stamped_writer import StampedWriter
 
 ESTIMATOR_RATE_HZ = 100.0  #: thrust_estimator's output_rate_hz default
@@ -73,6 +81,24 @@ class BandWrittenJson(TypedDict):
     note: str
 
 
+class AdaptedJson(TypedDict):
+    """One adapted parameter at the end of a replay (``core.adaptation.UNITS``)."""
+
+    value: float
+    sigma: float
+    unit: str
+
+
+class AdaptationJson(TypedDict):
+    """The online adaptation at the end of ``replay --adapt``."""
+
+    state: str  #: "on", or why it was frozen last (the estimator's ``adaptation_state``)
+    updates: int  #: measured speeds that updated the parameters
+    frozen_samples: int  #: measured speeds that did not
+    parameters: dict[str, AdaptedJson]
+    saved: str | None  #: --save-adapted's model file
+
+
 class ReplaySummary(TypedDict):
     """What ``replay_bag`` returns (``replay --json``)."""
 
@@ -88,6 +114,7 @@ class ReplaySummary(TypedDict):
     out_of_training_range: RangeJson | None
     measured_inputs: list[str]
     band: BandWrittenJson
+    adaptation: AdaptationJson | None  #: None: --adapt not given
     warnings: list[str]
     status: list[StatusJson]
 
@@ -125,8 +152,15 @@ def replay_bag(
     joint_name: str = c.DEFAULT_JOINT_NAME,
     frame_id: str = c.DEFAULT_FRAME_ID,
     spin_direction: int = c.DEFAULT_SPIN_DIRECTION,
+    adapt: bool = False,
+    save_adapted: str | os.PathLike[str] | None = None,
 ) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
+
+    ``adapt``: the estimator adapts its model's physical parameters to the measured speed
+    (``core.adaptation.adapter_for``; a network model or the fallback is refused before any
+    work) and ``predicted/adapted`` is written; ``save_adapted``: the adapted model's file,
+    written at the end (needs ``adapt``; checked with the other outputs before any work).
 
     ``joint_name``, ``frame_id`` and ``spin_direction`` are the nodes' parameters of the same
     names (the stamped outputs' joint, the wrench's frame, the reaction torque's sign).
@@ -144,13 +178,56 @@ def replay_bag(
     timer ticks); ``test/test_replay_fast.py`` checks it against the reference message by
     message."""
     stamped = _Stamped(joint_name, frame_id, check_spin_direction(spin_direction, "replay"))
-    args = (in_path, out_path, model_path, force, battery, tachometer, namespace, stamped)
+    if save_adapted is not None and not adapt:
+        raise BadInputError(f"--save-adapted {save_adapted}: needs --adapt (there is nothing adapted to save)")
+    check_outputs([(out_path, RECORDING, "-o"), (save_adapted, MODEL, "--save-adapted")], force=force,
+                  inputs=[in_path, model_path])
+    model = load_model(model_path) if model_path else fallback_model()
+    if adapt:
+        _adapter(model, model_path)  # refused now, before any work
+    args = (in_path, out_path, model, model_path, force, battery, tachometer, namespace, stamped,
+            adapt, save_adapted)
     if not reference:
         try:
             return _replay(*args, reference=False)
         except _StreamingOnly:  # nothing was written (the output is staged): the reference path
             pass
     return _replay(*args, reference=True)
+
+
+def _adapter(model: object, model_path: str | os.PathLike[str] | None) -> PhysicsAdapter:
+    """The adaptation of ``model`` (a physics or hybrid model); one line naming --model otherwise."""
+    if model_path is None:
+        raise BadInputError("--adapt needs --model with a physics or hybrid model (the first-principles "
+                            "fallback has no fitted parameters to adapt)")
+    try:
+        return adapter_for(model)
+    except BadInputError as e:
+        raise BadInputError(f"--model {model_path}: {e}") from None
+
+
+def adapted_model(model: Model, adapter: PhysicsAdapter) -> Model:
+    """``model`` with the adapted physics (``PhysicsAdapter.adapted_plant``): a hybrid keeps its
+    network (a correction of the physics' speed, which it still is), its b (the hybrid's own)
+    scaled by the propeller's loss and its metadata saying what was adapted."""
+    plant = adapter.adapted_plant()
+    if not isinstance(model, HybridModel):
+        return plant
+    net = model.network
+    b = net.thrust_coefficient
+    return HybridModel(plant, dataclasses.replace(
+        net, thrust_coefficient=None if b is None else b * adapter.thrust_factor,
+        metadata={**net.metadata, "adapted": plant.metadata["adapted"]}))
+
+
+def _adaptation_json(est: ThrustEstimator, saved: str | os.PathLike[str] | None) -> AdaptationJson | None:
+    """The adaptation's end state for the summary; None without one."""
+    ad = est.adapter
+    if not isinstance(ad, PhysicsAdapter):
+        return None
+    return {"state": est.adaptation_state(), "updates": ad.updates, "frozen_samples": ad.frozen_samples,
+            "parameters": {n: {"value": v, "sigma": s, "unit": UNITS[n]} for n, (v, s) in ad.values().items()},
+            "saved": None if saved is None else str(saved)}
 
 
 def _input_topics(rec: Recording) -> tuple[list[str], bool, list[str]]:
@@ -181,23 +258,24 @@ def _input_topics(rec: Recording) -> tuple[list[str], bool, list[str]]:
 def _replay(
     in_path: str | os.PathLike[str],
     out_path: str | os.PathLike[str],
+    model: Model | FallbackModel,
     model_path: str | os.PathLike[str] | None,
     force: bool,
     battery: BatteryFilterConfig | None,
     tachometer: TachometerConfig | None,
     namespace: str | None,
     stamped: _Stamped,
+    adapt: bool,
+    save_adapted: str | os.PathLike[str] | None,
     *,
     reference: bool,
 ) -> ReplaySummary:
-    check_output(out_path, RECORDING, force=force, inputs=[in_path, model_path])
-    model = load_model(model_path) if model_path else fallback_model()
     with open_recording(in_path, namespace) as rec:
         ns = rec.namespace
         inputs, has_voltage, measured = _input_topics(rec)
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
-        est = ThrustEstimator(model)
+        est = ThrustEstimator(model, adapter=_adapter(model, model_path) if adapt else None)
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
             node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured,
                           stamped, ns)
@@ -222,6 +300,9 @@ def _replay(
         warnings = [w for w in (ranged.warning() if ranged else None,) if w]
         if est.thrust_coefficient is None:
             warnings.append(f"--model {model_path}: no {c.TOPIC_PREDICTED_THRUST} written: {NO_THRUST_MESSAGE}")
+        if save_adapted is not None and isinstance(est.adapter, PhysicsAdapter) and not isinstance(
+                model, FallbackModel):  # (--adapt refuses the fallback)
+            save_model(adapted_model(model, est.adapter), save_adapted, force=force)
         return {
             "path": str(out_path),
             "input": str(in_path),
@@ -235,6 +316,7 @@ def _replay(
             "out_of_training_range": ranged.as_dict() if ranged else None,
             "measured_inputs": ["/" + topic for topic in measured],
             "band": {"written": est.band is not None, "note": est.band_note},  # predicted/*_sigma, or why not
+            "adaptation": _adaptation_json(est, save_adapted),
             "warnings": warnings,
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
@@ -285,6 +367,7 @@ class _Nodes:
             c.TOPIC_ROTOR_SPEED, c.TOPIC_ROTOR_RPM))
         self.speed_sigma_topic, self.thrust_sigma_topic = map(topic_out, (
             c.TOPIC_PREDICTED_SPEED_SIGMA, c.TOPIC_PREDICTED_THRUST_SIGMA))
+        self.adapted_topic = topic_out(c.TOPIC_PREDICTED_ADAPTED)
         #: each node's diagnostics: (status name prefix, hardware_id, its statuses now); a stage
         #: whose statuses are empty (not run) publishes nothing
         self.diagnostics: tuple[tuple[str, str, Callable[[], list[CoreStatus]]], ...] = (
@@ -361,7 +444,15 @@ class _Nodes:
             self.bag.write_float64(self.rpm_topic, t, speed * c.RAD_S_TO_RPM)
             if out.fresh:
                 self.stamped.rotor_state(t, out.stamp_s, speed)
-            self.est.update_speed(t, speed)  # as the estimator node takes rotor/speed
+            # as the estimator node takes rotor/speed (and then publishes what it adapted)
+            if self.est.update_speed(t, speed) and self.est.adapter is not None:
+                self.adapted(t)
+
+    def adapted(self, t: float) -> None:
+        """predicted/adapted after a measured speed the estimator took (adaptation on)."""
+        assert self.est.adapter is not None
+        values = self.est.adapter.values()
+        self.bag.write_float64_array(self.adapted_topic, t, [values[n][0] for n in ADAPTED], ADAPTED_LABEL)
 
     # --- the reference: every message in turn ----------------------------------------------
     def run_reference(self, messages: Iterable[tuple[str, float, Any]]) -> None:  # rosbags messages
@@ -512,6 +603,12 @@ def summary_text(info: ReplaySummary) -> str:
             "  [INFO] measured " + " and ".join(f"{m} ({stages[m][0]})" for m in measured)
             + " used as recorded: the recording has no " + " or ".join(stages[m][1] for m in measured)
             + ", so the " + " and ".join(stages[m][2] for m in measured) + " did not run")
+    ad = info.get("adaptation")
+    if ad:
+        vals = ", ".join(f"{n} {p['value']:.4g} +/- {p['sigma']:.2g} ({p['unit']})"
+                         for n, p in ad["parameters"].items())
+        lines.append(f"  adaptation ({ad['state']}; {ad['updates']} updates): {vals}"
+                     + (f"; adapted model -> {ad['saved']}" if ad["saved"] else ""))
     for s in info["status"]:
         level = ("OK", "WARN", "ERROR")[min(int(s["level"]), 2)]
         vals = ", ".join(f"{k}={v}" for k, v in s["values"].items() if _worth_saying(k, v))

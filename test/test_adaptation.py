@@ -170,3 +170,22 @@ def test_off_by_default_and_reset_returns_to_the_offline_model(model, faulted):
     for a, b in zip(out[1], out[2], strict=True):
         assert a.speed_rad_s == b.speed_rad_s and a.thrust_n == b.thrust_n
     assert math.isfinite(out[2][-1].speed_rad_s) and out[2][-1].speed_rad_s > 0.0
+
+
+def test_reusing_a_sample_between_steps_changes_nothing(model, monkeypatch):
+    """Predictions faster than the lanes' steps (1 kHz here, 5 ms steps) reuse the latest sample
+    (``_Twins.still_at``); sampling afresh at every call gives the same predictions and parameters,
+    bit for bit, through a loss and the lanes' rebuilds it brings."""
+    import bench_adaptation
+
+    from bldc_propulsion.core import adaptation
+
+    res = simulate("random_steps", 12.0, 2203, params=draw_bench(BENCH), soc=0.8,
+                   faults=[Fault("propeller_damage", 0.2, 3.0)])
+    monkeypatch.setattr(bench_adaptation, "GRID_HZ", 1000.0)
+    fast = run_flight(model, res, adapt=True, keep=True)
+    assert fast["estimator"].adapter.relinearisations >= 2
+    monkeypatch.setattr(adaptation._Twins, "still_at", lambda self, t: False)
+    fresh = run_flight(model, res, adapt=True)
+    assert len(fast["t"]) > 10000
+    assert np.array_equal(fast["predicted"], fresh["predicted"]) and np.array_equal(fast["theta"], fresh["theta"])

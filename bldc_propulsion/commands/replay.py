@@ -17,7 +17,9 @@ DESCRIPTION = (
     "to a new MCAP bag: what the nodes would publish "
     "during `ros2 bag play`. A recording that holds the measured /battery/voltage or "
     "/rotor/speed instead of /battery/adc or /tachometer/adc (an imported thrust-stand log) "
-    "has them used as recorded, and the stage without input is not run."
+    "has them used as recorded, and the stage without input is not run. With --adapt (a physics "
+    "or hybrid --model) the estimator adapts the propeller's loss and the friction factor to the "
+    "measured speed and /predicted/adapted is written too."
 )
 
 
@@ -32,6 +34,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="header.frame_id of predicted/wrench, as the estimator's frame_id (default %(default)s)")
     p.add_argument("--spin-direction", type=int, default=c.DEFAULT_SPIN_DIRECTION, choices=(1, -1),
                    help="1 counter-clockwise seen from above, -1 clockwise: the sign of the reaction torque")
+    p.add_argument("--adapt", action="store_true",
+                   help="online adaptation (off by default; a physics or hybrid --model): the estimator "
+                        "follows the measured rotor speed by adapting the propeller's loss and the friction "
+                        "factor, as the node's parameter adapt; writes /predicted/adapted (Float64MultiArray: "
+                        "those values, propeller loss fraction and friction factor, after each measured speed "
+                        "taken) and adds the final values and sigmas to --json")
+    p.add_argument("--save-adapted", metavar="OUT.npz",
+                   help="with --adapt: write the adapted model (the physics with the adapted constants, b "
+                        "scaled by the propeller's loss) to OUT.npz at the end")
     add_namespace_argument(p)
 
 
@@ -43,5 +54,5 @@ def run(args: argparse.Namespace) -> CommandResult:
         check_rotor_name(value, option)
     info = replay_bag(args.input, args.output, model_path=args.model, force=args.force,
                       namespace=args.namespace, joint_name=args.joint_name, frame_id=args.frame_id,
-                      spin_direction=args.spin_direction)
+                      spin_direction=args.spin_direction, adapt=args.adapt, save_adapted=args.save_adapted)
     return CommandResult(info, summary_text(info), warnings=info["warnings"])

@@ -65,6 +65,8 @@ ADAPTED: tuple[str, ...] = ("propeller_damage", "bearing_friction")
 #: What a published value is: the propeller's fractional loss of CT and CP; the factor on the
 #: friction torque (1: the offline model's). Internally theta is the loss and the factor - 1.
 UNITS: dict[str, str] = {"propeller_damage": "fraction", "bearing_friction": "factor"}
+#: predicted/adapted's layout.dim[0].label (the node and replay publish ``values()`` in ADAPTED order)
+ADAPTED_LABEL = ",".join(ADAPTED)
 #: theta's physical bounds: a propeller between 30 % stronger and half gone (sim/faults.py
 #: injects up to 0.9, but half the thrust gone is no flight to adapt to); friction torque >= 0,
 #: at most 50x (the simulator's range).
@@ -128,7 +130,18 @@ def adapted_params(params: PlantParams, theta: Sequence[float], friction_referen
                                                            + friction_reference_a * theta[1], 0.0))
 
 
-class _Lanes(PhysicsTwins):
+class _Twins(PhysicsTwins):
+    """PhysicsTwins that can say when a sample would give nothing new."""
+
+    def still_at(self, t: float) -> bool:
+        """Whether ``sample(t)`` would take no step: its lanes' state, so its sample (but for the
+        time), is then the latest sample's. Predictions come faster than the steps (a 1 kHz
+        caller, 5 ms steps): the caller reuses what it made of that sample instead of sampling."""
+        t0 = self._t0
+        return t0 is not None and t >= t0 and bool(self._vt) and int((t - t0) / self._dt + 1e-9) + 1 <= self._k
+
+
+class _Lanes(_Twins):
     """The adapted parameters' lanes (no voltage lane), which can be rebuilt at other constants."""
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float, tau_s: float) -> None:
@@ -186,11 +199,18 @@ class PhysicsAdapter:
         if any(self._lin):
             self._lanes.rebase(adapted_params(p.params, self._lin, self._friction_ref), self._lin)
         self._units = self._lane_units()
-        self._ref = PhysicsTwins(p.params, p.effects, p.supply_v, self._tau, faults=(), voltage_lane=False)
+        self._ref = _Twins(p.params, p.effects, p.supply_v, self._tau, faults=(), voltage_lane=False)
+        #: the latest fresh row of ``_sample``: the row while neither the lanes nor (live) the
+        #: reference take a step, as they would give it again; None after a rebuild
+        self._row: tuple[float, float, float] | None = None
         self._ref_live = any(self._lin)
         self._ref_t = -math.inf  #: the reference lane's latest sample while not live
         self._hist_t: list[float] = []  #: lanes' sample times
-        self._hist: list[tuple[float, float, float]] = []  #: (w(theta_lin) - w(0), S0, S1) there
+        #: (w(theta_lin) - w(0), S0, S1) there, at theta_lin when kept, and the lanes' rebuilds before it
+        self._hist: list[tuple[float, float, float, int]] = []
+        self._moves: list[tuple[float, float]] = []  #: theta_lin's moves at the rebuilds the history spans
+        self._move0 = 0  #: the number of the rebuild of _moves[0]
+        self._rebuilds = 0
         self._start_t: float | None = None
         self._last_update_t: float | None = None
         self._prev_offline = (-math.inf, 0.0)  #: the previous measured speed's (t, offline speed)
@@ -219,28 +239,43 @@ class PhysicsAdapter:
     def _sample(self, t: float) -> tuple[float, float, float] | None:
         """Step the lanes to t: (w(theta_lin) - w(0), S) there, kept in the history; None before
         a command and a voltage."""
-        tw = self._lanes.sample(t)
-        if tw is None:
-            return None
-        dlin = 0.0
-        if self._ref_live:  # w(0) from the reference lane once theta_lin has moved
-            ref = self._ref.sample(t)
-            dlin = tw.speed_rad_s - ref.speed_rad_s if ref is not None else 0.0
-        elif t - self._ref_t >= _REF_CATCH_UP_S:  # else only kept up (its inputs consumed)
+        row = self._row
+        live = self._ref_live
+        if row is None or not self._lanes.still_at(t) or (live and not self._ref.still_at(t)):
+            tw = self._lanes.sample(t)
+            if tw is None:
+                return None
+            dlin = 0.0
+            if live:  # w(0) from the reference lane once theta_lin has moved
+                ref = self._ref.sample(t)
+                dlin = tw.speed_rad_s - ref.speed_rad_s if ref is not None else 0.0
+            u = self._units
+            s = tw.speed_sensitivity
+            row = self._row = (dlin, s[0] * u[0], s[1] * u[1])
+        if not live and t - self._ref_t >= _REF_CATCH_UP_S:  # else only kept up (its inputs consumed)
             self._ref.sample(t)
             self._ref_t = t
-        u = self._units
-        s = tw.speed_sensitivity
-        row = (dlin, s[0] * u[0], s[1] * u[1])
         ht = self._hist_t
         if ht and t <= ht[-1]:
-            return self._hist[-1]
+            return self._now(self._hist[-1])
         ht.append(t)
-        self._hist.append(row)
+        self._hist.append((*row, self._rebuilds))
         old = bisect.bisect_left(ht, t - self.config.history_s)
         if old > 64:  # amortised
             del ht[:old], self._hist[:old]
+            gone = self._hist[0][3] - self._move0  # moves older than any row kept
+            del self._moves[:gone]
+            self._move0 += gone
         return row
+
+    def _now(self, row: tuple[float, float, float, int]) -> tuple[float, float, float]:
+        """A history row moved to the present theta_lin along its S by each rebuild since it was
+        kept, in order: what moving every row at each rebuild would give, bit for bit, without a
+        pass over the history per rebuild."""
+        x, s0, s1, k = row
+        for d0, d1 in self._moves[k - self._move0:]:
+            x = x + s0 * d0 + s1 * d1
+        return x, s0, s1
 
     def _aligned(self, t: float) -> tuple[float, float, float] | None:
         """(w(theta_lin) - w(0), S) at a measured speed's stamp t: the lanes stepped to t if they
@@ -251,7 +286,7 @@ class PhysicsAdapter:
         i = bisect.bisect_right(ht, t)
         if i == 0 or t < ht[-1] - self.config.history_s:
             return None
-        (t0, a), (t1, b) = (ht[i - 1], self._hist[i - 1]), (ht[i], self._hist[i])
+        (t0, a), (t1, b) = (ht[i - 1], self._now(self._hist[i - 1])), (ht[i], self._now(self._hist[i]))
         g = (t - t0) / (t1 - t0)
         return a[0] + g * (b[0] - a[0]), a[1] + g * (b[1] - a[1]), a[2] + g * (b[2] - a[2])
 
@@ -319,7 +354,8 @@ class PhysicsAdapter:
         self._learn(t, measured_rad_s - offline_rad_s - self._delta(row), row[1], row[2], r)
         self.note = "on"
         self.updates += 1
-        if any(abs(a - b) > step for a, b, step in zip(self.theta, self._lin, self.config.relinearise, strict=True)):
+        th, lin, step = self.theta, self._lin, cfg.relinearise
+        if abs(th[0] - lin[0]) > step[0] or abs(th[1] - lin[1]) > step[1]:
             self._rebase()
         return True
 
@@ -334,33 +370,39 @@ class PhysicsAdapter:
         """One RLS step on the innovation e with the regressor (s0, s1) and the sample's noise
         variance r ((rad/s)^2). Two parameters in plain
         floats: ~1 us, where numpy's per-call overhead on 2x2 arrays costs ~20 us."""
-        P = self._P
+        P = self._P  # (the upper triangle is kept)
+        p0, p1 = P
+        p00, p01, p11 = p0[0], p0[1], p1[1]
         last = self._last_update_t
         self._last_update_t = t
         if last is not None and t > last:  # forgetting over the excited time since the last update
             grow = math.exp(min(t - last, _MAX_FORGET_S) / self.config.memory_s)
-            P[0][0] *= grow
-            P[0][1] *= grow
-            P[1][1] *= grow
-            d = [min(1.0, math.sqrt(self._p_max[i] / P[i][i])) if P[i][i] > 0.0 else 1.0 for i in (0, 1)]
-            P[0][0] *= d[0] * d[0]  # D P D keeps P positive semidefinite, each variance <= its prior
-            P[0][1] *= d[0] * d[1]
-            P[1][1] *= d[1] * d[1]
-        ps0 = P[0][0] * s0 + P[0][1] * s1
-        ps1 = P[0][1] * s0 + P[1][1] * s1
+            p00 *= grow
+            p01 *= grow
+            p11 *= grow
+            pm = self._p_max
+            d0 = min(1.0, math.sqrt(pm[0] / p00)) if p00 > 0.0 else 1.0
+            d1 = min(1.0, math.sqrt(pm[1] / p11)) if p11 > 0.0 else 1.0
+            p00 *= d0 * d0  # D P D keeps P positive semidefinite, each variance <= its prior
+            p01 *= d0 * d1
+            p11 *= d1 * d1
+        ps0 = p00 * s0 + p01 * s1
+        ps1 = p01 * s0 + p11 * s1
         den = r + s0 * ps0 + s1 * ps1
         lim = self.config.innovation_limit * math.sqrt(den)
         e = min(max(e, -lim), lim)
         k0, k1 = ps0 / den, ps1 / den
         th = self.theta
-        th[0] = min(max(th[0] + k0 * e, BOUNDS[0][0]), BOUNDS[0][1])
-        th[1] = min(max(th[1] + k1 * e, BOUNDS[1][0]), BOUNDS[1][1])
-        P[0][0] -= k0 * ps0
-        P[0][1] -= k0 * ps1
-        P[1][1] -= k1 * ps1
+        (lo0, hi0), (lo1, hi1) = BOUNDS
+        th[0] = min(max(th[0] + k0 * e, lo0), hi0)
+        th[1] = min(max(th[1] + k1 * e, lo1), hi1)
+        p0[0] = p00 - k0 * ps0
+        p0[1] = p01 - k0 * ps1
+        p1[1] = p11 - k1 * ps1
 
     def _rebase(self) -> None:
-        """The lanes rebuilt at theta (their states kept); the history moved to the new point."""
+        """The lanes rebuilt at theta (their states kept); the history moved to the new point
+        (lazily: ``_now``)."""
         new = list(self.theta)
         moves = [(a - b) / u for a, b, u in zip(new, self._lin, self._units, strict=True)]
         if not self._ref_live and self._hist_t:
@@ -368,9 +410,11 @@ class PhysicsAdapter:
         self._ref_live = True
         self._lanes.rebase(adapted_params(self.plant.params, new, self._friction_ref), moves)
         d = [a - b for a, b in zip(new, self._lin, strict=True)]
-        self._hist = [(r[0] + r[1] * d[0] + r[2] * d[1], r[1], r[2]) for r in self._hist]
+        self._moves.append((d[0], d[1]))  # the history's rows move when read (``_now``)
+        self._rebuilds += 1
         self._lin = new
         self._units = self._lane_units()
+        self._row = None
         self.relinearisations += 1
 
 

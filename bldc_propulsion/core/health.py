@@ -41,6 +41,7 @@ its parameter perturbed.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -132,8 +133,7 @@ class PhysicsTwins:
         i0 = params.motor_no_load_current_a
         #: the friction (no-load current, A) a factor is relative to
         self.friction_reference_a = i0 if i0 > 0.0 else _FRICTION_REFERENCE_A
-        #: the model's cold full-drive speed on its supply (rad/s): the monitor's speed scale
-        self.speed_scale_rad_s = full_drive_speeds(params, eff, supply_v)[0]
+        self._scale_of = (eff, supply_v)  # speed_scale_rad_s's
         alpha = params.copper_temperature_coefficient_per_k or _COPPER_PER_K
         d_pack = _PACK_STEP * self.pack_resistance_ohm
         per_fault = {
@@ -185,6 +185,12 @@ class PhysicsTwins:
         self._ib_lp = [0.0] * n
         self._ib = [0.0] * n
         self._w_now = [0.0] * n
+
+    @functools.cached_property
+    def speed_scale_rad_s(self) -> float:
+        """The model's cold full-drive speed on its supply (rad/s): the monitor's speed scale.
+        Solved when first asked (~0.1 ms): an online adapter rebuilding its lanes never asks."""
+        return float(full_drive_speeds(self.params, *self._scale_of)[0])
 
     def update_pwm(self, t: float, level: float) -> None:
         """A command frame (PWM level) stamped t (s)."""

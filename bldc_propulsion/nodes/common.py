@@ -342,6 +342,23 @@ class ScalarOutput(ListenedOutput):
             self.publisher.publish(self.msg)
 
 
+class NamedValuesOutput(ListenedOutput):
+    """A Float64MultiArray of a fixed count of values (``ListenedOutput``): one layout dimension
+    whose label names them (e.g. comma-joined names), set once, so a consumer knows what each is."""
+
+    def __init__(self, node: Node, topic: str, label: str, count: int, depth: int = 10) -> None:
+        from std_msgs.msg import Float64MultiArray, MultiArrayDimension  # only the estimator's adaptation
+
+        msg = Float64MultiArray()
+        msg.layout.dim = [MultiArrayDimension(label=label, size=count, stride=count)]
+        super().__init__(node, Float64MultiArray, topic, msg, depth)
+
+    def publish(self, values: Sequence[float]) -> None:
+        if self.listened:
+            self.msg.data = [float(v) for v in values]
+            self.publisher.publish(self.msg)
+
+
 class StampedOutput(ListenedOutput):
     """A stamped output (the contract's "Stamped outputs"), a ``ListenedOutput``.
 

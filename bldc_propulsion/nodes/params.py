@@ -103,6 +103,11 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
     Param("thrust_coefficient", 0.0, "b in thrust = b*w^2 (N s^2/rad^2); 0 = the model's "
           "own coefficient. A model without one (no thrust measured or stated in training) "
           "publishes no predicted/thrust unless this states it.", 0.0, 1.0, core=False),
+    Param("adapt", False, "Online adaptation (physics or hybrid model): with rotor/speed "
+          "coming, the propeller's loss and the friction factor follow the measured speed "
+          "(bounded RLS, frozen while the speed is stale or the rotor at rest), the prediction "
+          "and thrust use them; published on predicted/adapted and diagnostics (adapted_*). "
+          "A network model or the fallback is refused.", core=False),
     Param("output_rate_hz", 100.0, "Rate of predicted/speed and predicted/thrust (Hz, node "
           "clock). Kept under `ros2 bag play --clock`: every output time passed by a /clock "
           "step is predicted.", 1.0, 1000.0, core=False),

@@ -35,6 +35,15 @@ predicted/thrust_sigma (Float64, rad/s and N), the one-sigma band of each predic
 (``core.uncertainty``), at the same grid times as predicted/speed; advertised only while the
 model has a band (and, for the thrust's, a b); without one, diagnostics say why (``band``).
 
+adapt (parameter, default false; a physics or hybrid model, refused at start for another):
+the online adaptation (``core.adaptation``): each measured speed on rotor/speed updates the
+propeller's loss and the friction factor, which the prediction and the thrust then use. After
+each measured speed the estimator takes, predicted/adapted (Float64MultiArray, the project's
+addition: the values in ``ADAPTED`` order, propeller loss fraction and friction factor,
+layout.dim[0].label the names comma-joined) is published; diagnostics carry ``adaptation`` (on,
+or why frozen) and each ``adapted_*`` value with its sigma. A model reload keeps adapt (a network
+is then refused like a file that does not load) and starts from the new model's constants.
+
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
 time (``ros2 param set``), such a file is refused and the last good model kept.
@@ -55,6 +64,7 @@ if TYPE_CHECKING:
     from rclpy.parameter import Parameter
 
 from bldc_propulsion import contract
+from bldc_propulsion.core.adaptation import ADAPTED, ADAPTED_LABEL, adapter_for
 from bldc_propulsion.core.estimator import ThrustEstimator
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
@@ -63,6 +73,7 @@ from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.model import load_model
 from bldc_propulsion.nodes.common import (
     JointStateOutput,
+    NamedValuesOutput,
     NodeClock,
     ScalarOutput,
     WithInfo,
@@ -89,7 +100,9 @@ class ThrustEstimatorNode(Node):
         params = declare_parameters(self, THRUST_ESTIMATOR_PARAMS)
         self.thrust_coefficient = params['thrust_coefficient'] or None
         self.model_path = params['model_path']
-        self.core = make_estimator(self.model_path, self.thrust_coefficient)  # BadInputError
+        self.adapt = bool(params['adapt'])
+        self.core = make_estimator(self.model_path, self.thrust_coefficient, self.adapt,
+                                   self.get_fully_qualified_name())  # BadInputError
         self.reload_error = ''
         self.pwm_stream = EventStream(params['use_source_timestamps'])
         self.speed_stream = EventStream(params['use_source_timestamps'])
@@ -112,6 +125,9 @@ class ThrustEstimatorNode(Node):
         self.speed_sigma_out: ScalarOutput | None = None
         self.thrust_sigma_out: ScalarOutput | None = None
         self.match_band_output()
+        #: predicted/adapted (with adapt: the adaptation's values after each measured speed)
+        self.adapted_out = NamedValuesOutput(
+            self, contract.TOPIC_PREDICTED_ADAPTED, ADAPTED_LABEL, len(ADAPTED)) if self.adapt else None
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         qos = input_qos(params['queue_depth'])
@@ -142,7 +158,10 @@ class ThrustEstimatorNode(Node):
         t, _lost = self.speed_stream.place(arrival(self.now_s(), info))
         self.count_late(t)
         self.publish_until(t)
-        self.core.update_speed(t, msg.data)
+        adapter = self.core.adapter
+        if self.core.update_speed(t, msg.data) and adapter is not None and self.adapted_out is not None:
+            values = adapter.values()
+            self.adapted_out.publish([values[n][0] for n in ADAPTED])
 
     def on_voltage(self, msg: BatteryState) -> None:
         t = stamp_s(msg.header.stamp)
@@ -190,7 +209,7 @@ class ThrustEstimatorNode(Node):
         if self.thrust_out is not None and self.wrench_out is not None:
             self.thrust_out.refresh()
             self.wrench_out.refresh()
-        for out in (self.speed_sigma_out, self.thrust_sigma_out):
+        for out in (self.speed_sigma_out, self.thrust_sigma_out, self.adapted_out):
             if out is not None:
                 out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
@@ -260,7 +279,8 @@ class ThrustEstimatorNode(Node):
             if p.name != 'model_path':
                 continue
             try:
-                core = make_estimator(p.value, self.thrust_coefficient)
+                core = make_estimator(p.value, self.thrust_coefficient, self.adapt,
+                                      self.get_fully_qualified_name())
             except BadInputError as e:
                 self.reload_error = f'kept {self.model_path or "the fallback"}: {e}'
                 self.get_logger().error(str(e))
@@ -272,10 +292,21 @@ class ThrustEstimatorNode(Node):
         return SetParametersResult(successful=True)
 
 
-def make_estimator(model_path: str, thrust_coefficient: float | None) -> ThrustEstimator:
-    """The estimator core for a model file, or for the fallback when the path is empty."""
+def make_estimator(model_path: str, thrust_coefficient: float | None, adapt: bool = False,
+                   node_name: str = THRUST_ESTIMATOR) -> ThrustEstimator:
+    """The estimator core for a model file, or for the fallback when the path is empty; with
+    ``adapt``, adapting (BadInputError naming the parameter for a model without physics)."""
     model = load_model(model_path) if model_path else fallback_model()
-    return ThrustEstimator(model, thrust_coefficient=thrust_coefficient)
+    adapter = None
+    if adapt:
+        if not model_path:
+            raise BadInputError(f"{node_name}: parameter adapt: needs a physics or hybrid model_path "
+                                "(the first-principles fallback has no fitted parameters to adapt)")
+        try:
+            adapter = adapter_for(model)
+        except BadInputError as e:
+            raise BadInputError(f"{node_name}: parameter adapt: model_path {model_path}: {e}") from None
+    return ThrustEstimator(model, thrust_coefficient=thrust_coefficient, adapter=adapter)
 
 
 def main(args: list[str] | None = None) -> int:
