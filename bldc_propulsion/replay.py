@@ -16,6 +16,9 @@ shared, and ``test/test_nodes_live.py`` checks live = replay):
   ``ADAPTED`` order, in their ``UNITS``, the names comma-joined as layout.dim[0].label) after each
   measured speed the estimator takes, as the node publishes it; the adapted model can be saved
   at the end (``save_adapted``),
+- with ``health`` (``replay --health``: the health monitor, ``core.health.HealthStream``, a physics
+  or hybrid model), the estimator node's ``health`` status among its diagnostics, and the changes
+  found in the summary,
 - their stamped forms (``stamped_writer``): ``rotor/state`` once per new measurement, stamped
   with the middle of its revolution; ``predicted/state`` and ``predicted/wrench`` (with a
   thrust coefficient) stamped with the grid time,
@@ -28,6 +31,9 @@ topics and not the raw ones (``battery/voltage`` without ``battery/adc``, ``roto
 without ``tachometer/adc``: what ``import-csv`` writes) has them copied to the output as
 recorded, as they would be on the bus while it plays, and the stage with no input (battery
 filter, tachometer) is not run: its status is not reported, the summary says so in one line.
+A recorded ``rotor/speed`` reaches the estimator as the node takes it during ``ros2 bag play``
+(``ThrustEstimator.update_speed``, the decoded speed's path): the physics starts from the
+measured speed, and adaptation and the health monitor follow it.
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, veh
 from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
+from .core.health import HealthEvent, HealthStream, physics_part
 from .core.status import CoreStatus
 from .core.tach_output import SpeedOutput
 from .core.tachometer import Samples, TachometerConfig, TachometerDecoder
@@ -99,6 +106,15 @@ class AdaptationJson(TypedDict):
     saved: str | None  #: --save-adapted's model file
 
 
+class HealthJson(TypedDict):
+    """The health monitor's findings at the end of ``replay --health``."""
+
+    events: list[dict[str, object]]  #: ``HealthEvent.as_dict`` of each change, in order
+    duration_s: float  #: from the first to the last measured speed it took
+    monitored_s: float  #: the part after the healthy reference, where changes can be found
+    threshold: float
+
+
 class ReplaySummary(TypedDict):
     """What ``replay_bag`` returns (``replay --json``)."""
 
@@ -115,6 +131,7 @@ class ReplaySummary(TypedDict):
     measured_inputs: list[str]
     band: BandWrittenJson
     adaptation: AdaptationJson | None  #: None: --adapt not given
+    health: HealthJson | None  #: None: --health not given
     warnings: list[str]
     status: list[StatusJson]
 
@@ -154,6 +171,7 @@ def replay_bag(
     spin_direction: int = c.DEFAULT_SPIN_DIRECTION,
     adapt: bool = False,
     save_adapted: str | os.PathLike[str] | None = None,
+    health: bool = False,
 ) -> ReplaySummary:
     """Replay ``in_path`` into a new bag at ``out_path``; returns the summary (``--json``).
 
@@ -161,6 +179,9 @@ def replay_bag(
     (``core.adaptation.adapter_for``; a network model or the fallback is refused before any
     work) and ``predicted/adapted`` is written; ``save_adapted``: the adapted model's file,
     written at the end (needs ``adapt``; checked with the other outputs before any work).
+    ``health``: the health monitor runs on the estimator's inputs (a physics or hybrid model;
+    refused before any work otherwise): its status among the estimator's diagnostics, its changes
+    in the summary's ``health``.
 
     ``joint_name``, ``frame_id`` and ``spin_direction`` are the nodes' parameters of the same
     names (the stamped outputs' joint, the wrench's frame, the reaction torque's sign).
@@ -185,8 +206,10 @@ def replay_bag(
     model = load_model(model_path) if model_path else fallback_model()
     if adapt:
         _adapter(model, model_path)  # refused now, before any work
+    if health:
+        _check_health(model, model_path)
     args = (in_path, out_path, model, model_path, force, battery, tachometer, namespace, stamped,
-            adapt, save_adapted)
+            adapt, save_adapted, health)
     if not reference:
         try:
             return _replay(*args, reference=False)
@@ -204,6 +227,30 @@ def _adapter(model: object, model_path: str | os.PathLike[str] | None) -> Physic
         return adapter_for(model)
     except BadInputError as e:
         raise BadInputError(f"--model {model_path}: {e}") from None
+
+
+def _check_health(model: object, model_path: str | os.PathLike[str] | None) -> None:
+    """--health's model: a physics or hybrid one; one line naming --model otherwise."""
+    if model_path is None:
+        raise BadInputError("--health needs --model with a physics or hybrid model (the first-principles "
+                            "fallback has no fitted physics to give the faults' signatures)")
+    if physics_part(model) is None:
+        raise BadInputError(f"--model {model_path}: the health monitor (--health) needs a physics or hybrid "
+                            f"model; this one is a {getattr(model, 'kind', 'network')}")
+
+
+def _health_json(stream: HealthStream | None) -> HealthJson | None:
+    """The monitor's findings for the summary; None without it."""
+    if stream is None:
+        return None
+    run = stream.run()
+    return {"events": [e.as_dict() for e in run.events], "duration_s": run.duration_s,
+            "monitored_s": run.monitored_s, "threshold": run.threshold}
+
+
+def health_lines(events: list[HealthEvent], indent: str = "  ") -> list[str]:
+    """The changes as the health command prints them, a line each (``HealthEvent.text``)."""
+    return [indent + e.text() for e in events]
 
 
 def adapted_model(model: Model, adapter: PhysicsAdapter) -> Model:
@@ -267,6 +314,7 @@ def _replay(
     stamped: _Stamped,
     adapt: bool,
     save_adapted: str | os.PathLike[str] | None,
+    health: bool,
     *,
     reference: bool,
 ) -> ReplaySummary:
@@ -276,9 +324,10 @@ def _replay(
         filt = BatteryFilter(battery or BatteryFilterConfig())
         tach = TachometerDecoder(tachometer or TachometerConfig())
         est = ThrustEstimator(model, adapter=_adapter(model, model_path) if adapt else None)
+        monitor = HealthStream(est) if health else None
         with BagWriter(out_path, force=force, t0_ns=rec.t0_ns) as bag:
             node = _Nodes(bag, filt, tach, est, lambda topic: vehicle_topic(topic, ns), has_voltage, measured,
-                          stamped, ns)
+                          stamped, ns, monitor)
             if reference:
                 node.run_reference(rec.messages(inputs, tolerant=True))
             else:
@@ -289,11 +338,13 @@ def _replay(
             end = (rec.end_ns - rec.t0_ns) * 1e-9
             node.timers_until(end)
             node.counts["messages_out"] = bag.messages_written
+        if monitor is not None:  # the end of the data: a change still being named, as it stands
+            monitor.finish()
         counts, per_topic_in = node.counts, node.per_topic_in
         tach.check_timeout(end)  # a tachometer silent until the end: its status says so
         statuses = [*([] if c.TOPIC_BATTERY_VOLTAGE in measured else filt.status()),
                     *([] if c.TOPIC_ROTOR_SPEED in measured else tach.status()), *est.status(),
-                    *node.wrench_status()]
+                    *node.wrench_status(), *node.health_status()]
         n = max(est.predictions, 1)
         ranged = None if est.is_fallback else RangeReport(
             str(in_path), est.clipped / n, {k: v / n for k, v in est.clipped_by_input.items() if v})
@@ -317,6 +368,7 @@ def _replay(
             "measured_inputs": ["/" + topic for topic in measured],
             "band": {"written": est.band is not None, "note": est.band_note},  # predicted/*_sigma, or why not
             "adaptation": _adaptation_json(est, save_adapted),
+            "health": _health_json(monitor),
             "warnings": warnings,
             "status": [
                 {"name": s.name, "level": s.level, "message": s.message, "values": dict(s.values)}
@@ -340,8 +392,10 @@ class _Nodes:
                  est: ThrustEstimator, topic_out: Callable[[str], str], has_voltage: bool,
                  measured: Iterable[str] = (),
                  stamped: _Stamped = _DEFAULT_STAMPED,
-                 namespace: str | None = None) -> None:
+                 namespace: str | None = None,
+                 health: HealthStream | None = None) -> None:
         self.bag, self.filt, self.tach, self.est = bag, filt, tach, est
+        self.health = health
         self.stamped = StampedWriter(bag, topic_out(c.TOPIC_ROTOR_STATE), topic_out(c.TOPIC_PREDICTED_STATE),
                                      topic_out(c.TOPIC_PREDICTED_WRENCH), joint_name=stamped.joint_name,
                                      frame_id=stamped.frame_id)
@@ -373,7 +427,8 @@ class _Nodes:
         self.diagnostics: tuple[tuple[str, str, Callable[[], list[CoreStatus]]], ...] = (
             (*diagnostic_source(namespace, BATTERY_FILTER), lambda: self.filter_status()),
             (*diagnostic_source(namespace, TACHOMETER), lambda: self.tach_status()),
-            (*diagnostic_source(namespace, THRUST_ESTIMATOR), lambda: [*est.status(), *self.wrench_status()]),
+            (*diagnostic_source(namespace, THRUST_ESTIMATOR),
+             lambda: [*est.status(), *self.wrench_status(), *self.health_status()]),
         )
 
     def timers_until(self, t: float) -> None:
@@ -408,32 +463,54 @@ class _Nodes:
         """The node's status on predicted/wrench's torque (core.wrench)."""
         return wrench_status(self.torque_coefficient, self.est.thrust_coefficient is not None)
 
+    def health_status(self) -> list[CoreStatus]:
+        """The node's health status (with the monitor on), as it publishes it."""
+        return [] if self.health is None else [self.health.status()]
+
     # --- the inputs, as the nodes' callbacks take them ------------------------------------
     def pwm(self, t: float, value: float) -> None:
         if self.est.update_pwm(t, value):
             self.predictions.start(t)
+            if self.health is not None:
+                self.health.update_pwm(t, value)
+
+    def estimator_voltage(self, t: float, v: float) -> None:
+        """The estimator node takes a battery/voltage (and the health monitor what it took)."""
+        if self.est.update_voltage(t, v) and self.health is not None:
+            self.health.update_voltage(t, v)
 
     def voltage_published(self, t: float, v: float) -> None:
         """The battery filter publishes ``v``; the estimator takes it unless the recording
         carries its own battery/voltage."""
         self.bag.write_battery_state(self.voltage_topic, t, v)
         if not self.has_voltage:  # as the node receives it: BatteryState.voltage is a float32
-            self.est.update_voltage(t, float(np.float32(v)))
+            self.estimator_voltage(t, float(np.float32(v)))
 
     def voltage_recorded(self, t: float, v: float) -> None:
         """The recording's battery/voltage: the estimator's voltage; also the output's when
         there is no battery/adc for the filter to publish from."""
         if c.TOPIC_BATTERY_VOLTAGE in self.measured:
             self.bag.write_battery_state(self.voltage_topic, t, v)
-        self.est.update_voltage(t, v)
+        self.estimator_voltage(t, v)
 
     def speed_recorded(self, t: float, w: float) -> None:
         """The recording's rotor/speed (no tachometer/adc to decode): the output's, as recorded;
         its stamped form at the recorded time, the instant the log gives it (no revolution to
-        place it in)."""
+        place it in); and the estimator's, as the node takes it while the recording plays."""
         self.bag.write_float64(self.rotor_topic, t, w)
         self.bag.write_float64(self.rpm_topic, t, w * c.RAD_S_TO_RPM)
         self.stamped.rotor_state(t, t, w)
+        self.speed_taken(t, w)
+
+    def speed_taken(self, t: float, w: float) -> None:
+        """A measured speed as the estimator node takes rotor/speed: the estimator, then (if it
+        accepted it) predicted/adapted with adaptation on, and the health monitor."""
+        if not self.est.update_speed(t, w):
+            return
+        if self.est.adapter is not None:
+            self.adapted(t)
+        if self.health is not None:
+            self.health.update_speed(t, w)
 
     def tach_batch(self, t: float, samples: Samples) -> None:
         self.tach.process_batch(t, samples, result=False)
@@ -444,9 +521,7 @@ class _Nodes:
             self.bag.write_float64(self.rpm_topic, t, speed * c.RAD_S_TO_RPM)
             if out.fresh:
                 self.stamped.rotor_state(t, out.stamp_s, speed)
-            # as the estimator node takes rotor/speed (and then publishes what it adapted)
-            if self.est.update_speed(t, speed) and self.est.adapter is not None:
-                self.adapted(t)
+            self.speed_taken(t, speed)
 
     def adapted(self, t: float) -> None:
         """predicted/adapted after a measured speed the estimator took (adaptation on)."""
@@ -598,7 +673,8 @@ def summary_text(info: ReplaySummary) -> str:
     if measured:
         stages = {"/" + c.TOPIC_BATTERY_VOLTAGE: ("to the estimator and the output", "/" + c.TOPIC_BATTERY_ADC,
                                                   "battery filter"),
-                  "/" + c.TOPIC_ROTOR_SPEED: ("to the output", "/" + c.TOPIC_TACH_ADC, "tachometer")}
+                  "/" + c.TOPIC_ROTOR_SPEED: ("to the estimator and the output", "/" + c.TOPIC_TACH_ADC,
+                                              "tachometer")}
         lines.append(
             "  [INFO] measured " + " and ".join(f"{m} ({stages[m][0]})" for m in measured)
             + " used as recorded: the recording has no " + " or ".join(stages[m][1] for m in measured)
@@ -609,6 +685,14 @@ def summary_text(info: ReplaySummary) -> str:
                          for n, p in ad["parameters"].items())
         lines.append(f"  adaptation ({ad['state']}; {ad['updates']} updates): {vals}"
                      + (f"; adapted model -> {ad['saved']}" if ad["saved"] else ""))
+    hj = info.get("health")
+    if hj:
+        events = [HealthEvent.from_dict(e) for e in hj["events"]]
+        lines.append(f"  health monitor: {len(events)} change{'' if len(events) == 1 else 's'} over "
+                     f"{hj['monitored_s']:.1f} s monitored (threshold {hj['threshold']:.1f})"
+                     + ("" if events or hj["monitored_s"] > 0.0 else
+                        ": too short, the first reference + window seconds are the healthy reference"))
+        lines += health_lines(events, "    ")
     for s in info["status"]:
         level = ("OK", "WARN", "ERROR")[min(int(s["level"]), 2)]
         vals = ", ".join(f"{k}={v}" for k, v in s["values"].items() if _worth_saying(k, v))

@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, 
     from ..model import Model
     from ..recordings import Signals
     from ..training.evaluate import BandCoverage, BandCoverageJson, RecordingScore, RecordingScoreJson
+    from .health import RecordingHealth
 
 NAME = "evaluate"
 HELP = "measure a model's speed error on recordings"
@@ -31,7 +32,9 @@ DESCRIPTION = (
     "band (trained by this version), the share of measured speeds inside its +-1 sigma band "
     "(about 68 % where it is calibrated) and the mean sigma. Several --model files are "
     "compared side by side (a table per recording and band, and with --report one "
-    "figure per recording with every model's prediction)."
+    "figure per recording with every model's prediction). With --health, the health monitor "
+    "(`bldc-propulsion health`, the code the node's parameter health runs) over each recording, "
+    "for each physics or hybrid model: the changes it names, a line each."
 )
 
 
@@ -42,6 +45,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recordings", nargs="+", metavar="BAG", help="recordings to evaluate on")
     p.add_argument("--report", metavar="DIR", help="write PNG figures and index.html to DIR")
     p.add_argument("--force", action="store_true", help="replace an existing report folder (one this tool made)")
+    p.add_argument("--health", action="store_true",
+                   help="also run the health monitor over each recording (as `bldc-propulsion health` with its "
+                        "defaults) for each physics or hybrid --model: a line per change found, --json health "
+                        "(per recording: events, monitored_s, threshold, injected_faults); a network has no "
+                        "physics to monitor with (refused if no --model has)")
     add_namespace_argument(p)
 
 
@@ -52,14 +60,19 @@ class BandCoverageOrWhyJson(TypedDict):
     band_unavailable: str | None
 
 
-class EvaluationJson(BandCoverageOrWhyJson):
-    """``Evaluation.as_dict``: one model's figures (``models`` in --json with several)."""
-
+class _EvaluationJsonCore(BandCoverageOrWhyJson):
     model: str
     kind: str
     rmse_rad_s: float
     thrust_coefficient: float | None
     recordings: list[RecordingScoreJson]
+
+
+class EvaluationJson(_EvaluationJsonCore, total=False):
+    """``Evaluation.as_dict``: one model's figures (``models`` in --json with several)."""
+
+    #: with --health: per recording, the monitor's result (None: the model has no physics)
+    health: list[RecordingHealth] | None
 
 
 class ComparisonRow(TypedDict):
@@ -87,6 +100,7 @@ class EvaluateJson(_EvaluateJsonCore, total=False):
     comparison: list[ComparisonRow]
     report: str
     warnings: list[str]
+    health: list[RecordingHealth] | None  #: --health: the first model's (``EvaluationJson.health``)
 
 
 @dataclass
@@ -98,6 +112,9 @@ class Evaluation:
     rmse_rad_s: float
     scores: list[RecordingScore]
     predictions: list[np.ndarray]
+    #: --health: per recording the monitor's result (None: the model has no physics) and the
+    #: timeline's lines (or why not run); None: not asked
+    health: tuple[list[RecordingHealth] | None, list[str]] | None = None
 
     @property
     def label(self) -> str:
@@ -120,9 +137,18 @@ class Evaluation:
                 "band_unavailable": None if band else band_of(self.model)[1]}
 
     def as_dict(self) -> EvaluationJson:
-        return {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
-                "thrust_coefficient": self.model.thrust_coefficient, **self.band_json(),
-                "recordings": [s.as_dict() for s in self.scores]}
+        out: EvaluationJson = {"model": self.path, "kind": self.model.kind, "rmse_rad_s": self.rmse_rad_s,
+                               "thrust_coefficient": self.model.thrust_coefficient, **self.band_json(),
+                               "recordings": [s.as_dict() for s in self.scores]}
+        if self.health is not None:
+            out["health"] = self.health[0]
+        return out
+
+    def health_lines(self) -> list[str]:
+        """--health: the monitor's timeline per recording, as the health command prints it."""
+        if self.health is None:
+            return []
+        return [f"  health monitor ({self.label}):", *("    " + line for line in self.health[1])]
 
     def lines(self) -> list[str]:
         band = self.band
@@ -171,13 +197,19 @@ def run(args: argparse.Namespace) -> CommandResult:
                   inputs=[*args.model, *args.recordings])
     _check_distinct(args.model)
     models = [load_model(p) for p in args.model]
+    if args.health:
+        _check_health_models(args.model, models)
     signals = [load_signals(p, namespace=args.namespace) for p in args.recordings]
     evals = [Evaluation(str(p), m, *evaluate(m, signals)) for p, m in zip(args.model, models, strict=True)]
+    if args.health:
+        _monitor(evals, signals)
     first = evals[0]  # the contract's keys: the first (or only) model's figures
     data: EvaluateJson = {"model": first.path, "rmse_rad_s": first.rmse_rad_s,
                             "thrust_coefficient": first.model.thrust_coefficient, **first.band_json(),
                             "recordings": [s.as_dict() for s in first.scores]}
-    lines = [line for e in evals for line in e.lines()]
+    if args.health:
+        data["health"] = first.health[0] if first.health is not None else None
+    lines = [line for e in evals for line in (*e.lines(), *e.health_lines())]
     rows = comparison(evals) if len(evals) > 1 else []
     if rows:
         data["models"] = [e.as_dict() for e in evals]
@@ -190,6 +222,28 @@ def run(args: argparse.Namespace) -> CommandResult:
                 for e in evals for s in e.scores if s.out_of_range and (w := s.out_of_range.warning())]
     data["warnings"] = warnings
     return CommandResult(data, "\n".join(lines), warnings=warnings)
+
+
+def _check_health_models(paths: list[str], models: list[Model]) -> None:
+    """--health needs at least one model with physics; one line naming --model otherwise."""
+    from ..core.health import physics_part
+
+    if not any(physics_part(m) is not None for m in models):
+        raise BadInputError(f"--health: --model {paths[0]} is a {models[0].kind} model: the health monitor needs a "
+                            "physics or hybrid model (the faults' signatures come from its physics)")
+
+
+def _monitor(evals: list[Evaluation], signals: list[Signals]) -> None:
+    """--health: each physics or hybrid model's monitor over every recording (a network's: none,
+    and its lines say why)."""
+    from ..core.health import physics_part
+    from .health import monitor_recordings
+
+    for e in evals:
+        if physics_part(e.model) is not None:
+            e.health = monitor_recordings(e.model, signals)
+        else:
+            e.health = (None, [f"not run: a {e.model.kind} model has no physics to give the faults' signatures"])
 
 
 def comparison(evals: list[Evaluation]) -> list[ComparisonRow]:

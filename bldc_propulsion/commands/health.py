@@ -10,7 +10,11 @@ from ..errors import BadInputError
 from .common import CommandResult, add_namespace_argument, number
 
 if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, scipy and rosbags
+    from collections.abc import Sequence
+
+    from ..core.estimator import SpeedModel
     from ..core.health import HealthConfig, HealthRun
+    from ..recordings import Signals
 
 NAME = "health"
 HELP = "find and name propulsion faults in recordings (health monitor)"
@@ -56,8 +60,7 @@ def config_of(args: argparse.Namespace) -> HealthConfig:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..bagio import open_recording
-    from ..core.health import physics_part, run_health
+    from ..core.health import physics_part
     from ..model import load_model
     from ..recordings import load_all
 
@@ -67,18 +70,29 @@ def run(args: argparse.Namespace) -> CommandResult:
                             "signatures: the health monitor needs a physics or hybrid model (train --kind physics)")
     cfg = config_of(args)
     signals = load_all(args.recordings, "health", namespace=args.namespace)
-    out: list[RecordingHealth] = []
-    lines: list[str] = []
-    for sig in signals:
-        with open_recording(sig.path, args.namespace) as rec:
-            injected = [f.spec for f in rec.faults]
-        result = run_health(model, sig.pwm_events, sig.voltage_events, sig.speed_events, cfg)
-        out.append(recording_dict(sig.path, result, injected))
-        lines += timeline(sig.path, result, injected)
+    out, lines = monitor_recordings(model, signals, cfg)
     first = out[0]
     data: dict[str, object] = {"model": args.model, "kind": model.kind, "threshold": first["threshold"],
                             "recordings": out}
     return CommandResult(data, "\n".join(lines))
+
+
+def monitor_recordings(model: SpeedModel, signals: Sequence[Signals], config: HealthConfig | None = None
+                       ) -> tuple[list[RecordingHealth], list[str]]:
+    """The monitor over each recording (``core.health.run_health``, the stream the node and
+    ``replay --health`` run): per recording its --json result and its timeline's lines."""
+    from ..bagio import open_recording
+    from ..core.health import run_health
+
+    out: list[RecordingHealth] = []
+    lines: list[str] = []
+    for sig in signals:
+        with open_recording(sig.path, sig.namespace) as rec:
+            injected = [f.spec for f in rec.faults]
+        result = run_health(model, sig.pwm_events, sig.voltage_events, sig.speed_events, config)
+        out.append(recording_dict(sig.path, result, injected))
+        lines += timeline(sig.path, result, injected)
+    return out, lines
 
 
 class RecordingHealth(TypedDict):

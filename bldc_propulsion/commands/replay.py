@@ -19,7 +19,10 @@ DESCRIPTION = (
     "/rotor/speed instead of /battery/adc or /tachometer/adc (an imported thrust-stand log) "
     "has them used as recorded, and the stage without input is not run. With --adapt (a physics "
     "or hybrid --model) the estimator adapts the propeller's loss and the friction factor to the "
-    "measured speed and /predicted/adapted is written too."
+    "measured speed and /predicted/adapted is written too. With --health (a physics or hybrid "
+    "--model) the health monitor runs on what the estimator takes, as the node's parameter health: "
+    "its status ('health') is among the estimator's /diagnostics and the changes it named are "
+    "printed, a line each, as `bldc-propulsion health` prints them."
 )
 
 
@@ -43,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save-adapted", metavar="OUT.npz",
                    help="with --adapt: write the adapted model (the physics with the adapted constants, b "
                         "scaled by the propeller's loss) to OUT.npz at the end")
+    p.add_argument("--health", action="store_true",
+                   help="run the health monitor (a physics or hybrid --model) as the node's parameter health: "
+                        "the estimator's /diagnostics carry its 'health' status (OK, WARN while a change is "
+                        "named or unnamed, ERROR with the named fault: effect, size, unit, onset_s, "
+                        "detected_s), the summary a line per change, --json health.events")
     add_namespace_argument(p)
 
 
@@ -54,5 +62,6 @@ def run(args: argparse.Namespace) -> CommandResult:
         check_rotor_name(value, option)
     info = replay_bag(args.input, args.output, model_path=args.model, force=args.force,
                       namespace=args.namespace, joint_name=args.joint_name, frame_id=args.frame_id,
-                      spin_direction=args.spin_direction, adapt=args.adapt, save_adapted=args.save_adapted)
+                      spin_direction=args.spin_direction, adapt=args.adapt, save_adapted=args.save_adapted,
+                      health=args.health)
     return CommandResult(info, summary_text(info), warnings=info["warnings"])

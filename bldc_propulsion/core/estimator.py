@@ -316,13 +316,14 @@ class ThrustEstimator:
             if w >= REST_SPEED_RAD_S and -MEASURED_SPEED_MAX_AGE_S <= since <= START_WINDOW_S:
                 self._start_from(w, log)
         if self.adapter is not None:
-            self.adapter.update(t, w, self._offline_speed(t))
+            self.adapter.update(t, w, self.offline_speed(t))
         return True
 
-    def _offline_speed(self, t: float) -> float:
+    def offline_speed(self, t: float) -> float:
         """The offline model's speed (rad/s) at t, NaN if not ready: what ``predict`` gives
         without adaptation, counting nothing. Inputs held from their latest value (a hybrid's
-        network) are taken as they are now, the physics' speed at t itself."""
+        network) are taken as they are now, the physics' speed at t itself. Public for the health
+        monitor (core/health.py), which tests the measured speed against the offline model."""
         if not self.features.ready():
             return math.nan
         x = [min(max(f.value_at(t), lo), hi) for f, lo, hi in zip(self.features.features, self._lo, self._hi,

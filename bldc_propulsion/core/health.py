@@ -35,7 +35,8 @@ speed residual alone:
 ``HealthMonitor`` is numpy only (no physics, no ROS): it is fed, at each measured speed sample,
 what the estimator knows (:class:`HealthSample`). ``PhysicsTwins`` computes the model's speed,
 supply current and the signatures by stepping the plant (``plant.make_step``) once per fault with
-its parameter perturbed.
+its parameter perturbed. ``HealthStream`` feeds both from what an estimator accepts, one input at a
+time: the node, ``replay --health``, ``evaluate --health`` and ``bldc-propulsion health`` all run it.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from typing import TYPE_CHECKING, Protocol, cast
 import numpy as np
 
 from ..contract import PWM_STOP
+from ..errors import BadInputError
 from ..physics.lag import lag_on_times
 from ..physics.params import PlantParams, resolve_effects
 from ..physics.plant import (
@@ -62,10 +64,11 @@ from ..physics.plant import (
     start_level,
     throttle,
 )
+from .status import ERROR, OK, WARN, CoreStatus, counters
 
 if TYPE_CHECKING:
     from ..physics.plant_model import PlantModel
-    from .estimator import SpeedModel
+    from .estimator import SpeedModel, ThrustEstimator
 
 #: The contract's fault names, in the order the monitor reports them.
 FAULTS: tuple[str, ...] = ("propeller_damage", "pack_resistance", "bearing_friction", "motor_heating")
@@ -345,6 +348,17 @@ class HealthEvent:
                 "name": self.name, "size": self.size, "unit": self.unit, "statistic": self.statistic,
                 "candidates": dict(self.candidates), "note": self.note}
 
+    @classmethod
+    def from_dict(cls, d: Mapping[str, object]) -> HealthEvent:
+        """The event ``as_dict`` gave (a summary's JSON read back, to print it as ``text``)."""
+        size, named = d.get("size"), d.get("named_s")
+        candidates = d.get("candidates") or {}
+        assert isinstance(candidates, dict)
+        return cls(float(cast(float, d["onset_s"])), float(cast(float, d["detected_s"])), str(d["name"]),
+                   None if size is None else float(cast(float, size)), str(d["unit"]),
+                   float(cast(float, d["statistic"])), None if named is None else float(cast(float, named)),
+                   {str(k): float(v) for k, v in candidates.items()}, str(d.get("note", "")))
+
     def text(self) -> str:
         size = "" if self.size is None else f", size {_size_text(self.size, self.unit)}"
         return (f"{self.onset_s:8.2f} s  {self.name}{size} (statistic {self.statistic:.0f}, "
@@ -519,6 +533,12 @@ class HealthMonitor:
         if self._pending is not None:
             out.append(self._settle(self._pending))
         return out
+
+    @property
+    def pending(self) -> HealthEvent | None:
+        """The change being named or sized now (reported only once settled, up to
+        name_within_s after its onset): what a live status shows before then; None if none."""
+        return self._pending
 
     # --- blocks ----------------------------------------------------------------------------
     def _reset_window(self) -> None:
@@ -942,51 +962,143 @@ def physics_part(model: object) -> PlantModel | None:
     return None
 
 
+class HealthStream:
+    """The monitor fed one input at a time, as the estimator is: the code the node (parameter
+    ``health``), ``replay --health`` and the offline driver (:func:`run_health`) share, so the
+    three find the same events on the same inputs.
+
+    Feed it what ``estimator`` accepted, right after it did (``update_pwm`` when
+    ``ThrustEstimator.update_pwm`` returned True, and so on). The prediction tested is the
+    estimator's OFFLINE model at each measured speed's time (``ThrustEstimator.offline_speed``):
+    an online adaptation, if on, follows the very change the monitor is there to name. Times are
+    the caller's clock (the node's, or seconds from a recording's start), and so are the events'."""
+
+    def __init__(self, estimator: ThrustEstimator, config: HealthConfig | None = None) -> None:
+        """BadInputError for a model without physics (a network, the first-principles fallback):
+        it has no physics to give the faults' signatures."""
+        plant = physics_part(estimator.model)
+        if plant is None:
+            kind = getattr(estimator.model, "kind", None) or "first-principles fallback"
+            raise BadInputError("the health monitor (--health / parameter health) needs a physics or hybrid "
+                                f"model (a {kind} has no physics to give the faults' signatures)")
+        assert plant.supply_tau_s is not None, "PlantModel.__post_init__ resolves None"
+        self.estimator = estimator
+        self.config = config or HealthConfig()
+        self._plant = plant
+        self._last_voltage: tuple[float, float] | None = None
+        self.twins = self._twins()
+        tau = float(plant.supply_tau_s)
+        self.monitor = HealthMonitor(tau, self.twins.speed_scale_rad_s, self.twins.pack_resistance_ohm,
+                                     self.config, voltage_strength=float(plant.effects.get("battery_voltage", 1.0)))
+        self.first_s = math.nan  #: the first measured speed the monitor took (s)
+        self.last_s = math.nan  #: the latest
+
+    def _twins(self) -> PhysicsTwins:
+        p = self._plant
+        assert p.supply_tau_s is not None
+        return PhysicsTwins(p.params, p.effects, p.supply_v, float(p.supply_tau_s))
+
+    @property
+    def events(self) -> list[HealthEvent]:
+        """Every change reported so far (settled), in order."""
+        return self.monitor.events
+
+    def update_pwm(self, t: float, level: float) -> None:
+        """A command frame (PWM level) the estimator accepted at t (s)."""
+        self.twins.update_pwm(t, level)
+
+    def update_voltage(self, t: float, volts: float) -> None:
+        """A filtered battery voltage (V) the estimator accepted at t (s)."""
+        self.twins.update_voltage(t, volts)
+        self._last_voltage = (t, volts)
+
+    def update_speed(self, t: float, measured_rad_s: float) -> list[HealthEvent]:
+        """A measured speed (rad/s) the estimator accepted at t (s); returns the changes
+        reported at it (usually none). Nothing is tested before a command and a voltage came."""
+        predicted = self.estimator.offline_speed(t)
+        tw = self.twins.sample(t)
+        if tw is None or not math.isfinite(predicted) or self._last_voltage is None:
+            return []
+        if self.first_s != self.first_s:
+            self.first_s = t
+        self.last_s = t
+        return self.monitor.update(HealthSample(t, measured_rad_s, predicted, self._last_voltage[1], tw))
+
+    def restart_physics(self) -> None:
+        """The twins start again at the next command (the estimator's ``restart_physics``: after a
+        stall of the commands the held command says nothing of what the rotor did); the monitor
+        keeps its window (a gap in the speed restarts it by its own rule)."""
+        self.twins = self._twins()
+        if self._last_voltage is not None:
+            self.twins.update_voltage(*self._last_voltage)
+
+    def finish(self) -> list[HealthEvent]:
+        """The end of the data: a change still being named is reported as it stands."""
+        return self.monitor.finish()
+
+    def run(self) -> HealthRun:
+        """What was found so far, as :func:`run_health` returns it."""
+        duration = self.last_s - self.first_s if self.last_s == self.last_s else 0.0
+        cfg = self.monitor.config
+        armed = max(0.0, duration - cfg.reference_s - cfg.window_s)
+        return HealthRun(list(self.monitor.events), duration, armed, self.monitor.threshold, dict(self.monitor.noise))
+
+    def status(self) -> CoreStatus:
+        """The health status ("health"): OK while no change was seen; WARN while a change is being
+        named, or when the latest change is unnamed; ERROR once a fault is named, which stays
+        (the latest named) until the stream is made anew (a node's model reload). Values: effect,
+        size and unit, onset_s and detected_s (the caller's clock) of the change shown."""
+        mon = self.monitor
+        pending = mon.pending
+        named = [e for e in mon.events if e.name != UNNAMED]
+        if pending is not None and pending.name != UNNAMED:
+            named.append(pending)  # named, its size still being refined
+        values: dict[str, object] = {"state": mon.state, "changes": len(mon.events),
+                                     "threshold": mon.threshold}
+        if named:
+            ev, level = named[-1], ERROR
+            msg = f"{ev.name} {_size_text(cast(float, ev.size), ev.unit)} since {ev.onset_s:.2f} s"
+            if pending is not None and pending is not ev:
+                msg += f"; another change since {pending.onset_s:.2f} s being named"
+        elif pending is not None:
+            ev, level = pending, WARN
+            msg = f"a change since {ev.onset_s:.2f} s (found at {ev.detected_s:.2f} s), being named"
+        elif mon.events:
+            ev, level = mon.events[-1], WARN
+            msg = f"{UNNAMED} since {ev.onset_s:.2f} s" + (f": {ev.note}" if ev.note else "")
+        else:
+            learning = mon.state == _ARMING
+            return CoreStatus("health", OK, "no change" + (" (learning the healthy reference)" if learning else ""),
+                              counters(**values))
+        values.update(effect=ev.name, size=math.nan if ev.size is None else ev.size, unit=ev.unit or "none",
+                      onset_s=ev.onset_s, detected_s=ev.detected_s,
+                      named_s=math.nan if ev.named_s is None else ev.named_s, statistic=ev.statistic)
+        return CoreStatus("health", level, msg, counters(**values))
+
+
 def run_health(model: SpeedModel, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np.ndarray, np.ndarray],
                speed: tuple[np.ndarray, np.ndarray], config: HealthConfig | None = None) -> HealthRun:
     """Feed a recording's command frames, filtered voltages and measured speeds, merged in time
-    order, to the estimator (``ThrustEstimator``: the prediction), the physics twins (current and
-    signatures) and the monitor, as a node receives them. ``model``: a physics or hybrid model
-    (model.py); ValueError for one without physics (a network)."""
+    order (at equal times the inputs before the speed), to the estimator (``ThrustEstimator``:
+    the prediction) and its :class:`HealthStream`, as a node receives them. ``model``: a physics
+    or hybrid model (model.py); BadInputError for one without physics (a network)."""
     from .estimator import ThrustEstimator
 
-    plant = physics_part(model)
-    if plant is None:
-        raise ValueError("the health monitor needs a physics or hybrid model (a network has no physics "
-                         "to give the faults' signatures)")
-    assert plant.supply_tau_s is not None, "PlantModel.__post_init__ resolves None"
-    tau = float(plant.supply_tau_s)
-    twins = PhysicsTwins(plant.params, plant.effects, plant.supply_v, tau)
-    mon = HealthMonitor(tau, twins.speed_scale_rad_s, twins.pack_resistance_ohm, config,
-                        voltage_strength=float(plant.effects.get("battery_voltage", 1.0)))
     est = ThrustEstimator(model)
+    stream = HealthStream(est, config)
     kinds = [np.zeros(len(pwm[0])), np.ones(len(voltage[0])), np.full(len(speed[0]), 2.0)]
     t_all = np.concatenate([np.asarray(pwm[0], float), np.asarray(voltage[0], float), np.asarray(speed[0], float)])
     x_all = np.concatenate([np.asarray(pwm[1], float), np.asarray(voltage[1], float), np.asarray(speed[1], float)])
     k_all = np.concatenate(kinds)
     order = np.lexsort((k_all, t_all))  # by time; at equal times inputs before the speed
-    volts = math.nan
-    first = last = math.nan
     for t, kind, x in zip(t_all[order].tolist(), k_all[order].tolist(), x_all[order].tolist(), strict=True):
         if kind == 0.0:
             if est.update_pwm(t, x):
-                twins.update_pwm(t, x)
+                stream.update_pwm(t, x)
         elif kind == 1.0:
             if est.update_voltage(t, x):
-                twins.update_voltage(t, x)
-                volts = x
-        else:
-            est.update_speed(t, x)
-            pred = est.predict(t)
-            tw = twins.sample(t)
-            if tw is None or not pred.ready:
-                continue
-            if first != first:
-                first = t
-            last = t
-            mon.update(HealthSample(t, x, pred.speed_rad_s, volts, tw))
-    mon.finish()
-    duration = last - first if last == last else 0.0
-    cfg = mon.config
-    armed = max(0.0, duration - cfg.reference_s - cfg.window_s)
-    return HealthRun(mon.events, duration, armed, mon.threshold, dict(mon.noise))
+                stream.update_voltage(t, x)
+        elif est.update_speed(t, x):
+            stream.update_speed(t, x)
+    stream.finish()
+    return stream.run()

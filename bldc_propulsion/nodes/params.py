@@ -108,6 +108,12 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
           "(bounded RLS, frozen while the speed is stale or the rotor at rest), the prediction "
           "and thrust use them; published on predicted/adapted and diagnostics (adapted_*). "
           "A network model or the fallback is refused.", core=False),
+    Param("health", False, "Health monitor (physics or hybrid model): with rotor/speed coming, "
+          "a sequential test on the measured speed and the pack voltage names a change in flight "
+          "(propeller_damage, pack_resistance, bearing_friction, motor_heating) on diagnostics, "
+          "status 'health': WARN while a change is being named, ERROR with the named fault "
+          "(effect, size, unit, onset_s, detected_s), kept until the model is loaded again. "
+          "A network model or the fallback is refused.", core=False),
     Param("output_rate_hz", 100.0, "Rate of predicted/speed and predicted/thrust (Hz, node "
           "clock). Kept under `ros2 bag play --clock`: every output time passed by a /clock "
           "step is predicted.", 1.0, 1000.0, core=False),

@@ -44,6 +44,14 @@ layout.dim[0].label the names comma-joined) is published; diagnostics carry ``ad
 or why frozen) and each ``adapted_*`` value with its sigma. A model reload keeps adapt (a network
 is then refused like a file that does not load) and starts from the new model's constants.
 
+health (parameter, default false; a physics or hybrid model, refused at start for another): the
+health monitor (``core.health.HealthStream``, the code ``replay --health`` and ``bldc-propulsion
+health`` run) takes every input the estimator accepts and tests each measured speed on rotor/speed
+against the offline model. Its diagnostics status ``health``: OK (no change), WARN (a change seen
+and being named, or left unnamed), ERROR (a named fault: the latest stays until the model is
+loaded again, the same model_path set again included), with ``effect``, ``size``, ``unit``,
+``onset_s`` and ``detected_s`` on the node's clock.
+
 model_path '' uses the first-principles fallback and says so on diagnostics (WARN). A model
 file that does not load stops the node at start (one-line error, exit status 2); changed at run
 time (``ros2 param set``), such a file is refused and the last good model kept.
@@ -66,6 +74,7 @@ if TYPE_CHECKING:
 from bldc_propulsion import contract
 from bldc_propulsion.core.adaptation import ADAPTED, ADAPTED_LABEL, adapter_for
 from bldc_propulsion.core.estimator import ThrustEstimator
+from bldc_propulsion.core.health import HealthStream
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
@@ -101,8 +110,12 @@ class ThrustEstimatorNode(Node):
         self.thrust_coefficient = params['thrust_coefficient'] or None
         self.model_path = params['model_path']
         self.adapt = bool(params['adapt'])
+        self.health_on = bool(params['health'])
         self.core = make_estimator(self.model_path, self.thrust_coefficient, self.adapt,
                                    self.get_fully_qualified_name())  # BadInputError
+        #: the health monitor on the estimator's inputs (parameter health); None: off
+        self.health = make_health(self.core, self.model_path, self.get_fully_qualified_name()) \
+            if self.health_on else None
         self.reload_error = ''
         self.pwm_stream = EventStream(params['use_source_timestamps'])
         self.speed_stream = EventStream(params['use_source_timestamps'])
@@ -150,24 +163,34 @@ class ThrustEstimatorNode(Node):
         self.publish_until(t)
         if self.command_stale(t) and self.core.measured_speed_at(t) is not None:
             self.core.restart_physics()  # the rotor did something unknown meanwhile: measured
+            if self.health is not None:
+                self.health.restart_physics()
         if self.core.update_pwm(t, msg.data):
             self.last_pwm_s = t
             self.ticks.start(t)
+            if self.health is not None:
+                self.health.update_pwm(t, msg.data)
 
     def on_speed(self, msg: Float64, info: dict | None) -> None:
         t, _lost = self.speed_stream.place(arrival(self.now_s(), info))
         self.count_late(t)
         self.publish_until(t)
+        if not self.core.update_speed(t, msg.data):
+            return
         adapter = self.core.adapter
-        if self.core.update_speed(t, msg.data) and adapter is not None and self.adapted_out is not None:
+        if adapter is not None and self.adapted_out is not None:
             values = adapter.values()
             self.adapted_out.publish([values[n][0] for n in ADAPTED])
+        if self.health is not None:
+            for event in self.health.update_speed(t, msg.data):
+                self.get_logger().warn(f'health: {event.text().strip()}')
 
     def on_voltage(self, msg: BatteryState) -> None:
         t = stamp_s(msg.header.stamp)
         self.count_late(t)
         self.publish_until(t)
-        self.core.update_voltage(t, msg.voltage)
+        if self.core.update_voltage(t, msg.voltage) and self.health is not None:
+            self.health.update_voltage(t, msg.voltage)
 
     def match_thrust_output(self) -> None:
         """predicted/thrust and predicted/wrench exist while the model has a b: a subscriber
@@ -248,6 +271,8 @@ class ThrustEstimatorNode(Node):
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
         statuses += wrench_status(self.torque_coefficient, self.wrench_out is not None)
+        if self.health is not None:
+            statuses.append(self.health.status())
         timing = counters(pwm_lost=self.pwm_stream.lost_messages,
                           pwm_publisher_restarts=self.pwm_stream.publisher_restarts,
                           stale_command_ticks=self.stale_ticks,
@@ -281,11 +306,13 @@ class ThrustEstimatorNode(Node):
             try:
                 core = make_estimator(p.value, self.thrust_coefficient, self.adapt,
                                       self.get_fully_qualified_name())
+                health = make_health(core, p.value, self.get_fully_qualified_name()) if self.health_on else None
             except BadInputError as e:
                 self.reload_error = f'kept {self.model_path or "the fallback"}: {e}'
                 self.get_logger().error(str(e))
                 return SetParametersResult(successful=False, reason=str(e))
             self.core, self.model_path, self.reload_error = core, p.value, ''
+            self.health = health  # a new model, a new monitor: what the old one named is forgotten
             self.match_thrust_output()
             self.match_band_output()
             self.get_logger().info(f'model: {p.value or "first-principles fallback"}')
@@ -307,6 +334,18 @@ def make_estimator(model_path: str, thrust_coefficient: float | None, adapt: boo
         except BadInputError as e:
             raise BadInputError(f"{node_name}: parameter adapt: model_path {model_path}: {e}") from None
     return ThrustEstimator(model, thrust_coefficient=thrust_coefficient, adapter=adapter)
+
+
+def make_health(core: ThrustEstimator, model_path: str, node_name: str = THRUST_ESTIMATOR) -> HealthStream:
+    """The health monitor on ``core``'s inputs; BadInputError naming the parameter for a model
+    without physics (the fallback, a network)."""
+    if not model_path:
+        raise BadInputError(f"{node_name}: parameter health: needs a physics or hybrid model_path (the "
+                            "first-principles fallback has no fitted physics to give the faults' signatures)")
+    try:
+        return HealthStream(core)
+    except BadInputError as e:
+        raise BadInputError(f"{node_name}: parameter health: model_path {model_path}: {e}") from None
 
 
 def main(args: list[str] | None = None) -> int:
