@@ -97,6 +97,39 @@ class NodeHarness:
         else:
             self.spin(5)
 
+    def feed_estimator(self, events, t0_s: float) -> None:
+        """Feed a thrust estimator node ``events`` (s after ``t0_s``, kind 0 pwm / 1 battery voltage /
+        2 rotor speed, value), each sent once the node has taken the previous one (its counters),
+        then one diagnostics period after the last; the publishers are made here."""
+        from builtin_interfaces.msg import Time as TimeMsg
+        from sensor_msgs.msg import BatteryState
+        from std_msgs.msg import Float64
+
+        from bldc_propulsion import contract as c
+
+        topics = (c.TOPIC_PWM, c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_ROTOR_SPEED)
+        for msg_type, topic in zip((Float64, BatteryState, Float64), topics, strict=True):
+            if topic not in self.pubs:
+                self.publisher(msg_type, topic)
+        node = self.node
+        voltages = lambda: node.core.voltage_accepted + node.core.voltage_rejected_time  # noqa: E731
+        speeds = lambda: node.core.speed_accepted + node.core.speed_rejected  # noqa: E731
+        for rel_s, kind, value in events:
+            t = t0_s + rel_s
+            if kind == 0:
+                n = node.pwm_stream.messages
+                self.send(topics[0], Float64(data=value), t, taken=lambda n=n: node.pwm_stream.messages > n)
+            elif kind == 1:
+                n = voltages()
+                msg = BatteryState(voltage=value)
+                ns = int(round(t * 1e9))
+                msg.header.stamp = TimeMsg(sec=ns // 10**9, nanosec=ns % 10**9)
+                self.send(topics[1], msg, t, taken=lambda n=n: voltages() > n)
+            else:
+                n = speeds()
+                self.send(topics[2], Float64(data=value), t, taken=lambda n=n: speeds() > n)
+        self.set_time(t0_s + events[-1][0] + 1.1)  # a diagnostics message after the last input
+
     def drain(self, quiet_s: float = 0.3) -> None:
         """Spin until no output has arrived for ``quiet_s`` (the last ones are in flight)."""
         count = lambda: sum(map(len, self.received.values()))  # noqa: E731

@@ -154,10 +154,8 @@ def test_node_adapts_publishes_predicted_adapted_as_replay_and_diagnoses(flight,
     from _ros import require_rclpy
 
     require_rclpy()
-    from builtin_interfaces.msg import Time as TimeMsg
     from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import BatteryState
-    from std_msgs.msg import Float64, Float64MultiArray
+    from std_msgs.msg import Float64MultiArray
 
     from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
@@ -165,9 +163,6 @@ def test_node_adapts_publishes_predicted_adapted_as_replay_and_diagnoses(flight,
     h = start_node(ThrustEstimatorNode, model_path=str(d / "physics.npz"), adapt=True)
     received = h.record(Float64MultiArray, c.TOPIC_PREDICTED_ADAPTED)
     h.record(DiagnosticArray, c.TOPIC_DIAGNOSTICS_ABSOLUTE)
-    for msg_type, topic in ((Float64, c.TOPIC_PWM), (BatteryState, c.TOPIC_BATTERY_VOLTAGE),
-                            (Float64, c.TOPIC_ROTOR_SPEED)):
-        h.publisher(msg_type, topic)
     events = []  # (s from the start, kind, value): what replay's estimator took, in its order
     with open_recording(d / "faulted") as rec:
         events += [(t, 0, float(m.data)) for _, t, m in rec.messages([c.TOPIC_PWM])]
@@ -175,24 +170,7 @@ def test_node_adapts_publishes_predicted_adapted_as_replay_and_diagnoses(flight,
         events += [(t, 1, float(m.voltage)) for _, t, m in rec.messages([c.TOPIC_BATTERY_VOLTAGE])]
         events += [(t, 2, float(m.data)) for _, t, m in rec.messages([c.TOPIC_ROTOR_SPEED])]
     events.sort(key=lambda e: e[:2])
-    core = lambda: h.node.core  # noqa: E731
-    for rel_s, kind, value in events:
-        t = T0_S + rel_s
-        if kind == 0:
-            n = h.node.pwm_stream.messages
-            h.send(c.TOPIC_PWM, Float64(data=value), t, taken=lambda n=n: h.node.pwm_stream.messages > n)
-        elif kind == 1:
-            n = core().voltage_accepted + core().voltage_rejected_time
-            msg = BatteryState(voltage=value)
-            ns = int(round(t * 1e9))
-            msg.header.stamp = TimeMsg(sec=ns // 10**9, nanosec=ns % 10**9)
-            h.send(c.TOPIC_BATTERY_VOLTAGE, msg, t,
-                   taken=lambda n=n: core().voltage_accepted + core().voltage_rejected_time > n)
-        else:
-            n = core().speed_accepted + core().speed_rejected
-            h.send(c.TOPIC_ROTOR_SPEED, Float64(data=value), t,
-                   taken=lambda n=n: core().speed_accepted + core().speed_rejected > n)
-    h.set_time(T0_S + events[-1][0] + 1.1)  # a diagnostics message after the last input
+    h.feed_estimator(events, T0_S)
     h.spin_until(lambda: bool(h.received[c.TOPIC_DIAGNOSTICS_ABSOLUTE]))
     h.drain()
 

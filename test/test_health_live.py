@@ -195,10 +195,7 @@ def test_node_names_the_fault_on_diagnostics_as_replay(flight, offline, start_no
     from _ros import require_rclpy
 
     require_rclpy()
-    from builtin_interfaces.msg import Time as TimeMsg
     from diagnostic_msgs.msg import DiagnosticArray
-    from sensor_msgs.msg import BatteryState
-    from std_msgs.msg import Float64
 
     from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
 
@@ -206,28 +203,10 @@ def test_node_names_the_fault_on_diagnostics_as_replay(flight, offline, start_no
     h = start_node(ThrustEstimatorNode, model_path=str(d / "physics.npz"), health=True)
     diagnostics = h.record(DiagnosticArray, c.TOPIC_DIAGNOSTICS_ABSOLUTE)
     topics = (c.TOPIC_PWM, c.TOPIC_BATTERY_VOLTAGE, c.TOPIC_ROTOR_SPEED)
-    for msg_type, topic in zip((Float64, BatteryState, Float64), topics, strict=True):
-        h.publisher(msg_type, topic)
     with open_recording(d / "faulted") as rec:
-        events = [(t, topics.index(c.bare(topic)), m) for topic, t, m in rec.messages(list(topics))]
-    core = lambda: h.node.core  # noqa: E731
-    for rel_s, kind, m in events:
-        t = T0_S + rel_s
-        if kind == 0:
-            n = h.node.pwm_stream.messages
-            h.send(c.TOPIC_PWM, Float64(data=float(m.data)), t, taken=lambda n=n: h.node.pwm_stream.messages > n)
-        elif kind == 1:
-            n = core().voltage_accepted + core().voltage_rejected_time
-            msg = BatteryState(voltage=float(m.voltage))
-            ns = int(round(t * 1e9))
-            msg.header.stamp = TimeMsg(sec=ns // 10**9, nanosec=ns % 10**9)
-            h.send(c.TOPIC_BATTERY_VOLTAGE, msg, t,
-                   taken=lambda n=n: core().voltage_accepted + core().voltage_rejected_time > n)
-        else:
-            n = core().speed_accepted + core().speed_rejected
-            h.send(c.TOPIC_ROTOR_SPEED, Float64(data=float(m.data)), t,
-                   taken=lambda n=n: core().speed_accepted + core().speed_rejected > n)
-    h.set_time(T0_S + events[-1][0] + 1.1)  # a diagnostics message after the last input
+        events = [(t, k, float(m.voltage if k == 1 else m.data))
+                  for topic, t, m in rec.messages(list(topics)) for k in [topics.index(c.bare(topic))]]
+    h.feed_estimator(events, T0_S)
     h.drain()
 
     health = [(h_t, {kv.key: kv.value for kv in s.values}, s) for msg in diagnostics
