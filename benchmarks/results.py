@@ -493,6 +493,13 @@ def render_real(f: dict[str, Any]) -> list[str]:
             ratio = r["b"] / r["b_direct"] if r.get("b") and r.get("b_direct") else None
             lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
                          f"{num(ratio, 3)} |")
+    if (health := f.get("health")) is not None:
+        lines += ["", "The health monitor over the whole log with each split's model (nothing changed on the "
+                  "stand, so any event is a false alarm):", ""]
+        lines += [f"- split {h['split']}, {h['kind']}: {'; '.join(map(str, h['events'])) or 'no change'} "
+                  f"({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)" for h in health]
+        if not health:
+            lines.append("- no physics or hybrid model was trained (each refused above), so nothing was monitored")
     return lines
 
 
@@ -604,6 +611,55 @@ def render_health(f: dict[str, Any]) -> list[str]:
     return lines
 
 
+def render_band(f: dict[str, Any]) -> list[str]:
+    """bench_band.py: per kind the share of held-out measured speeds inside the one-sigma band."""
+    lo, hi = f["goal_percent"]
+    lines = [f"Benches {', '.join(f['benches'])}; goal {lo:.0f}-{hi:.0f} % pooled, every kind.", "",
+             "| kind | pooled | per bench: median [min, max] | mean sigma | on its own validation | goal |",
+             "|---|---|---|---|---|---|"]
+    for kind, k in f["kinds"].items():
+        per = list(k["per_bench_percent"].values())
+        lines.append(f"| {kind} | {k['pooled_percent']:.1f} % | {statistics.median(per):.1f} "
+                     f"[{min(per):.1f}, {max(per):.1f}] % | {k['mean_sigma_rad_s']:.2f} rad/s | "
+                     f"{k['validation_percent']:.1f} % | {'met' if k['goal_met'] else 'not met'} |")
+    return lines
+
+
+def _median_worst(xs: list[float | None]) -> str:
+    """median / worst of a list; None (never recovered) counts as the worst."""
+    if not xs:
+        return "-"
+    vals = [math.inf if x is None else float(x) for x in xs]
+    return f"{statistics.median(vals):.2f} / {max(vals):.2f}"
+
+
+def render_adaptation(f: dict[str, Any]) -> list[str]:
+    """bench_adaptation.py: per fault the RMSE after the change over the one before it (adapted and
+    offline), the recovery time, the adapted values; healthy flights: adapted over offline RMSE."""
+    goal, goal_healthy = 1.2, 1.05
+    lines = [f"Benches {', '.join(map(str, f['benches']))} (`sim.random_bench`), never tuned on (the adapter's "
+             f"settings, `core.adaptation.AdaptationConfig`, were tuned on benches "
+             f"{', '.join(map(str, f['tuning_benches']))}). The goals: after a change, RMSE back within {goal}x "
+             f"of its pre-change level within 10 s; on healthy flights, adapted RMSE at most {goal_healthy}x "
+             "the offline model's.", "",
+             "| fault (size) | runs | post/pre RMSE, adapted: median / worst | offline | recovery to 1.2x (s) "
+             "| within 1.2x by 10 s | adapted at the end (median) |", "|---|---|---|---|---|---|---|"]
+    for name, rows in f["runs"].items():
+        ok = sum(r["adapted"]["ratio"] <= goal for r in rows)
+        prop = statistics.median(r["final"]["propeller_damage"] for r in rows) if rows else math.nan
+        fric = statistics.median(r["final"]["bearing_friction"] for r in rows) if rows else math.nan
+        lines.append(f"| {name} ({f['faults'][name]:g}) | {len(rows)} | "
+                     f"{_median_worst([r['adapted']['ratio'] for r in rows])} | "
+                     f"{_median_worst([r['offline']['ratio'] for r in rows])} | "
+                     f"{_median_worst([r['adapted']['recovery_s'] for r in rows])} | {ok}/{len(rows)} | "
+                     f"propeller loss {prop:.3f}, friction x{fric:.2f} |")
+    h = f["healthy"]
+    ok = sum(r["ratio"] <= goal_healthy for r in h)
+    lines += ["", f"Healthy flights: {len(h)}; adapted / offline RMSE median / worst "
+              f"{_median_worst([r['ratio'] for r in h])}; within {goal_healthy}x: {ok}/{len(h)}."]
+    return lines
+
+
 @dataclass(frozen=True)
 class Group:
     """One group of figures: where they come from and how they are shown."""
@@ -657,6 +713,18 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "Four benches drawn by `sim.random_bench` (seeds 300-303, never tuned on), a physics model fitted on each; "
           "per bench 6 flights with each fault (propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) and "
           "1.5 h of healthy flight (about 14 minutes)."),
+    Group("band", "Uncertainty bands on held-out recordings (issue 34)",
+          "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
+          "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
+          "benchmark, each band fitted on the validation recordings only; coverage at one sigma on held-out "
+          "recordings (about 10 minutes on one core)."),
+    Group("adaptation", "Online adaptation on randomized benches (issue 34)",
+          "python benchmarks/bench_adaptation.py --seeds 4 --flights 2 --json docs/results/adaptation.json",
+          render_adaptation,
+          "Four benches drawn by `sim.random_bench` (seeds 300-303), a physics model fitted on each; per bench two "
+          "100 s flights with each change (propeller_damage 0.1, bearing_friction 3x, motor_heating 30 K, "
+          "pack_resistance 2x) at a random onset and two healthy ones, predicted with and without `--adapt` "
+          "(about 10 minutes)."),
 ]}
 
 
