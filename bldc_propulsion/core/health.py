@@ -277,7 +277,8 @@ class HealthConfig:
     #: false alarms per hour the threshold allows (Bonferroni over every test run in an hour)
     false_alarms_per_hour: float = 0.01
     #: a name is given once the best candidate's statistic exceeds the next one's by this much
-    #: (a likelihood ratio of e^(margin/2)), else it waits, at most name_within_s after the onset
+    #: (a likelihood ratio of e^(margin/2)), or by _UNEXPLAINED_SHARE of its own statistic when
+    #: that is more (a signature is never exact), else it waits, at most name_within_s after the onset
     #: (a second operating point usually tells the candidates apart); the size is refined as long
     name_margin: float = 9.0
     name_within_s: float = 15.0
@@ -402,7 +403,7 @@ _NAME_STRETCHES = 2
 _UNEXPLAINED_SHARE = 0.1
 #: One sigma of the model's error from one visit of an operating point to the next, before the
 #: flight has shown it: a share of the speed scale (a physics fit's error is ~0.5-1 % of its
-#: range), volts. Learned from the flight with the noise's memory.
+#: range), volts. Replaced by the flight's first estimate, then followed with the noise's memory.
 _VISIT_PRIOR = {"speed": 0.01, "voltage": 0.02}
 
 
@@ -477,6 +478,7 @@ class HealthMonitor:
         #: channel -> (a, b, visit, kappa): a block's noise variance a + b level^2, the variance of
         #: the model's error from one steady stretch to the next, the short correlation factor
         self.noise: dict[str, tuple[float, float, float, float]] = {}
+        self._visit_learned: set[str] = set()  #: channels whose visit error the flight has shown
         self._since_jump = 0  #: blocks since the predicted speed last jumped
         self._reset_window()
         self._block: list[float] | None = None
@@ -727,8 +729,12 @@ class HealthMonitor:
         blocks is D + visit 11' (D: their own noise), whose inverse is D^-1 - c (D^-1 1)(D^-1 1)'
         with c = visit / (1 + visit 1'D^-1 1): so x'S^-1 y = sum(w x y) - sum over stretches of
         c (sum w x)(sum w y), w = 1/D. Returns (w, stretches x blocks indicator, c, residual,
-        (N'S^-1 N)^-1, stretch sums of w N)."""
-        a, b, visit, _ = self.noise.get(ch.name, (1.0, 0.0, 0.0, 1.0))
+        (N'S^-1 N)^-1, stretch sums of w N). The caller scales S by kappa (and the inflation);
+        the visit error is a stretch MEAN's variance beyond its own noise, learned net of kappa
+        (_learn_noise), so it enters here divided by kappa: scaled by kappa again it would count
+        the blocks' short correlation twice."""
+        a, b, visit, kappa = self.noise.get(ch.name, (1.0, 0.0, 0.0, 1.0))
+        visit /= kappa
         w = ch.valid / (a + b * ch.level**2)
         runs = _runs(ch.valid > 0)
         P = np.zeros((len(runs), len(w)))
@@ -794,16 +800,27 @@ class HealthMonitor:
         a, b = a * var, b * var
         old = self.noise.get(ch.name)
         visit = old[2] if old else self._visit_prior(ch.name)
+        dof = 0.0
         if len(means) >= 3:  # the stretches' means scatter by the visit error plus their own noise
             # (the nuisance took n_nuisance of the window's stretches' freedom: about its share)
             dof = max(len(means) - n_nuisance * len(means) / max(len(_runs(ch.valid > 0)), len(means)), 1.0)
             visit = max(sum(mu * mu - kappa * (a + b * l2) / k for mu, k, l2 in means) / dof, 0.0)
-        if old is None:  # the visit error starts at its prior: a reference holds too few visits
-            self.noise[ch.name] = (a, b, self._visit_prior(ch.name), kappa)
+        # the visit error's prior stands in only until a reference shows enough stretches for an
+        # estimate; then the flight's own estimate is taken whole, as a, b and kappa are. Blended
+        # in with the noise's memory instead, the prior (1 % of the speed scale) outweighed the
+        # flight for minutes: every stretch was allowed a model error of that size, so a change
+        # that begins at a stretch's start (a 10 % propeller loss moves the speed ~1-2 %) passed
+        # for a visit error even with an exact model whose stretches agree within 0.1 %
+        first_visit = dof > 0.0 and ch.name not in self._visit_learned
+        if first_visit:
+            self._visit_learned.add(ch.name)
+        if old is None:
+            self.noise[ch.name] = (a, b, visit if first_visit else self._visit_prior(ch.name), kappa)
         else:
             g = min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
             self.noise[ch.name] = (old[0] + g * (a - old[0]), old[1] + g * (b - old[1]),
-                                   old[2] + g * (visit - old[2]), old[3] + g * (kappa - old[3]))
+                                   visit if first_visit else old[2] + g * (visit - old[2]),
+                                   old[3] + g * (kappa - old[3]))
 
     def _evaluate(self) -> list[HealthEvent]:
         """The tests over the window: while armed, every candidate onset of the last window_s;
@@ -866,7 +883,10 @@ class HealthMonitor:
         best, second = int(order[0]), int(order[1])
         ev.candidates = {FAULTS[j]: float(row[j]) for j in range(self.n_faults)}
         ev.statistic = float(max(row[best], max(float(g[o]) for g in generic)))
-        clear = row[best] >= self.threshold and row[best] - row[second] >= self.config.name_margin
+        # the margin grows with the change for the reason the unexplained part may (below): a
+        # signature off by a few % reorders candidates whose statistics are in the thousands
+        margin = max(self.config.name_margin, _UNEXPLAINED_SHARE * float(row[best]))
+        clear = row[best] >= self.threshold and row[best] - row[second] >= margin
         # seen at one operating point only, a change fits any shape: a name needs two
         chans = self._last[3]
         post = chans[-1].valid[len(chans[-1].valid) - int(self._post[o]):] > 0
@@ -888,7 +908,7 @@ class HealthMonitor:
     def _why_unnamed(self, row: np.ndarray, best: int, second: int, o: int) -> str:
         if row[best] < self.threshold:
             return "no candidate's signature fits the change"
-        if row[best] - row[second] < self.config.name_margin:
+        if row[best] - row[second] < max(self.config.name_margin, _UNEXPLAINED_SHARE * float(row[best])):
             return f"{FAULTS[best]} and {FAULTS[second]} explain it about equally"
         return f"{FAULTS[best]} leaves part of the change unexplained"
 
