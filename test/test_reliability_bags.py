@@ -183,11 +183,9 @@ def _error_line(proc: subprocess.CompletedProcess, command: str) -> str:
     return lines[0]
 
 
-@pytest.mark.parametrize("command", COMMANDS)
-@pytest.mark.parametrize("name", BROKEN)
+@pytest.mark.parametrize(("name", "command"), [  # replay keeps a bag's readable part: the tests below
+    (name, command) for name in BROKEN for command in COMMANDS if not (command == "replay" and name in REPLAY_KEEPS)])
 def test_broken_bag_one_line_error_exit_2(runs, name, command):
-    if command == "replay" and name in REPLAY_KEEPS:
-        pytest.skip("replay keeps the readable part: see the tests below")
     proc = runs["results"][(name, command)]
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     line = _error_line(proc, command)
