@@ -883,10 +883,7 @@ class HealthMonitor:
         best, second = int(order[0]), int(order[1])
         ev.candidates = {FAULTS[j]: float(row[j]) for j in range(self.n_faults)}
         ev.statistic = float(max(row[best], max(float(g[o]) for g in generic)))
-        # the margin grows with the change for the reason the unexplained part may (below): a
-        # signature off by a few % reorders candidates whose statistics are in the thousands
-        margin = max(self.config.name_margin, _UNEXPLAINED_SHARE * float(row[best]))
-        clear = row[best] >= self.threshold and row[best] - row[second] >= margin
+        clear = row[best] >= self.threshold and row[best] - row[second] >= self._name_margin(float(row[best]))
         # seen at one operating point only, a change fits any shape: a name needs two
         chans = self._last[3]
         post = chans[-1].valid[len(chans[-1].valid) - int(self._post[o]):] > 0
@@ -905,10 +902,17 @@ class HealthMonitor:
             return [self._settle(ev)]
         return []
 
+    def _name_margin(self, best_statistic: float) -> float:
+        """The lead the best candidate needs over the next for a name: the configured margin, or
+        a share of its own statistic when that is more, for the reason the unexplained part may
+        (``_unexplained``): a signature off by a few % reorders candidates whose statistics are in
+        the thousands."""
+        return max(self.config.name_margin, _UNEXPLAINED_SHARE * best_statistic)
+
     def _why_unnamed(self, row: np.ndarray, best: int, second: int, o: int) -> str:
         if row[best] < self.threshold:
             return "no candidate's signature fits the change"
-        if row[best] - row[second] < max(self.config.name_margin, _UNEXPLAINED_SHARE * float(row[best])):
+        if row[best] - row[second] < self._name_margin(float(row[best])):
             return f"{FAULTS[best]} and {FAULTS[second]} explain it about equally"
         return f"{FAULTS[best]} leaves part of the change unexplained"
 
