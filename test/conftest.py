@@ -32,7 +32,12 @@ SERIAL_FILES = frozenset({
     "test_launch_files.py",
 })
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(_domain_id()))
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # set, not defaulted: a worker inherits the controller's ROS_DOMAIN_ID (its conftest ran
+    # first), and two workers in one domain see each other's nodes' topics
+    os.environ["ROS_DOMAIN_ID"] = str(_domain_id())
+else:
+    os.environ.setdefault("ROS_DOMAIN_ID", str(_domain_id()))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 
