@@ -105,7 +105,8 @@ class Recorder:
     def wait_ready(self, *nodes: str, timeout_s: float = 60.0) -> None:
         """Until each node's diagnostics arrived: it spins and this recorder is matched to it
         (discovery takes seconds on a loaded machine; outputs before it would be missed), then
-        the nodes' periodic check that someone listens to their outputs (ScalarOutput)."""
+        a moment for the nodes to take the matched events of its subscriptions (an output is
+        published only while someone listens: common.ListenedOutput)."""
         deadline = time.monotonic() + timeout_s
         while not set(nodes) <= {s.name.split(":")[0] for s in self.statuses()}:
             assert time.monotonic() < deadline, f"no diagnostics from {nodes}: {self.statuses()}"

@@ -28,6 +28,8 @@ def revolution_middle(end_t: float | np.ndarray, speed_rad_s: float | np.ndarray
     rotor/state stamp, replay): at the end of its revolution it lags the rotor by half a
     revolution (60 ms at 50 rad/s), a phase error a consumer comparing by time would pay.
     """
+    if isinstance(end_t, float) and isinstance(speed_rad_s, float):  # a node's one speed: no numpy
+        return end_t - math.pi / max(speed_rad_s, 1e-9)  # the same IEEE operations (NaN too)
     return end_t - math.pi / np.maximum(speed_rad_s, 1e-9)
 
 

@@ -40,7 +40,6 @@ from bldc_propulsion.nodes.common import (
     single_threaded,
     unknown_parameters_once,
 )
-from bldc_propulsion.nodes.lean_executor import LeanExecutor
 from bldc_propulsion.nodes.params import NODE_PARAMS, namespaces, own_arguments, parameters_help, rotor_name
 from bldc_propulsion.nodes.tachometer_node import TachometerNode
 from bldc_propulsion.nodes.thrust_estimator_node import ThrustEstimatorNode
@@ -97,6 +96,8 @@ def plan_for(executor: str) -> Plan:
         return on_events
     if executor == 'single':
         return single_threaded
+    from bldc_propulsion.nodes.lean_executor import LeanExecutor  # its import costs every start
+
     return lambda nodes: [(LeanExecutor(), nodes[1:]), (events_executor(), nodes[:1])]
 
 

@@ -44,7 +44,7 @@ import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 #: Window (s, on the observing clock) over which the transport latency floor is the minimum.
 FLOOR_WINDOW_S = 2.0
@@ -63,9 +63,11 @@ LOST = "lost"  #: messages lost in transport (sequence-number jump)
 LATE = "late"  #: later than the latency floor allows: publisher skipped data or burst
 
 
-@dataclass(frozen=True)
-class Arrival:
-    """One received message: node clock at receipt, and what the middleware says of it."""
+class Arrival(NamedTuple):
+    """One received message: node clock at receipt, and what the middleware says of it.
+
+    Immutable; a NamedTuple rather than a frozen dataclass because one is made per message
+    (0.4 us against 0.9 us here), as :class:`Placement`."""
 
     receipt_s: float  #: node clock when the callback ran (s): wall or /clock time
     source_s: float | None = None  #: publisher's clock at publication (s), None if not known
@@ -113,8 +115,7 @@ class LatencyFloor:
         return self._q[0][1] if self._q else None
 
 
-@dataclass(frozen=True)
-class Placement:
+class Placement(NamedTuple):
     """Where a fixed-rate message goes on the node clock, and why."""
 
     t_last: float  #: time (s, node clock) of the message's last sample

@@ -102,9 +102,6 @@ class TachometerNode(Node):
                 and self.now_s() - self.last_receipt_s > self.timeout_s)
 
     def check_signal(self) -> None:
-        self.speed_out.refresh()
-        self.rpm_out.refresh()
-        self.state_out.refresh()
         held = self.stream.holding
         if held is not None and self.now_s() - held.receipt_s > TACH_TIMEOUT_CHECK_PERIOD_S / 2:
             self.decode(self.stream.release_held())  # no successor came to vouch for it

@@ -71,10 +71,10 @@ from std_msgs.msg import Float64
 if TYPE_CHECKING:
     from rclpy.parameter import Parameter
 
+    from bldc_propulsion.core.health import HealthStream
+
 from bldc_propulsion import contract
-from bldc_propulsion.core.adaptation import ADAPTED, ADAPTED_LABEL, adapter_for
 from bldc_propulsion.core.estimator import ThrustEstimator
-from bldc_propulsion.core.health import HealthStream
 from bldc_propulsion.core.status import ERROR, OK, WARN, CoreStatus, counters
 from bldc_propulsion.core.ticker import Ticker
 from bldc_propulsion.core.wrench import check_spin_direction, reaction_torque_nm, torque_coefficient, wrench_status
@@ -138,9 +138,16 @@ class ThrustEstimatorNode(Node):
         self.speed_sigma_out: ScalarOutput | None = None
         self.thrust_sigma_out: ScalarOutput | None = None
         self.match_band_output()
-        #: predicted/adapted (with adapt: the adaptation's values after each measured speed)
-        self.adapted_out = NamedValuesOutput(
-            self, contract.TOPIC_PREDICTED_ADAPTED, ADAPTED_LABEL, len(ADAPTED)) if self.adapt else None
+        #: predicted/adapted (with adapt: the adaptation's values after each measured speed, in
+        #: the order of adapted_names)
+        self.adapted_out: NamedValuesOutput | None = None
+        self.adapted_names: tuple[str, ...] = ()
+        if self.adapt:  # the adaptation and the health monitor are imported only when used (start-up)
+            from bldc_propulsion.core.adaptation import ADAPTED, ADAPTED_LABEL
+
+            self.adapted_names = ADAPTED
+            self.adapted_out = NamedValuesOutput(
+                self, contract.TOPIC_PREDICTED_ADAPTED, ADAPTED_LABEL, len(ADAPTED))
         self.diagnostics_pub = self.create_publisher(
             DiagnosticArray, contract.TOPIC_DIAGNOSTICS_ABSOLUTE, 10)
         qos = input_qos(params['queue_depth'])
@@ -180,7 +187,7 @@ class ThrustEstimatorNode(Node):
         adapter = self.core.adapter
         if adapter is not None and self.adapted_out is not None:
             values = adapter.values()
-            self.adapted_out.publish([values[n][0] for n in ADAPTED])
+            self.adapted_out.publish([values[n][0] for n in self.adapted_names])
         if self.health is not None:
             for event in self.health.update_speed(t, msg.data):
                 self.get_logger().warn(f'health: {event.text().strip()}')
@@ -227,14 +234,6 @@ class ThrustEstimatorNode(Node):
         return out
 
     def on_timer(self) -> None:
-        self.speed_out.refresh()
-        self.state_out.refresh()
-        if self.thrust_out is not None and self.wrench_out is not None:
-            self.thrust_out.refresh()
-            self.wrench_out.refresh()
-        for out in (self.speed_sigma_out, self.thrust_sigma_out, self.adapted_out):
-            if out is not None:
-                out.refresh()
         self.publish_until(self.now_s() - self.output_delay_s)
 
     def count_late(self, t: float) -> None:
@@ -264,9 +263,11 @@ class ThrustEstimatorNode(Node):
                     if self.thrust_sigma_out is not None and p.thrust_sigma_n is not None:
                         self.thrust_sigma_out.publish(float(p.thrust_sigma_n))
                 if self.thrust_out is not None and self.wrench_out is not None and p.thrust_n is not None:
-                    self.thrust_out.publish(float(p.thrust_n))
-                    self.wrench_out.publish(tick, float(p.thrust_n), reaction_torque_nm(
-                        self.torque_coefficient, w, self.spin_direction))
+                    thrust = float(p.thrust_n)
+                    self.thrust_out.publish(thrust)
+                    if self.wrench_out.listened:  # the torque only for someone who reads it
+                        self.wrench_out.publish(tick, thrust, reaction_torque_nm(
+                            self.torque_coefficient, w, self.spin_direction))
 
     def publish_diagnostics(self) -> None:
         statuses = list(self.core.status())
@@ -329,6 +330,8 @@ def make_estimator(model_path: str, thrust_coefficient: float | None, adapt: boo
         if not model_path:
             raise BadInputError(f"{node_name}: parameter adapt: needs a physics or hybrid model_path "
                                 "(the first-principles fallback has no fitted parameters to adapt)")
+        from bldc_propulsion.core.adaptation import adapter_for
+
         try:
             adapter = adapter_for(model)
         except BadInputError as e:
@@ -342,6 +345,8 @@ def make_health(core: ThrustEstimator, model_path: str, node_name: str = THRUST_
     if not model_path:
         raise BadInputError(f"{node_name}: parameter health: needs a physics or hybrid model_path (the "
                             "first-principles fallback has no fitted physics to give the faults' signatures)")
+    from bldc_propulsion.core.health import HealthStream
+
     try:
         return HealthStream(core)
     except BadInputError as e:
