@@ -2,24 +2,31 @@
 
 Usage::
 
-    python benchmarks/bench_real.py [--real-dir ../shared/real] [--splits 3] [--kinds network,physics,hybrid]
-                                    [--no-priors] [--keep DIR] [--jobs 3] [--thrust-law-only]
+    python benchmarks/bench_real.py [--real-dir ../shared/real] [--log f80|f40] [--splits 3] [--split K[,K]]
+                                    [--kinds network,physics,hybrid] [--no-priors] [--keep DIR] [--jobs 3]
+                                    [--thrust-law-only]
 
-The log is ``esc_test/Log_2019-11-09_181347.csv`` (T-Motor F80 Pro 1900 kv, three-blade DALPROP
-T7056 7x5.6 in, bench supply at 16 V that sags under load, ESC PWM steps 1050-1950 us; see
-../shared/real/README.md). It is cut in time into ``--splits`` contiguous parts of equal duration;
+The log (``--log f80``, the default) is ``esc_test/Log_2019-11-09_181347.csv`` (T-Motor F80 Pro
+1900 kv, three-blade DALPROP T7056 7x5.6 in, bench supply at 16 V that sags under load, ESC PWM
+steps 1050-1950 us; see ../shared/real/README.md). ``--log f40`` is the other esc_test log with a
+command: ``Log_2019-11-05_171350.csv`` (ESC32v3, F40 Pro III 1600 kv, the same propeller), its duty
+steps taken from the ESC's own AutoQuad log (``import-csv --command-from``, clocks aligned by speed)
+and written into the pieces' ``ESC signal (us)`` column as 1000 + 1000 x duty us (the level the
+importer maps a duty to); the goals are stated on the F80, the F40 is the check that a change is
+no F80 tuning. It is cut in time into ``--splits`` contiguous parts of equal duration;
 split k tests on part k and trains on the rest: every other part's first ``1 - VALIDATION_SHARE``
 is a training recording and its last ``VALIDATION_SHARE`` a validation recording (early stopping,
 the physics fit's choice of ESC), so no model is ever scored on data it was fitted or chosen on.
+``--split K`` runs only the splits listed (each still trains on every other part).
 Each piece is written as a CSV of the log's own rows and imported with ``import-csv`` (the logs
 are test fixtures: they stay in a temporary folder); models are trained and scored through the
 command line, ``train --kind ...`` and ``evaluate``, as a user would.
 
 Printed per split and kind: the held-out RMSE (rad/s; in % of the whole log's speed range, 0 to
-1885 rad/s, the motor's operating range, which the goals are stated in; and in % of the test
-part's own range as ``evaluate`` gives it, which is smaller for a part that covers a few holds of
-the staircase only), the fitted Kv (physics, hybrid) against
-the rated 1900 kv, and b (fitted by ``train`` on the training recordings' /thrust/measured)
+1885 rad/s on the F80, the motor's operating range, which the goals are stated in; and in % of the
+test part's own range as ``evaluate`` gives it, which is smaller for a part that covers a few holds
+of the staircase only), the fitted Kv (physics, hybrid) against
+the rating (1900 kv; the F40's 1600), and b (fitted by ``train`` on the training recordings' /thrust/measured)
 against a direct least-squares fit of the test part's measured thrust on its measured speed.
 Goals: hybrid <= 2 % and physics <= 3 % of the speed range on every split, Kv within 30 % of
 1900 kv with the motor's priors given (the default; ``--no-priors`` trains without them), b
@@ -41,6 +48,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -49,11 +57,29 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from results import check_record_path, write_record  # noqa: E402
 
-LOG = Path("esc_test") / "Log_2019-11-09_181347.csv"
 KINDS = ("network", "physics", "hybrid")
-#: The motor's rating and propeller (README of the log): the priors ``train`` is given.
-PRIORS = ("--motor-kv", "1900", "--prop-diameter-in", "7", "--prop-pitch-in", "5.6", "--pole-count", "14")
-RATED_KV = 1900.0
+
+
+@dataclass(frozen=True)
+class RealLog:
+    """A stand log the splits run on: its CSV, the ESC's own log its command comes from (None: the
+    CSV's ESC column), the motor's rating and propeller as ``train``'s priors, and the rated Kv."""
+
+    csv: Path
+    command_from: Path | None
+    priors: tuple[str, ...]
+    rated_kv: float
+    health_note: str = ""  #: what did change on the stand during the log, for the health monitor's lines
+
+
+#: The DALPROP T7056 of every esc_test log (../shared/real/README.md); both motors have 14 poles.
+PROPELLER = ("--prop-diameter-in", "7", "--prop-pitch-in", "5.6", "--pole-count", "14")
+LOGS = {
+    "f80": RealLog(Path("esc_test") / "Log_2019-11-09_181347.csv", None, ("--motor-kv", "1900", *PROPELLER), 1900.0,
+                   "; its supply current-limits at 90 s"),
+    "f40": RealLog(Path("esc_test") / "Log_2019-11-05_171350.csv", Path("esc_test") / "f40_steps_5-2.csv",
+                   ("--motor-kv", "1600", *PROPELLER), 1600.0),
+}
 #: Share of each training part kept for validation (its end: contiguous, never the test part).
 VALIDATION_SHARE = 0.25
 #: Goals (% of the speed range; Kv and b relative).
@@ -116,6 +142,37 @@ def pieces(d: Path, log: Path, splits: int) -> list[dict[str, Path]]:
     return out
 
 
+def with_command(d: Path, log: Path, esc_log: Path) -> Path:
+    """``log`` with its empty ESC column filled from the ESC's own log: ``import-csv --command-from``
+    aligns the two clocks by speed, and each row inside the command's span gets the command held at
+    its time as a pulse width, level x 20000 us (1000 + 1000 x duty: the level the importer maps a
+    duty to); rows outside it are dropped, as the importer drops them. The CSV written (in ``d``)
+    is cut and imported as a log with its own column is."""
+    sys.path.insert(0, str(ROOT))
+    from bldc_propulsion import contract as c
+    from bldc_propulsion.bagio import open_recording
+
+    bag = d / "aligned"
+    info = cli_json("import-csv", str(log), "--command-from", str(esc_log), "-o", str(bag), "--force")
+    with open_recording(str(bag), None) as rec:
+        t_cmd, level = rec.scalars(c.TOPIC_PWM)
+    header, data, t = read_rows(log)
+    col = [h.strip() for h in header].index("ESC signal (µs)")
+    t_bag = t - info["time_start_s"]  # the bag's clock starts at the first row it kept
+    keep = np.isfinite(t_bag) & (t_bag >= t_cmd[0]) & (t_bag <= t_cmd[-1])
+    held = level[np.maximum(np.searchsorted(t_cmd, np.where(keep, t_bag, t_cmd[0]), side="right") - 1, 0)]
+    out = d / f"{log.stem}_command.csv"
+    with open(out, "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for row, k, lv in zip(data, keep, held, strict=True):
+            if k:
+                row = row + [""] * (col + 1 - len(row))
+                row[col] = f"{lv * c.PWM_PERIOD_US:.1f}"
+                w.writerow(row)
+    return out
+
+
 def speed_range(bags: list[Path]) -> float:
     """Measured speed range (rad/s) over the bags together: the whole log's."""
     sys.path.insert(0, str(ROOT))
@@ -138,12 +195,13 @@ def direct_b(bag: Path) -> float:
     return float(x[ok] @ y[ok] / (x[ok] @ x[ok]))
 
 
-def run_split(d: Path, parts: list[dict[str, Path]], k: int, kind: str, priors: bool) -> dict:
-    """Train ``kind`` on every part but k, evaluate on part k."""
+def run_split(d: Path, parts: list[dict[str, Path]], k: int, kind: str, priors: tuple[str, ...]) -> dict:
+    """Train ``kind`` on every part but k (with the options ``priors`` unless a network), evaluate on
+    part k."""
     train = [str(p["train"]) for j, p in enumerate(parts) if j != k]
     val = [str(p["validation"]) for j, p in enumerate(parts) if j != k]
     model = d / f"split{k}_{kind}.npz"
-    extra = list(PRIORS) if priors and kind != "network" else []
+    extra = list(priors) if kind != "network" else []
     t0 = time.perf_counter()
     proc = cli("train", *train, "--validation", *val, "-o", str(model), "--kind", kind, "--force", *extra, "--json")
     seconds = time.perf_counter() - t0
@@ -228,7 +286,9 @@ def thrust_law(real_dir: Path) -> list[dict]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--real-dir", default=str(ROOT.parent / "shared" / "real"))
+    ap.add_argument("--log", choices=sorted(LOGS), default="f80", help="which esc_test log (default f80)")
     ap.add_argument("--splits", type=int, default=3)
+    ap.add_argument("--split", metavar="K[,K]", help="run only these splits (test parts 0..SPLITS-1)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--no-priors", action="store_true", help="train without the motor's priors")
     ap.add_argument("--keep", metavar="DIR", help="keep the pieces and models in DIR")
@@ -245,17 +305,26 @@ def main() -> int:
             write_record(args.json, {"thrust_law": law}, seconds=time.perf_counter() - t_start)
         return 0
     kinds = [k for k in args.kinds.split(",") if k]
-    log = Path(args.real_dir) / LOG
+    spec = LOGS[args.log]
+    priors = () if args.no_priors else spec.priors
+    try:
+        chosen = sorted({int(k) for k in args.split.split(",")}) if args.split else list(range(args.splits))
+    except ValueError:
+        ap.error(f"--split {args.split}: expected part numbers such as 0 or 0,2")
+    if not chosen or not all(0 <= k < args.splits for k in chosen):
+        ap.error(f"--split {args.split}: parts are 0..{args.splits - 1}")
+    log = Path(args.real_dir) / spec.csv
     tmp = None if args.keep else tempfile.TemporaryDirectory()
     d = Path(args.keep or tmp.name)  # type: ignore[union-attr]
     d.mkdir(parents=True, exist_ok=True)
     try:
-        parts = pieces(d, log, args.splits)
-        jobs = [(k, kind) for k in range(args.splits) for kind in kinds]
+        src = with_command(d, log, Path(args.real_dir) / spec.command_from) if spec.command_from else log
+        parts = pieces(d, src, args.splits)
+        jobs = [(k, kind) for k in chosen for kind in kinds]
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-            rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=not args.no_priors), jobs))
+            rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=priors), jobs))
         log_range = speed_range([p["test"] for p in parts])
-        health = monitor_whole_log(d, log, rows)
+        health = monitor_whole_log(d, src, rows)
         for r in rows:
             if "refused" not in r:
                 r["percent"] = 100.0 * r["rmse_rad_s"] / log_range
@@ -264,11 +333,12 @@ def main() -> int:
             tmp.cleanup()
     print(f"{log.name}: {args.splits} contiguous splits, test = one part, training/validation = the "
           f"others' first {100 * (1 - VALIDATION_SHARE):.0f} % / last {100 * VALIDATION_SHARE:.0f} %; "
-          f"priors {'none' if args.no_priors else ' '.join(PRIORS)}")
+          f"priors {' '.join(priors) or 'none'}"
+          + (f"; command from {spec.command_from.name}" if spec.command_from else ""))
     print(f"speed range of the log {log_range:.0f} rad/s")
     print(f"{'split':>5s} {'kind':>8s} {'RMSE rad/s':>11s} {'% range':>8s} {'goal':>5s} {'% part':>7s} "
           f"{'Kv rpm/V':>9s} "
-          f"{'Kv/1900':>8s} {'b':>10s} {'b direct':>10s} {'b/direct':>9s} {'train s':>8s}")
+          f"{f'Kv/{spec.rated_kv:.0f}':>8s} {'b':>10s} {'b direct':>10s} {'b/direct':>9s} {'train s':>8s}")
     ok = True
     for r in rows:
         if "refused" in r:
@@ -277,10 +347,10 @@ def main() -> int:
             continue
         goal = GOALS_PERCENT.get(r["kind"])
         met = goal is None or r["percent"] <= goal
-        kv_ok = r["kv"] is None or args.no_priors or abs(r["kv"] / RATED_KV - 1.0) <= KV_TOLERANCE
+        kv_ok = r["kv"] is None or args.no_priors or abs(r["kv"] / spec.rated_kv - 1.0) <= KV_TOLERANCE
         b_ok = abs(r["b"] / r["b_direct"] - 1.0) <= B_TOLERANCE
         ok &= met and kv_ok and b_ok
-        kv = f"{r['kv']:9.0f} {r['kv'] / RATED_KV:8.2f}" if r["kv"] is not None else f"{'-':>9s} {'-':>8s}"
+        kv = f"{r['kv']:9.0f} {r['kv'] / spec.rated_kv:8.2f}" if r["kv"] is not None else f"{'-':>9s} {'-':>8s}"
         print(f"{r['split']:5d} {r['kind']:>8s} {r['rmse_rad_s']:11.1f} {r['percent']:8.2f} "
               f"{'' if goal is None else ('ok' if met else 'MISS'):>5s} {r['part_percent']:7.2f} {kv} {r['b']:10.4g} "
               f"{r['b_direct']:10.4g} "
@@ -288,13 +358,13 @@ def main() -> int:
         for w in r["warnings"]:
             print(f"      warning: {w}")
     print("every goal met" if ok else "some goal missed")
-    print("health monitor over the whole log (the stand unchanged; its supply current-limits at 90 s):")
+    print(f"health monitor over the whole log (the stand unchanged{spec.health_note}):")
     for h in health:
         said = "; ".join(map(str, h["events"])) or "no change"
         print(f"  split {h['split']} {h['kind']}: {said} ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)")
     if args.json:
         write_record(args.json, {"thrust_law": law, "log": log.name, "log_range_rad_s": log_range,
-                                 "rated_kv": RATED_KV, "splits": rows, "health": health},
+                                 "rated_kv": spec.rated_kv, "splits": rows, "health": health},
                      seconds=time.perf_counter() - t_start)
     return 0 if ok else 1
 

@@ -26,7 +26,7 @@ from ..atomic import OutputKind, atomic_output, recognised_by
 from ..errors import BadInputError
 from ..priors import MotorPriors
 from .params import BenchParams, params_with_overrides, resolve_effects
-from .plant import measured_start_speed, motor_response
+from .plant import measured_start_speed, motor_response, motor_response_with_current
 from .sizing import physics_start
 
 #: The constants a fit calibrates on the measured data, log-parameterised (their ranges and why
@@ -107,13 +107,22 @@ class PhysicsConfig:
         speed when it is already turning there (``plant.measured_start_speed``): a fit
         to a log cut mid-run that started it at rest would bend every constant to explain the
         spin-up it never made."""
+        return motor_response(*self._drive(s))
+
+    def predict_with_current(self, s: Recorded) -> tuple[np.ndarray, np.ndarray]:
+        """``predict``'s speed (rad/s) and the supply current (A) on the recording's grid, from
+        one run of the plant (``plant.motor_response_with_current``)."""
+        return motor_response_with_current(*self._drive(s))
+
+    def _drive(self, s: Recorded) -> tuple[Any, ...]:
+        """The plant's arguments for the recording ``s`` (``plant.motor_response``'s, in order)."""
         ok = np.isfinite(s.voltage)
         if not ok.any():
             raise BadInputError(f"{s.path}: no valid battery voltage for the physics model")
         assert self.supply_v is not None, "with_supply first"
         w0 = measured_start_speed(s.t, s.speed, float(s.pwm_events[0][0])) if len(s.pwm_events[0]) else 0.0
-        return motor_response(self.params, self.effects, s.pwm_events, (s.t[ok], s.voltage[ok]), s.t,
-                              self.supply_v, supply_tau_s(s), initial_speed=w0)
+        return (self.params, self.effects, s.pwm_events, (s.t[ok], s.voltage[ok]), s.t, self.supply_v,
+                supply_tau_s(s), False, w0)
 
     def with_supply(self, signals: Sequence[Recorded]) -> PhysicsConfig:
         """The model with its stiff-supply voltage set to the median battery voltage of

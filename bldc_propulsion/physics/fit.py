@@ -248,13 +248,15 @@ def with_base_effects(model: PhysicsConfig) -> tuple[PhysicsConfig, tuple[str, .
     return model, switched
 
 
-def fit_reference(model: PhysicsConfig, data: Data, hold: Sequence[str] = (), switched: Sequence[str] = ()) -> Fit:
+def fit_reference(model: PhysicsConfig, data: Data, hold: Sequence[str] = (), switched: Sequence[str] = (),
+                  held_effects: Sequence[str] = ()) -> Fit:
     """Reference first: the CALIBRATED constants (wide range, ``base_window``; those in ``hold``
     kept at ``model``'s values) and the strength of every effect the CONFIG switches on, fitted to
     the reference recordings: what the model needs to agree with its own data (structural), before
     the measured data are asked what they need beyond it. The base effects ``with_base_effects``
-    ``switched`` on are fitted from two starts (BASE_LOW_START), the better fit kept."""
-    on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0)
+    ``switched`` on are fitted from two starts (BASE_LOW_START), the better fit kept. Effects in
+    ``held_effects`` keep ``model``'s strength (one the recordings state, not fitted)."""
+    on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0 and n not in held_effects)
     fit = calibrate(model, data, *base_window(model, hold), on, max_nfev=60)
     low = {n: v for n, v in BASE_LOW_START.items() if n in switched}
     if low:

@@ -322,6 +322,24 @@ def motor_response(
     then, so ``stream.PlantStream`` gives the same numbers sample by sample.
     ``v_ref`` and ``supply_tau_s``: see :class:`Supply`.
     """
+    return motor_response_with_current(params, effects, pwm_events, supply, t_out, v_ref, supply_tau_s, hold_supply,
+                                       initial_speed)[0]
+
+
+def motor_response_with_current(
+    params: PlantParams,
+    effects: Mapping[str, float],
+    pwm_events: tuple[np.ndarray, np.ndarray],
+    supply: tuple[np.ndarray, np.ndarray],
+    t_out: np.ndarray,
+    v_ref: float,
+    supply_tau_s: float = 0.0,
+    hold_supply: bool = False,
+    initial_speed: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``motor_response``'s speed (rad/s) and the supply current (A) at ``t_out``, from the same
+    steps: duty x the motor current, what a stand (or an ESC's telemetry) measures on the supply
+    side of the ESC, so a fit can compare it with a measured one."""
     eff = resolve_effects(effects)
     p = check_plant(params)
     cmd_t, cmd = check_command(pwm_events)
@@ -344,9 +362,10 @@ def motor_response(
     temp = p.ambient_temperature_c
     ib_lp = running_supply_current(step, w0, temp, duty[0], source[0], rs) if w0 > 0.0 else 0.0
     speed = [0.0] * n
+    current = [0.0] * n
     for k in range(n):
         d = duty[k]
         speed[k], w, i, temp = step(w, temp, d, source[k] + rs * ib_lp)
-        ib_lp = lag_step(ib_lp, d * i, a_lp)
-    out: np.ndarray = np.interp(t_out, step_t, speed)
-    return out
+        current[k] = ib = d * i
+        ib_lp = lag_step(ib_lp, ib, a_lp)
+    return np.interp(t_out, step_t, speed), np.interp(t_out, step_t, current)

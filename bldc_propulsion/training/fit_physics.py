@@ -1,6 +1,8 @@
 """A physics model from recordings: the plant's constants and effect strengths fitted by least
 squares on the training recordings (``physics.fit.fit_reference``, the calibration the discrepancy
-workflow runs too), the candidate with the least validation error kept.
+workflow runs too), the candidate with the least validation error kept. Where a training
+recording carries its motor's supply current (a thrust stand's log), the fit compares that too
+(``SpeedAndCurrent``): the speed alone does not determine Kv.
 
 Why least squares on the plant instead of a network: the plant carries the rotor's inertia, the
 ESC's dead time and start level and the battery's sag as physics, so a handful of constants
@@ -23,10 +25,10 @@ from .. import contract as c
 from ..errors import BadInputError
 from ..model import HybridModel, NetworkModel
 from ..physics import fit as pf
-from ..physics.config import CALIBRATED, PhysicsConfig, median_voltage, start_model, supply_tau_s
+from ..physics.config import CALIBRATED, PhysicsConfig, Recorded, median_voltage, start_model, supply_tau_s
 from ..physics.plant_model import PlantModel
 from ..priors import MotorPriors
-from ..recordings import Signals
+from ..recordings import MIN_SAMPLES, Signals
 from .band import band_metadata
 from .evaluate import predict_speed
 from .train import ThrustFit, TrainOutcome, _source, fit_thrust_coefficient, train_model
@@ -42,6 +44,26 @@ STRAIGHT_MAP = ("esc_throttle_exponent",)
 #: and it scales the same term (the drop the battery filter has not passed, s R_s (i - lowpass(i))):
 #: with both free, the nominal bench's validation RMSE went from 0.54 to 1.31 rad/s.
 HELD = ("battery_series_resistance_ohm",)
+#: A training recording's supply current (a stand's, or an ESC's telemetry of one motor) is compared
+#: with the plant's (duty x motor current) on the rows where the command has been held this long (s).
+#: Why the current at all: from speed, command and voltage alone Kv is not determined once the
+#: throttle map's exponent is free (esc_test F80 log, split in three: Kv correlated 0.99 with the
+#: exponent and CP in the LM Jacobian, training RMSE within 1.7 rad/s from 1462 to 2470 rpm/V), and
+#: the fit sent it to a bound of its range; the supply current ties the drive to the motor's current
+#: (an ESC draws duty x the motor current), which scales differently with Kv and the map (Kv then
+#: 1962-2053 rpm/V on the three splits, rated 1900; 1642-1751 on the esc_test F40, rated 1600, where
+#: the speed alone ended at the bound on two splits of three). Why settled rows only: a stand's current channel
+#: is low-passed (same log: after a 1300 -> 1350 us step the speed settles within 0.1 s, the current
+#: ~0.5 s later and without the rotor's acceleration current), so its transients would say the rotor
+#: has no inertia (rotor_lag fitted 0 when every row counted).
+CURRENT_SETTLED_S = 1.0
+#: Held at strength 1 when the supply current is fitted and the voltage was recorded as the ESC's
+#: supply (no battery filter to undo, ``config.supply_tau_s`` 0): the ESC is fed the voltage measured,
+#: so nothing is left to fit. Fitted, the strength scales the supply's sag, which on a staircase
+#: follows the command, and so stands in for losses the physics lacks (F80 splits: 0, 0.54 and 1.31).
+#: Not held without the current: the strength is then what absorbs those losses, and held at 1 the
+#: F80 fits ended with Kv at a bound of its range on every split.
+SUPPLY_HELD = ("battery_voltage",)
 
 
 class CandidateJson(TypedDict):
@@ -55,6 +77,7 @@ class CandidateJson(TypedDict):
     refused: list[str]
     train_rmse_rad_s: float
     validation_rmse_rad_s: float
+    train_current_rmse_a: float | None  #: the supply current's on the settled rows, where it was fitted
 
 
 class _Candidate(CandidateJson):
@@ -85,6 +108,92 @@ def rmse(model: PlantModel, signals: Sequence[Signals]) -> float:
     return float(np.sqrt(np.mean(err**2))) if len(err) else float("nan")
 
 
+def own_supply_current(s: Signals) -> bool:
+    """The recording carries its motor's own supply current: a current and no namespace (a bench:
+    one motor on the supply). A vehicle's battery current feeds every motor, so it is no one
+    motor's."""
+    return s.current is not None and s.namespace is None
+
+
+def settled_rows(s: Signals, settled_s: float = CURRENT_SETTLED_S) -> np.ndarray:
+    """Indices of the grid rows of ``s`` with a finite current where the command has not changed
+    for at least ``settled_s`` (the events' level, from the first event on)."""
+    if s.current is None or len(s.pwm_events[0]) == 0:
+        return np.zeros(0, dtype=int)
+    t_ev, level = (np.asarray(a, dtype=float) for a in s.pwm_events)
+    changes = t_ev[np.r_[True, np.diff(level) != 0.0]]
+    k = np.searchsorted(changes, s.t, side="right") - 1
+    since = np.where(k >= 0, s.t - changes[np.maximum(k, 0)], -np.inf)
+    return np.flatnonzero((since >= settled_s) & np.isfinite(s.current))
+
+
+@dataclass
+class SpeedAndCurrent(pf.Data):
+    """Training data whose residual is the speed's and, on ``current_rows``, the supply current's
+    (measured - plant), the latter times ``current_weight`` (rad/s per A: the measured speed's
+    range over the measured current's, so 1 % of either range weighs alike)."""
+
+    current_rows: list[np.ndarray] = dataclasses.field(default_factory=list)
+    current_weight: float = 0.0
+
+    @classmethod
+    def with_current(cls, signals: Sequence[Signals]) -> SpeedAndCurrent | None:
+        """The data of ``signals`` with the settled supply current of those that carry their own
+        (``own_supply_current``); None when none does, or on fewer than MIN_SAMPLES rows, or
+        when the speed or the current does not vary."""
+        base = pf.Data.of(signals)
+        current_rows = [settled_rows(s) if own_supply_current(s) else np.zeros(0, dtype=int) for s in signals]
+        if sum(map(len, current_rows)) < MIN_SAMPLES:
+            return None
+        speed = np.concatenate([s.speed[r] for s, r in zip(signals, base.rows, strict=True)])
+        current = np.concatenate([s.current[r] for s, r in zip(signals, current_rows, strict=True)
+                                  if s.current is not None])
+        span_w, span_i = float(np.ptp(speed)) if len(speed) else 0.0, float(np.ptp(current))
+        if not (span_w > 0.0 and span_i > 0.0):
+            return None
+        return cls(base.signals, base.rows, current_rows, span_w / span_i)
+
+    def residual(self, model: PhysicsConfig) -> np.ndarray:
+        parts = []
+        current_rows = self.current_rows or [np.zeros(0, dtype=int)] * len(self.signals)  # (made by ``of``)
+        for s, rows, crows in zip(self.signals, self.rows, current_rows, strict=True):
+            if len(crows):
+                speed, current = model.predict_with_current(s)
+                parts += [s.speed[rows] - speed[rows], self.current_weight * (_current(s)[crows] - current[crows])]
+            else:
+                parts.append(s.speed[rows] - model.predict(s)[rows])
+        return np.concatenate(parts)
+
+    def users(self) -> list[str]:
+        """The recordings whose current is compared."""
+        return [s.path for s, r in zip(self.signals, self.current_rows, strict=True) if len(r)]
+
+    def summary(self, held: Sequence[str]) -> str:
+        """One progress line: whose current, how many rows, what is held for it."""
+        return (f"fitting the supply current of {len(self.users())} recording(s) too "
+                f"({sum(map(len, self.current_rows))} rows {CURRENT_SETTLED_S:g} s after a command change)"
+                + "".join(f"; {n} held at 1 (the supply recorded)" for n in held))
+
+    def as_metadata(self, held: Sequence[str]) -> dict[str, object]:
+        """What the model's metadata records of the current in its fit."""
+        return {"recordings": self.users(), "rows": int(sum(map(len, self.current_rows))),
+                "settled_s": CURRENT_SETTLED_S, "weight_rad_s_per_a": self.current_weight,
+                "held_effects": list(held)}
+
+    def current_rmse(self, model: PhysicsConfig) -> float:
+        """RMSE (A) of the plant's supply current on the settled rows."""
+        err = [_current(s)[r] - model.predict_with_current(s)[1][r]
+               for s, r in zip(self.signals, self.current_rows, strict=True) if len(r)]
+        return float(np.sqrt(np.mean(np.concatenate(err) ** 2)))
+
+
+def _current(s: Recorded) -> np.ndarray:
+    """The measured supply current of a recording ``SpeedAndCurrent`` compares (it has one)."""
+    current = getattr(s, "current", None)
+    assert current is not None, "only recordings with a current have settled rows"
+    return np.asarray(current)
+
+
 def _plant_model(m: PhysicsConfig, tau_s: float) -> PlantModel:
     assert m.supply_v is not None, "a fit on recordings has their supply (with_supply)"
     return PlantModel(m.params, m.effects, m.supply_v, supply_tau_s=tau_s)
@@ -108,7 +217,10 @@ def train_physics(
     coast (its strength fitted from 1). Staircases and ramps rarely show how the rotor slows
     down after a large step, or tell a bent map from Kv, so the training data alone cannot
     choose; random steps do. The supply is the recordings' filtered battery voltage (the stiff
-    supply of battery_voltage strength 0: their median).
+    supply of battery_voltage strength 0: their median). Training recordings that carry their
+    motor's supply current add it to the least squares where the command has settled
+    (``SpeedAndCurrent``, CURRENT_SETTLED_S), with battery_voltage held at 1 on a recorded supply
+    (SUPPLY_HELD).
 
     The kept fit is checked (``physics.fit.fit_flags``): a fit whose Kv or CP ended at a bound of its
     range or implausibly far from a value the user stated (a prior, or the CONFIG) is no model of
@@ -127,9 +239,12 @@ def train_physics(
     base, notes, warnings = start_model(config, priors, median_voltage(train), option="--physics-config")
     for line in notes:
         say(f"start: {line}")
-    data = pf.Data.of(train)
+    current = SpeedAndCurrent.with_current(train)
+    held = SUPPLY_HELD if current is not None and tau == 0.0 else ()
+    if current is not None:
+        say(current.summary(held))
     t0 = time.perf_counter()
-    candidates = _candidate_fits(base, data, train, validation, tau, say)
+    candidates = _candidate_fits(base, current or pf.Data.of(train), train, validation, tau, say, held)
     # a fit that is no model of the stated motor is kept only when every fit is one: then refused
     candidates.sort(key=lambda d: (bool(d["refused"]), d["validation_rmse_rad_s"]))
     best = candidates[0]
@@ -151,6 +266,7 @@ def train_physics(
         "warnings": list(warnings),
         "candidates": [{k: v for k, v in d.items() if k not in ("model", "flags")} for d in candidates],
         "training_seconds": time.perf_counter() - t0,
+        "supply_current": None if current is None else current.as_metadata(held),
         "thrust_fit": thrust.as_metadata(),  # with the assumption of a b derived from stated numbers
         **band,  # the speed's one-sigma band, from the validation residuals
     })
@@ -161,10 +277,11 @@ def train_physics(
 
 
 def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals], validation: Sequence[Signals],
-                    tau: float, say: Callable[[str], None]) -> list[_Candidate]:
+                    tau: float, say: Callable[[str], None], held: Sequence[str] = ()) -> list[_Candidate]:
     """``train_physics``'s four fits from ``base``: for each ESC (braking actively, letting the
     rotor coast) the throttle map held straight, then bent from the straight fit. Each as its
-    JSON metadata record, plus its model and flags (``data``: ``train`` as the fit reads it)."""
+    JSON metadata record, plus its model and flags (``data``: ``train`` as the fit reads it;
+    ``held``: effects whose strength stays at 1)."""
     candidates: list[_Candidate] = []
     for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
@@ -173,7 +290,7 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
         for name, hold in ((f"{esc}, throttle map straight", (*STRAIGHT_MAP, *HELD)),
                            (f"{esc}, throttle map bent", HELD)):
             say(f"fitting Kv, CP and the effects' strengths, {name}")
-            fit = pf.fit_reference(init, data, hold=hold)
+            fit = pf.fit_reference(init, data, hold=hold, held_effects=held)
             init = fit.model
             m = _plant_model(fit.model, tau)
             flags = training_flags(fit, start)
@@ -182,7 +299,10 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
                                "fit_flags": [f.as_json() for f in flags],
                                "refused": [f.text() for f in flags if refuses(f)],
                                "train_rmse_rad_s": rmse(m, train),
-                               "validation_rmse_rad_s": rmse(m, validation), "model": m, "flags": flags})
+                               "validation_rmse_rad_s": rmse(m, validation),
+                               "train_current_rmse_a": (data.current_rmse(fit.model)
+                                                        if isinstance(data, SpeedAndCurrent) else None),
+                               "model": m, "flags": flags})
             say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
                 f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s"
                 + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f)))
