@@ -81,6 +81,8 @@ def one_run(path: str, case: str, seed: int) -> dict:
             "before": float(data["holdout_rmse_before"]), "after": float(data["holdout_rmse_after"]),
             "fitted": fitted, "truth": truth, "unit": unit, "bags_s": t_bags,
             "no_verdict": data.get("no_verdict") or "",
+            # the effects the physics base was completed with on the reference (PhysicsKind._complete_base)
+            "completed": list((data.get("reference_fit") or {}).get("completed") or []),
             "seconds": time.perf_counter() - t0}
 
 
@@ -165,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{r['path']}] {r['case']:20s} seed {r['seed']}: named {r['named'] or 'nothing'}; holdout "
                   f"{r['before']:.1f} -> {r['after']:.1f} rad/s{value} ({r['seconds']:.0f} s, bags "
                   f"{r['bags_s']:.0f} s; {len(rows)}/{len(jobs)} at {time.perf_counter() - t0:.0f} s)"
+                  + (f"\n    base completed with: {', '.join(r['completed'])}" if r["completed"] else "")
                   + (f"\n    no verdict: {r['no_verdict']}" if r["no_verdict"] else ""), flush=True)
     for p in paths:
         print_table(rows, p, cases)

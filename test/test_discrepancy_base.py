@@ -125,3 +125,29 @@ def test_a_reference_the_base_cannot_explain_names_nothing(reference):
     assert data["no_verdict"].startswith("the reference is not explained"), data["no_verdict"]
     assert "rad/s RMS" in data["no_verdict"] and "own noise" in data["no_verdict"]
     assert data["named"] == [] and data["evidence"] == {}
+
+
+def test_a_base_that_cannot_explain_its_reference_is_completed_from_it(tmp_path):
+    """The reference has a high ESC start level (PWM 0.065, esc_deadband 3) that the CONFIG (every
+    effect off) leaves out: the first base (inertia only) bends its throttle map to its bound and
+    leaves 5 % of the speed range, so the base is completed with every effect the CONFIG leaves off,
+    fitted on the reference: the start level and the motor come back as the simulator has them, a
+    strength the reference shows as absent (0) is no bound, and a dead time twice the nominal in the
+    measured data is named (new) with its value."""
+    ref = [load_signals(_bag(tmp_path, f"ref{k}", kd, 3100 + k, {"esc_deadband": 3.0}))
+           for k, kd in enumerate(["steps", "lowsteps"])]
+    changed = {"esc_deadband": 3.0, "input_delay": 2.0}
+    meas = [load_signals(_bag(tmp_path, f"meas{k}", "steps", 3200 + k, changed)) for k in range(2)]
+    hold = [load_signals(_bag(tmp_path, "hold", "steps", 3300, changed))]
+    data = run_physics_workflow(pc.load_config(None), meas, ref, hold, Options(max_effects=1), lambda m: None).data
+    fit = data["reference_fit"]
+    assert set(fit["completed"]) == set(c.EFFECTS) - {"rotor_lag"}, fit
+    assert fit["strengths"]["esc_deadband"] == pytest.approx(3.0, rel=0.1), fit["strengths"]
+    assert fit["constants"]["motor_kv_rpm_per_v"] == pytest.approx(710.0, rel=0.1), fit["constants"]
+    assert fit["rmse_rad_s"] < 0.02 * max(float(np.nanmax(s.speed)) for s in ref), fit["rmse_rad_s"]
+    assert not any("strength 0 at its bound" in w for w in fit["at_bound"]), fit["at_bound"]
+    assert data["no_verdict"] is None
+    assert data["named"][:1] == ["input_delay"], data["considered_not_added"]
+    dead_ms = data["evidence"]["input_delay"]["fitted_value"]["value"]
+    assert dead_ms == pytest.approx(80.0, rel=0.3), dead_ms
+    assert data["holdout_rmse_after"] < 0.5 * data["holdout_rmse_before"]

@@ -9,7 +9,10 @@ model and its CONFIG are ``physics/config.py``, its calibration and fit flags ``
   inertia, whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
   (``pf.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
   speed's own noise or NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and
-  ``pf.LOADED_SPEED_RANGE``), else no effect is named and the verdict says why. Then Kv and
+  ``pf.LOADED_SPEED_RANGE``); when it does not, the base is completed with every effect the
+  CONFIG leaves off, all fitted on the reference (``PhysicsKind._complete_base``: in the base like
+  the inertia, freed on the measured data), and if that does not explain it either, no effect is
+  named and the verdict says why. Then Kv and
   CP calibrated on the measured recordings (and, separately, on the reference), the exponent held
   (``pf.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
 - step 3: every effect scored on held-out time blocks of the measured data and, separately
@@ -62,6 +65,9 @@ def predictions(model: PhysicsConfig, signals: Sequence[Signals]) -> DataSet:
 #: alone is 0.5 rad/s off), and a model within a few % of the range is what the estimator is for.
 NOT_EXPLAINED_FACTOR = 4.0
 NOT_EXPLAINED_SHARE = 0.05
+#: The strength each effect a completed base switches on starts its reference fit from (the
+#: CONFIG's nominal, and for spin-down half the braking removed: its 1 is the physical end).
+COMPLETION_START = {name: (0.5 if name == "spin_down_asymmetry" else 1.0) for name in c.EFFECTS}
 
 
 def speed_range(signals: Sequence[Signals]) -> float:
@@ -85,6 +91,9 @@ class PhysicsKind:
         self._trial_strength: dict[str, float] = {}
         #: the base effects' strengths the reference fit found (empty without a reference)
         self.base_strengths: dict[str, float] = {}
+        #: the effects in the base: pf.BASE_EFFECTS, and those ``_complete_base`` switched on
+        self.base_effects: tuple[str, ...] = pf.BASE_EFFECTS
+        self.unexplained: str | None = None
         self._named: list[str] = []
 
     @property
@@ -97,7 +106,6 @@ class PhysicsKind:
         self.meas_data = ph.blocked(measured, "measured")
         self.ref_data = ph.blocked(reference, "reference") if reference else None
         self.uncal_rmse = rmse(predictions(model, hold).residuals)
-        self.unexplained: str | None = None
         if self.ref_data is not None:
             # reference first: what the model needs to agree with its own data is structural; only
             # what the measured data need beyond it can be new. What every bench has is in the base
@@ -107,22 +115,12 @@ class PhysicsKind:
             progress(f"step 1: reference first: {', '.join([*CALIBRATED, *on])} fitted on "
                      f"{len(reference)} reference recording(s)")
             rf = pf.fit_reference(model, self.ref_data, switched=switched)
+            flags = self._judge_reference(rf, [], reference, progress)
+            if self.unexplained is not None:
+                rf, flags = self._complete_base(model, switched, rf, flags, reference, progress)
             model = rf.model
-            self.base_strengths = {n: model.effects[n] for n in pf.BASE_EFFECTS}
-            flags = pf.fit_flags(rf, self.config, "reference fit")
-            in_base = {n: ph.value_text(ph.fitted_value(n, model.effects[n], model.params, model.supply_v))
-                       for n in pf.BASE_EFFECTS if model.effects[n] > ph.BASE_SAME_ZERO}
-            self.reference_fit = {"constants": rf.model.constants(), "strengths": {n: rf.model.effects[n] for n in on},
-                                  "in_base": in_base,
-                                  "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))),
-                                  "at_bound": [f.text() for f in flags if f.at_bound],
-                                  "implausible": [f.text() for f in flags if not f.at_bound]}
-            progress(f"  reference fit: {constants_text(model)}; strengths "
-                     + (", ".join(f"{n} {model.effects[n]:.2f}" for n in on) or "none")
-                     + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
-                     + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
+            self.base_strengths = {n: model.effects[n] for n in self.base_effects}
             self.flags += flags
-            self.unexplained = self._not_explained(flags, reference, progress)
         progress(f"step 1: calibrating {', '.join(CALIBRATED)} on {len(measured)} measured recording(s)")
         held = pf.HELD_AFTER_REFERENCE if self.ref_data else ()
         self.cur = pf.calibrate_base(model, self.meas_data, held)
@@ -137,6 +135,62 @@ class PhysicsKind:
         progress(f"  calibrated: {constants_text(self.base)} (holdout RMSE {self.uncal_rmse:.2f} rad/s uncalibrated)")
         return (predictions(self.base, measured), predictions(self.cur_ref.model, reference) if self.cur_ref else None,
                 predictions(self.base, hold))
+
+    def _judge_reference(self, rf: pf.Fit, completed: Sequence[str], reference: Sequence[Signals],
+                         progress: Progress) -> list[pf.FitFlag]:
+        """The reference fit ``rf`` reported (``reference_fit``) and judged (``unexplained``);
+        its flags. A strength of a ``completed`` effect fitted to 0 is no bound: the reference
+        lacks that effect, which is physical (the measured data may still need it: a candidate)."""
+        model = rf.model
+        zero = {f"{n} strength" for n in completed if model.effects[n] <= 1e-3}
+        flags = [f for f in pf.fit_flags(rf, self.config, "reference fit") if f.quantity not in zero]
+        on = [n for n in c.EFFECTS if n in rf.free]  # every strength the fit fitted
+        base = (*pf.BASE_EFFECTS, *completed)
+        in_base = {n: ph.value_text(ph.fitted_value(n, model.effects[n], model.params, model.supply_v))
+                   for n in base if model.effects[n] > ph.BASE_SAME_ZERO}
+        self.reference_fit = {"constants": model.constants(), "strengths": {n: model.effects[n] for n in on},
+                              "in_base": in_base, "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))),
+                              "at_bound": [f.text() for f in flags if f.at_bound],
+                              "implausible": [f.text() for f in flags if not f.at_bound],
+                              "completed": list(completed)}
+        progress(f"  reference fit: {constants_text(model)}; strengths "
+                 + (", ".join(f"{n} {model.effects[n]:.2f}" for n in on) or "none")
+                 + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
+                 + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
+        self.base_effects = base
+        self.unexplained = self._not_explained(flags, reference, progress)
+        return flags
+
+    def _complete_base(self, model: PhysicsConfig, switched: Sequence[str], rf: pf.Fit, flags: list[pf.FitFlag],
+                       reference: Sequence[Signals], progress: Progress) -> tuple[pf.Fit, list[pf.FitFlag]]:
+        """The base that did not explain its reference, completed with every effect the CONFIG
+        leaves off (COMPLETION_START), all fitted on the reference; kept when it explains the
+        reference or fits it better (else the first fit, and its verdict, stand).
+
+        A real ESC may coast instead of braking, start above a threshold, wait a few frames; a real
+        pack sags; a winding heats: a CONFIG that does not state them leaves the base without what
+        the reference shows, and the constants then stand in for it (a coasting ESC's reference
+        fitted with Kv 2e4-3e4 rpm/V and the throttle exponent at its bound on every foreign bench
+        with one, so nothing was ever named there). Only when the first base fails: every strength
+        fitted on the reference trades with the others and with the constants (heating with the
+        pack's sag on a long full-throttle run), so a base larger than the reference needs costs
+        the measured data the power to tell those effects apart."""
+        more = tuple(n for n in c.EFFECTS if model.effects[n] == 0.0)
+        if not more:
+            return rf, flags
+        first, first_fit, first_flags, first_base = self.unexplained, self.reference_fit, flags, self.base_effects
+        progress(f"  {first}: the base completed with {', '.join(more)} (off in the CONFIG), fitted on the reference")
+        full = model
+        for name in more:
+            full = full.with_effect(name, COMPLETION_START[name])
+        assert self.ref_data is not None  # only a reference fit is completed
+        done = pf.fit_reference(full, self.ref_data, switched=switched)
+        done_flags = self._judge_reference(done, more, reference, progress)
+        if self.unexplained is None or done.sse < rf.sse:
+            return done, done_flags
+        progress(f"  the completed base explains it no better: {first}")
+        self.unexplained, self.reference_fit, self.base_effects = first, first_fit, first_base
+        return rf, first_flags
 
     def _not_explained(self, flags: Sequence[pf.FitFlag], reference: Sequence[Signals],
                        progress: Progress) -> str | None:
@@ -173,7 +227,7 @@ class PhysicsKind:
 
     def candidates(self, restrict: Sequence[str], named: Sequence[str]) -> list[str]:
         # a base effect (held at the reference's strength) is a candidate until it is freed
-        freeable = pf.BASE_EFFECTS if self.ref_data is not None else ()
+        freeable = self.base_effects if self.ref_data is not None else ()
         return [n for n in restrict if self.cur.model.effects[n] == 0.0
                 or (n in freeable and n not in self.cur.free)]
 

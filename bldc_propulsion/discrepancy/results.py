@@ -196,6 +196,8 @@ class ReferenceFitJson(_ReferenceFitCore, total=False):
     """The physics kind's fit on the reference recordings (--json ``reference_fit``)."""
 
     speed_noise_rad_s: float  #: once the reference is judged explained or not
+    #: effects the CONFIG left off that the base was completed with (``PhysicsKind._complete_base``)
+    completed: list[str]
 
 
 class KindFields(TypedDict, total=False):

@@ -86,7 +86,9 @@ PHYSICAL_MAX = frozenset({"spin_down_asymmetry"})
 #: Not (yet) in the base: the dead time, which the reference fit then trades with the inertia
 #: (randomized bench 1, no dead time in the reference: 12 ms fitted, and the measured data's
 #: 20 ms no longer named); every effect, which kept Kv physical on benches whose reference has a
-#: coasting ESC or heating but named second effects on the project's own randomized benches.
+#: coasting ESC or heating but named second effects on the project's own randomized benches. (The
+#: discrepancy workflow adds the other effects only when this base does not explain the reference:
+#: ``discrepancy.physics_kind.PhysicsKind._complete_base``.)
 BASE_EFFECTS = ("rotor_lag",)
 #: The strength a base effect the CONFIG has off starts its reference fit from: the CONFIG's inertia.
 BASE_START = {"rotor_lag": 1.0}
