@@ -704,7 +704,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
     Group("foreign_physics", "Discrepancy on a bench written by someone else, physics path",
           "python benchmarks/bench_foreign.py --seeds 2 --jobs 1 --path physics "
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
-          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about 20 minutes on a quiet machine, 40 under load)."),
+          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (20-40 minutes)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
           "python benchmarks/bench_foreign.py --seeds 2 --jobs 1 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
