@@ -710,11 +710,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
           "`benchmarks/foreign_bench/`'s randomized benches (about 4 minutes)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
-          "python benchmarks/bench_health.py --first-seed 300 --seeds 4 --flights 6 --hours 6 "
+          "python benchmarks/bench_health.py --first-seed 400 --seeds 4 --flights 4 --hours 4 "
           "--json docs/results/health.json", render_health,
-          "Four benches drawn by `sim.random_bench` (seeds 300-303, never tuned on), a physics model fitted on each; "
-          "per bench 6 flights with each fault (propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) and "
-          "1.5 h of healthy flight (about 14 minutes)."),
+          "Four benches drawn by `sim.random_bench` (seeds 400-403, never tuned on), a physics model fitted on each; "
+          "per bench 4 flights with each fault (propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) and "
+          "about 1 h of healthy flight (about 12 minutes)."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "

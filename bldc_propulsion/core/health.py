@@ -25,7 +25,14 @@ speed residual alone:
   seconds before the onset plus the seconds after it), so only a change AT the onset counts;
 * the residuals are autocorrelated (a model error lasts as long as the operating point), so the
   noise's variance and its correlation time (the variance of a sum of n blocks is
-  n * sigma^2 * kappa) are estimated per channel from the reference part of the window;
+  n * sigma^2 * kappa) are estimated per channel from the reference part of the window; what is
+  known of a block's noise is not left to that estimate, which sees only the speeds and currents
+  the reference visited: a speed block is never taken quieter than its own samples' scatter says,
+  and it carries the noise the filtered voltage feeds into the prediction (sized by the voltage
+  channel's own noise); a voltage block where the current steps carries the model's timing error;
+* the model undoes the battery filter with its fitted source resistance; the error that leaves
+  after every current step (decaying with the filter) is taken out of the speed residual with
+  the pack's sag per ampere the voltage channel shows;
 * the threshold is the chi-square(1) tail at a false-alarm rate per hour divided by the number
   of tests (faults x onsets x evaluations per hour), Bonferroni;
 * a change that no candidate explains (the best one's signature leaves a significant step in
@@ -169,6 +176,8 @@ class PhysicsTwins:
             self._inv.append(1.0 / delta)
         sp = Supply.of(params, eff, supply_v, supply_tau_s)
         self._v_ref, self._sbv, self._a_lp = sp.v_ref, sp.strength, sp.lowpass_gain
+        #: the series resistance the model adds back when it undoes the battery filter (ohm)
+        self.source_resistance_ohm = sp.source_resistance_ohm
         self._dt = params.sim_step_s
         self._delay = dead_time_s(params, eff)
         self._map = (start_level(params, eff), params.esc_throttle_exponent)
@@ -375,8 +384,12 @@ def _size_text(size: float, unit: str) -> str:
 
 
 #: A block whose predicted speed moved by more than this share of the speed scale since the block
-#: before is a transient (it and the next _SETTLE_BLOCKS carry no test).
-_STEADY_FRACTION = 0.01
+#: before is a transient (it, the block before it, where the step began, and the next
+#: _SETTLE_BLOCKS carry no test). The model's error in a transient grows with the rate (a dead
+#: time or inertia off by a few % is several rad/s while the speed moves tens per block), so a
+#: slow spin-down or a step's tail is a transient too: 1 % (6 rad/s per block) let both through
+#: as steady on tuning benches, 0.3 % does not.
+_STEADY_FRACTION = 0.003
 _SETTLE_BLOCKS = 3
 #: The model's speed error is learned as a polynomial of this many terms in the predicted speed,
 #: known after _ERROR_MIN_BLOCKS steady blocks, with a memory of _ERROR_MEMORY_S of steady data,
@@ -385,10 +398,26 @@ _ERROR_TERMS = 4
 _ERROR_MIN_BLOCKS = 20
 _ERROR_MEMORY_S = 60.0
 _ERROR_MARGIN = 0.05
-#: The pack's polarisation time constant the voltage's nuisance assumes (s): a LiPo's ~10-60 s.
-_POLARISATION_S = 30.0
+#: The pack's polarisation, as the voltage's nuisance: the current through lags of these time
+#: constants (s), whose combinations follow an RC branch of any time constant between them (a
+#: LiPo's ~10-60 s); a slower branch (minutes) moves with the charge drawn, a column of its own.
+_POLARISATION_S = (15.0, 45.0)
 #: Lags (s) over which the residual's autocorrelation is summed (truncated at its first zero).
 _CORRELATION_LAGS_S = 0.5
+#: The model is fed the FILTERED battery voltage, whose noise (the ESC's modulation and the ADC's,
+#: through the 2 s battery filter) wanders with the filter's time constant and moves the
+#: prediction by s * d speed / d volt times it: at 12 A about 0.02 V, 1-2 rad/s, in the middle of
+#: a steady hold, where it passed for a change (false alarms on tuning benches). The monitor knows
+#: its size from its own voltage channel (a block's terminal-voltage noise a + b i^2 is the raw
+#: noise over a block; the filter keeps block_s / (2 tau) of it, the current squared taken
+#: through a lag of tau / 2 as the filter's output variance follows it), and adds it to each speed
+#: block's own noise as white noise of _INPUT_NOISE_WHITE times its variance: the filter's noise is
+#: correlated over seconds, and that many times its variance makes a white noise give the same
+#: variance to the difference of two one-second means, the scale of a step test within a hold.
+_INPUT_NOISE_WHITE = 3.0
+#: The share of a block the model's timing of a current step may be off by (its dead time and
+#: rotor lag are fitted): the voltage block's extra noise where the current steps.
+_TIMING_SHARE = 0.5
 #: Least noise (one sigma of a block) per channel: a share of the speed scale, volts; a quiet
 #: reference never makes it zero.
 _SPEED_NOISE_FLOOR = 1e-3
@@ -429,13 +458,26 @@ class _Channel:
     y: np.ndarray  #: the residual (speed) or the terminal voltage (voltage)
     valid: np.ndarray  #: 1 where a block carries the test, else 0
     level: np.ndarray  #: what its noise grows with (predicted speed, model current)
+    floor: np.ndarray  #: least noise variance of each block: what the samples' own scatter says
+    extra: np.ndarray  #: noise variance each block carries beyond its learned noise (the input's)
     nuisance: np.ndarray  #: columns fitted along (offset, drift, the model's error)
     tests: np.ndarray  #: onsets x blocks x faults: each fault's change per unit of its size
+    #: steady stretches its reference needs (the speed's: its visits tell the model's error; the
+    #: voltage's blocks are all valid, one stretch)
+    min_stretches: int = _MIN_REFERENCE_STRETCHES
+    #: the blocks its noise is learned on (None: the valid ones); the voltage's are the steady
+    #: ones: a transient's block carries its own timing noise (``extra``), not the pack's
+    quiet: np.ndarray | None = None
 
 
-# block columns
-_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV = range(13)
-_S0 = 13  #: speed sensitivities (one per fault), then current sensitivities
+# block columns (means over the block's samples unless said): time, samples, speed residual (the
+# filter-undo error taken out, _filter_error), predicted speed, model current, the filtered voltage
+# last and its time, its mean and samples, steady, the residual less the learned error, known
+# speed, d speed / d volt, the residual mean's own variance (from its samples' scatter), the model
+# current squared lagged (_current_squared), the current's polarisation lags and its filter lag
+# less itself (_current_lags)
+_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG = range(18)
+_S0 = 18  #: speed sensitivities (one per fault), then current sensitivities
 _ARMING, _ARMED, _NAMING, _REFINING = "arming", "armed", "naming", "refining"
 
 
@@ -444,12 +486,15 @@ class HealthMonitor:
     completed at that sample (usually none); ``events`` holds them all."""
 
     def __init__(self, supply_tau_s: float, speed_scale_rad_s: float, pack_resistance_ohm: float,
-                 config: HealthConfig | None = None, voltage_strength: float = 1.0) -> None:
+                 config: HealthConfig | None = None, voltage_strength: float = 1.0,
+                 source_resistance_ohm: float | None = None) -> None:
         """``supply_tau_s``: the battery filter's time constant the voltage came through (0: the
         terminal's own); ``voltage_strength``: how much of the measured voltage's change the model
         passes to its motor (its battery_voltage strength); ``speed_scale_rad_s``: the model's
         full-drive speed (what 'steady' and 'turning' are relative to); ``pack_resistance_ohm``:
-        what the pack's factor is relative to where the data cannot say (PhysicsTwins gives it)."""
+        what the pack's factor is relative to where the data cannot say (PhysicsTwins gives it);
+        ``source_resistance_ohm``: the series resistance the model adds back when it undoes the
+        battery filter (PhysicsTwins gives it; default voltage_strength * pack_resistance_ohm)."""
         self.config = cfg = config or HealthConfig()
         if not (math.isfinite(speed_scale_rad_s) and speed_scale_rad_s > 0.0):
             raise ValueError(f"speed_scale_rad_s {speed_scale_rad_s!r} must be a speed > 0")
@@ -457,6 +502,11 @@ class HealthMonitor:
         self.tau_s = float(supply_tau_s)
         self.voltage_strength = float(voltage_strength)
         self.pack_reference_ohm = float(pack_resistance_ohm)
+        self._sag = self.pack_reference_ohm  #: the pack's sag per ampere the latest window showed (ohm)
+        self._steady = np.zeros(0)  #: the latest window's steady blocks (a name needs stretches of them)
+        #: the series resistance the model adds back when it undoes the battery filter (ohm)
+        self.source_resistance_ohm = (self.voltage_strength * self.pack_reference_ohm
+                                      if source_resistance_ohm is None else float(source_resistance_ohm))
         self.n_faults = len(FAULTS)
         self.threshold = cfg.threshold(self.n_faults)
         #: candidate onsets while armed, as blocks before the newest (min_post_s to window_s)
@@ -487,6 +537,7 @@ class HealthMonitor:
         self._pending: HealthEvent | None = None
         self._pending_onset_block = 0
         self._t_origin: float | None = None
+        self._lags: tuple[float, float, float, float] | None = None  #: (_current_lags' lags, their time)
 
     # --- input ---------------------------------------------------------------------------
     def update(self, s: HealthSample) -> list[HealthEvent]:
@@ -516,7 +567,9 @@ class HealthMonitor:
         nf = self.n_faults
         b[_T] += t
         b[_N] += 1.0
-        b[_R] += s.measured_speed_rad_s - s.predicted_speed_rad_s
+        r = s.measured_speed_rad_s - s.predicted_speed_rad_s
+        b[_R] += r
+        b[_R2] += r * r
         b[_W] += s.predicted_speed_rad_s
         b[_IB] += tw.current_a
         b[_VLAST] = s.voltage_v
@@ -557,6 +610,7 @@ class HealthMonitor:
         self._error_coef: np.ndarray = np.zeros(_ERROR_TERMS)
         self._error_n = 0.0
         self._error_span = (math.inf, -math.inf)
+        self._i2_lag: tuple[float, float] | None = None  #: (lagged current squared, its time)
 
     def _close_block(self) -> list[HealthEvent]:
         b = self._block
@@ -568,8 +622,17 @@ class HealthMonitor:
         for j in (_T, _R, _W, _IB, _SV, *range(_S0, self._cols)):
             row[j] /= n
         row[_VMEAN] /= b[_NV]
+        # the block mean's own noise from the samples' scatter about it (the tachometer's noise at
+        # this very speed: no noise model extrapolated from the speeds the reference visited)
+        row[_R2] = max(b[_R2] - n * row[_R] ** 2, 0.0) / (n * (n - 1.0)) if n >= 3 else 0.0
+        row[_I2] = self._current_squared(row)
+        row[_PF], row[_PS], row[_LAG] = self._current_lags(row)
+        row[_R] -= self._filter_error(row)
         prev = self._buf[(self._row - 1) % len(self._buf)] if self._filled else row
-        self._since_jump = 0 if abs(row[_W] - prev[_W]) > _STEADY_FRACTION * self.speed_scale else self._since_jump + 1
+        jump = abs(row[_W] - prev[_W]) > _STEADY_FRACTION * self.speed_scale
+        self._since_jump = 0 if jump else self._since_jump + 1
+        if jump and self._filled:  # the step began in the block before: its mean is part transient
+            self._buf[(self._row - 1) % len(self._buf), _STEADY] = 0.0
         turning = row[_W] >= self.config.min_speed_fraction * self.speed_scale
         row[_STEADY] = float(self._since_jump > _SETTLE_BLOCKS and turning)
         lo, hi = self._error_span
@@ -585,6 +648,49 @@ class HealthMonitor:
                 and self.blocks % self.config.evaluate_every == 0:
             return self._evaluate()
         return []
+
+    def _current_squared(self, row: np.ndarray) -> float:
+        """The model current squared through a lag of tau / 2 (A^2), carried from block to block:
+        what the filtered voltage's noise variance follows (_INPUT_NOISE_WHITE)."""
+        i2, t = float(row[_IB]) ** 2, float(row[_T])
+        if self._i2_lag is not None and self.tau_s > 0.0:
+            last, t_prev = self._i2_lag
+            i2 = last + (1.0 - math.exp(-2.0 * max(t - t_prev, 0.0) / self.tau_s)) * (i2 - last)
+        self._i2_lag = (i2, t)
+        return i2
+
+    def _current_lags(self, row: np.ndarray) -> tuple[float, float, float]:
+        """The model current through lags of _POLARISATION_S (A), and through the battery filter
+        less the current itself (A, 0 without a filter), carried from block to block over the
+        whole flight (a window's first block knows nothing of the current before it)."""
+        ib, t = float(row[_IB]), float(row[_T])
+        taus = (*_POLARISATION_S, self.tau_s if self.tau_s > 0.0 else 1.0)
+        if self._lags is None:
+            self._lags = (ib, ib, ib, t)
+        else:
+            *lags, t_prev = self._lags
+            dt = max(t - t_prev, 0.0)
+            x = [lag + (1.0 - math.exp(-dt / tau)) * (ib - lag) for lag, tau in zip(lags, taus, strict=True)]
+            self._lags = (x[0], x[1], x[2], t)
+        return self._lags[0], self._lags[1], (self._lags[2] - ib) if self.tau_s > 0.0 else 0.0
+
+    def _filter_error(self, row: np.ndarray) -> float:
+        """The model's speed error at a block from undoing the battery filter with its own
+        source resistance (s R_m) where the pack's is the sag its voltage shows (R): the model's
+        motor voltage V_f + s R_m (lowpass(i) - i) against the terminal's V_f + R (lowpass(i) - i),
+        of which it passes s; the lagged part, s (R - R_m) (lowpass(i) - i) times d speed / d volt,
+        decays with the filter after every current step, which passed for a change on tuning
+        benches; the rest is static in the current, and the learned error takes it."""
+        return float(row[_SV]) * (self.voltage_strength * self._sag - self.source_resistance_ohm) * float(row[_LAG])
+
+    def _input_noise(self, cur: np.ndarray) -> np.ndarray:
+        """Each speed block's variance from the filtered voltage's noise (_INPUT_NOISE_WHITE):
+        0 until the voltage channel's noise is learned, and without a battery filter."""
+        volt = self.noise.get("voltage")
+        if volt is None or self.tau_s <= 0.0:
+            return np.zeros(len(cur))
+        filtered = (volt[0] + volt[1] * cur[:, _I2]) * self.config.block_s / (2.0 * self.tau_s)
+        return _INPUT_NOISE_WHITE * (self.voltage_strength * cur[:, _SV]) ** 2 * filtered
 
     def _terms(self, w: float) -> np.ndarray:
         u = w / self.speed_scale
@@ -640,8 +746,6 @@ class HealthMonitor:
         seen = self._lowpass_after_onsets(ib, cur[:, _T]) if self.tau_s > 0.0 else post * ib[None, :]
         speed_tests[:, :, FAULTS.index("pack_resistance")] = (
             cur[None, :, _SV] * (self.voltage_strength * seen - post * ib[None, :]))
-        speed = _Channel("speed", cur[:, _RC], valid * cur[:, _KNOWN], w, np.column_stack([ones, t_rel]),
-                         speed_tests)
         # voltage: the terminal voltage's block mean, the battery filter undone
         if self.tau_s > 0.0:
             dtv = cur[:, _TVLAST] - win[:-1, _TVLAST]
@@ -649,16 +753,29 @@ class HealthMonitor:
             v = (cur[:, _VLAST] - a * win[:-1, _VLAST]) / (1.0 - a)
         else:
             v = cur[:, _VMEAN]
-        # the polarisation's slow response to the current (~30 s), as a nuisance
-        pol = _lag_of_blocks(np.arange(m) * cfg.block_s, ib, _POLARISATION_S)
-        sag = self._sag_per_ampere(v, ib, t_rel, valid)
+        # the open-circuit voltage follows the charge drawn (A, the window's mean current to date)
+        charge = np.cumsum(ib * np.diff(win[:, _T])) / (cfg.reference_s + cfg.window_s)
+        volt_nuisance = np.column_stack([ones, charge, ib, cur[:, _PF], cur[:, _PS]])
+        sag = self._sag_per_ampere(v, volt_nuisance)
+        speed = _Channel("speed", cur[:, _RC], valid * cur[:, _KNOWN], w, cur[:, _R2],
+                         self._input_noise(cur), np.column_stack([ones, t_rel]), speed_tests)
         dib = cur[:, _S0 + nf:_S0 + 2 * nf]
         # each fault's voltage signature: the sag its current change causes; the pack's: its own
         volt_static = -sag * dib
         volt_static[:, FAULTS.index("pack_resistance")] = -ib
-        volt = _Channel("voltage", v, valid, ib, np.column_stack([ones, t_rel, t_rel**2, ib, pol]),
-                        post[:, :, None] * volt_static[None, :, :])
+        none = np.zeros(m)
+        # where the current steps, the model's current is off by its timing (a dead time or a
+        # rotor lag off by a share of a block): the voltage's block carries that much more noise
+        i_all = win[:, _IB]
+        step = np.maximum(np.abs(np.diff(i_all)), np.abs(np.diff(np.append(i_all[1:], i_all[-1]))))
+        timing = (_TIMING_SHARE * sag * step) ** 2
+        # every block carries the voltage's test, transients and rest included: the sag is static in
+        # the current (block means of v and i obey it as samples do), a current step is where a
+        # pack's change shows most, and a rotor at rest pins the open-circuit voltage down
+        volt = _Channel("voltage", v, ones, ib, none, timing, volt_nuisance,
+                        post[:, :, None] * volt_static[None, :, :], min_stretches=1, quiet=valid)
         self._sag = sag
+        self._steady = valid
         return [speed, volt]
 
     def _post_masks(self, m: int) -> np.ndarray:
@@ -680,16 +797,16 @@ class HealthMonitor:
             out[o, k0:] = x[k0:] - decay * a[k0] * before
         return out
 
-    def _sag_per_ampere(self, v: np.ndarray, ib: np.ndarray, t_rel: np.ndarray, valid: np.ndarray) -> float:
-        """The pack's healthy sag per ampere (ohm) over the reference part of the window: the
-        voltage's slope against the current, offset and drift fitted along; the model's series
-        resistance when the current hardly varied."""
+    def _sag_per_ampere(self, v: np.ndarray, nuisance: np.ndarray) -> float:
+        """The pack's healthy instantaneous sag per ampere (ohm) over the reference part of the
+        window: the voltage's slope against the current (``nuisance``'s column 2), the open-circuit
+        voltage and the polarisation fitted along; the model's series resistance when the current
+        hardly varied or the slope is out of any plausible range."""
         ref = slice(0, self._ref_blocks)
-        ok = valid[ref] > 0
-        if ok.sum() < 20 or np.ptp(ib[ref][ok]) < 0.5:
+        ib = nuisance[ref, 2]
+        if np.ptp(ib) < 0.5:
             return self.pack_reference_ohm
-        X = np.column_stack([np.ones(self._ref_blocks), t_rel[ref], ib[ref]])[ok]
-        r = -float(np.linalg.lstsq(X, v[ref][ok], rcond=None)[0][2])
+        r = -float(np.linalg.lstsq(nuisance[ref], v[ref], rcond=None)[0][2])
         return r if 0.2 * self.pack_reference_ohm < r < 10.0 * self.pack_reference_ohm else self.pack_reference_ohm
 
     def _stats(self, ch: _Channel, tests: np.ndarray, learn: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -703,7 +820,7 @@ class HealthMonitor:
         N = ch.nuisance
         empty = np.zeros(tests.shape[::2])
         if ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS, 4 * N.shape[1]) \
-                or len(_runs(ch.valid[:self._ref_blocks] > 0)) < _MIN_REFERENCE_STRETCHES:
+                or len(_runs(ch.valid[:self._ref_blocks] > 0)) < ch.min_stretches:
             return empty, empty
         if not learn and ch.name not in self.noise:
             return empty, empty
@@ -735,7 +852,10 @@ class HealthMonitor:
         the blocks' short correlation twice."""
         a, b, visit, kappa = self.noise.get(ch.name, (1.0, 0.0, 0.0, 1.0))
         visit /= kappa
-        w = ch.valid / (a + b * ch.level**2)
+        # S is scaled by kappa and the inflation later: the floor and the input's noise are known
+        # at their size, so they enter divided by that scale
+        scale = kappa * self.config.noise_inflation
+        w = ch.valid / (np.maximum(a + b * ch.level**2, ch.floor / scale) + ch.extra / scale)
         runs = _runs(ch.valid > 0)
         P = np.zeros((len(runs), len(w)))
         for j, (i, k) in enumerate(runs):
@@ -765,7 +885,7 @@ class HealthMonitor:
         next (variance ``visit`` per stretch, shared by its blocks), seen between the stretches'
         means. Exponential memory ``noise_memory_s``; the first estimate is taken whole."""
         ref = slice(0, self._ref_blocks)
-        valid = ch.valid[ref] > 0
+        valid = (ch.valid if ch.quiet is None else ch.quiet)[ref] > 0
         if valid.sum() < 20:
             return
         r, lv = res[ref], ch.level[ref]
@@ -885,8 +1005,7 @@ class HealthMonitor:
         ev.statistic = float(max(row[best], max(float(g[o]) for g in generic)))
         clear = row[best] >= self.threshold and row[best] - row[second] >= self._name_margin(float(row[best]))
         # seen at one operating point only, a change fits any shape: a name needs two
-        chans = self._last[3]
-        post = chans[-1].valid[len(chans[-1].valid) - int(self._post[o]):] > 0
+        post = self._steady[len(self._steady) - int(self._post[o]):] > 0
         # what the name leaves unexplained must be small beside the change itself: the model's
         # signature is never exact, so a large change always leaves a little
         left = max(self.threshold, _UNEXPLAINED_SHARE * float(row[best]))
@@ -1013,7 +1132,8 @@ class HealthStream:
         self.twins = self._twins()
         tau = float(plant.supply_tau_s)
         self.monitor = HealthMonitor(tau, self.twins.speed_scale_rad_s, self.twins.pack_resistance_ohm,
-                                     self.config, voltage_strength=float(plant.effects.get("battery_voltage", 1.0)))
+                                     self.config, voltage_strength=float(plant.effects.get("battery_voltage", 1.0)),
+                                     source_resistance_ohm=self.twins.source_resistance_ohm)
         self.first_s = math.nan  #: the first measured speed the monitor took (s)
         self.last_s = math.nan  #: the latest
 
