@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _health_data import monitor_events, synthetic_flight
+from _models import healthy_physics_model
 from bldc_propulsion import cli
 from bldc_propulsion.core.health import (
     FAULTS,
     UNNAMED,
     HealthConfig,
-    HealthMonitor,
     HealthSample,
     TwinSample,
     chi2_1_isf,
@@ -27,49 +28,9 @@ from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.faults import Fault
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.fit_physics import train_physics
-
-TAU_S = 2.0  #: the battery filter's time constant in the hand-made data
 
 
 # --- the statistics on residuals built by hand --------------------------------------------------------
-def _synthetic(duration_s: float, seed: int, change: tuple[float, np.ndarray, float, float] | None = None
-               ) -> list[HealthSample]:
-    """A flight of holds at random speeds, 100 speed samples a second: measured = predicted +
-    noise (+ ``change``: from onset t0, theta * the speed signature and dv volts of extra sag per
-    ampere), the terminal voltage 12 V - 0.04 ohm * i through a first-order filter of TAU_S.
-    The signatures: each fault's speed change per unit grows with the speed, in its own way."""
-    rng = np.random.default_rng(seed)
-    out = []
-    t, level, hold_end = 0.0, 300.0, 0.0
-    v_f = None
-    dt = 0.01
-    for k in range(int(duration_s / dt)):
-        t = k * dt
-        if t >= hold_end:
-            level = float(rng.uniform(150.0, 600.0))
-            hold_end = t + float(rng.uniform(1.0, 4.0))
-        u = level / 600.0
-        current = 12.0 * u**2
-        sens = (60.0 * u**2, -400.0 * u**2 * current / 12.0, -20.0 * (1.2 - u), -0.6 * u**2)
-        dcur = (-1.0 * u**2, 0.0, 0.8, -0.02 * u**2)
-        theta, shape, dv, t0 = change if change is not None else (0.0, np.zeros(4), 0.0, math.inf)
-        after = t >= t0
-        v_term = 12.0 - 0.04 * current - (dv * current if after else 0.0) + rng.normal(0.0, 0.02)
-        v_f = v_term if v_f is None else v_f + (1.0 - math.exp(-dt / TAU_S)) * (v_term - v_f)
-        measured = level + rng.normal(0.0, 1.0) + (theta * float(np.dot(shape, sens)) if after else 0.0)
-        out.append(HealthSample(t, measured, level, v_f, TwinSample(t, level, current, sens, dcur, 40.0)))
-    return out
-
-
-def _events(samples: list[HealthSample]) -> list:
-    mon = HealthMonitor(TAU_S, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
-    for s in samples:
-        mon.update(s)
-    mon.finish()
-    return mon.events
-
-
 def test_threshold_is_the_chi_square_tail_over_every_test_of_an_hour():
     assert chi2_1_isf(0.05) == pytest.approx(3.841, abs=1e-3)  # the textbook 95 % point
     cfg = HealthConfig()
@@ -80,13 +41,13 @@ def test_threshold_is_the_chi_square_tail_over_every_test_of_an_hour():
 
 
 def test_no_change_no_alarm_on_hand_made_residuals():
-    assert _events(_synthetic(180.0, 1)) == []
+    assert monitor_events(synthetic_flight(180.0, 1)) == []
 
 
 def test_a_propeller_change_is_named_with_its_onset_and_size():
     """theta 0.1 along the propeller's signature from 100 s: found within 5 s, its onset within
     0.5 s, its size within 20 % (the noise is 1 rad/s per sample on a ~20 rad/s change)."""
-    events = _events(_synthetic(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0)))
+    events = monitor_events(synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0)))
     assert len(events) == 1, [e.as_dict() for e in events]
     e = events[0]
     assert e.name == "propeller_damage" and e.unit == "fraction"
@@ -98,8 +59,8 @@ def test_a_data_gap_while_a_change_is_being_sized_reports_it_as_it_stands():
     """The same change, then no speed sample from 106 s to 108 s (a rotor too slow for the
     tachometer) while the named change is still being sized: the window restarts after the gap
     (it once indexed an empty window and crashed), and the change is reported once, named."""
-    samples = _synthetic(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
-    events = _events([s for s in samples if not 106.0 <= s.t < 108.0])
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    events = monitor_events([s for s in samples if not 106.0 <= s.t < 108.0])
     assert len(events) == 1, [e.as_dict() for e in events]
     e = events[0]
     assert e.name == "propeller_damage" and abs(e.onset_s - 100.0) <= 0.5 and e.detected_s <= 105.0
@@ -109,14 +70,14 @@ def test_a_data_gap_while_a_change_is_being_sized_reports_it_as_it_stands():
 def test_a_speed_rise_no_candidate_explains_is_unnamed_never_misnamed():
     """The speed rises by 15 rad/s while every candidate's signature says a fault slows the rotor
     (the propeller's signature taken away): no physical size fits, the change is left unnamed."""
-    samples = _synthetic(150.0, 3)
+    samples = synthetic_flight(150.0, 3)
     bumped = []
     for s in samples:
         twin = TwinSample(s.t, s.twin.speed_rad_s, s.twin.current_a, (0.0, *s.twin.speed_sensitivity[1:]),
                           s.twin.current_sensitivity, s.twin.voltage_sensitivity)
         bumped.append(HealthSample(s.t, s.measured_speed_rad_s + (15.0 if s.t >= 100.0 else 0.0),
                                    s.predicted_speed_rad_s, s.voltage_v, twin))
-    events = _events(bumped)
+    events = monitor_events(bumped)
     assert events and all(e.name == UNNAMED for e in events), [e.as_dict() for e in events]
     assert 100.0 <= events[0].detected_s <= 105.0 and events[0].size is None
 
@@ -130,14 +91,7 @@ ONSET_S = 60.0
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory) -> Path:
     """A physics model fitted on healthy recordings of the nominal bench (other seeds)."""
-    d = tmp_path_factory.mktemp("health_model")
-    sigs = []
-    for name, dur, seed, soc in (("train", 60.0, 101, 0.7), ("validation", 30.0, 102, 0.6)):
-        write_sim_bag(simulate("random_steps", dur, seed, soc=soc), d / name)
-        sigs.append(load_signals(d / name))
-    path = d / "physics.npz"
-    save_model(train_physics([sigs[0]], [sigs[1]], thrust_coefficient=None).model, path)
-    return path
+    return healthy_physics_model(tmp_path_factory.mktemp("health_model"))
 
 
 @pytest.fixture(scope="module")
