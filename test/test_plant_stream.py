@@ -57,6 +57,9 @@ CASES = {
     "random bench, no dead time": (rb.draw_bench(1), {"input_delay": 0.0, "battery_voltage": 0.7}, 1, 0.0),
     "random bench, coasting": (dataclasses.replace(rb.draw_bench(2), sim_step_s=0.002),
                                {"spin_down_asymmetry": 0.4, "motor_heating": 4.0}, 7, TAU),
+    # an ESC whose map starts below its start threshold (esc_map_origin_share), threshold at 3x
+    "random bench, map from below the threshold": (dataclasses.replace(rb.draw_bench(3), esc_map_origin_share=1.4),
+                                                   {"esc_deadband": 3.0}, 10, TAU),
 }
 
 

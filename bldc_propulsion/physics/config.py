@@ -33,6 +33,13 @@ from .sizing import physics_start
 #: these four: ``fit.LOG_RANGE_BASE``): the motor's Kv, the propeller's CP, the ESC's throttle-map
 #: exponent and the pack's series resistance.
 CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp", "esc_throttle_exponent", "battery_series_resistance_ohm")
+#: Constants a fit may free on a linear scale (``fit.calibrate``'s ``linear``: their "off" is 0, which
+#: a log scale cannot hold), with their plausible range. Only where the data identify them: none is
+#: calibrated by default. ``esc_map_origin_share``: where the throttle map starts below the ESC's
+#: start threshold (``plant.map_origin``), from the threshold itself (0) to as far below PWM_STOP as
+#: the threshold is above it (2); the esc_test F80's BLHeli_32 ESC maps from ~990 us and starts the
+#: rotor between 1100 and 1150 us (~1.1).
+LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2.0)}
 #: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
 #: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
 #: the error is ~0.5 rad/s RMS, 2.5 rad/s at most, below the tachometer's ~5 rad/s noise).

@@ -5,7 +5,9 @@ The fit is least squares on the plant's predicted speed (``PhysicsConfig.predict
 measured speed of a ``Data`` set: the constants a different motor, propeller or ESC changes most
 (``config.CALIBRATED``: Kv, CP, the throttle map's exponent, the pack's series resistance),
 log-parameterised within ranges around a start, and the strengths of the effects asked for
-(``free``) with what they need along (``COMPANIONS``). ``train --kind physics`` fits a model so
+(``free``) with what they need along (``COMPANIONS``), and, where a caller asks (``linear``), plant
+constants whose "off" is 0 on a linear scale (``config.LINEAR_RANGES``: the throttle map's origin
+below the ESC's start threshold). ``train --kind physics`` fits a model so
 (``fit_reference``, ``training/fit_physics.py``); the discrepancy workflow calibrates, scores
 and names effects with the same fits (``discrepancy/physics.py``, ``physics_kind.py``).
 ``fit_flags`` says which fitted quantity is no basis for a verdict (``FitFlag``).
@@ -23,7 +25,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import contract as c
-from .config import CALIBRATED, PhysicsConfig, Recorded, supply_tau_s
+from .config import CALIBRATED, LINEAR_RANGES, PhysicsConfig, Recorded, supply_tau_s
 from .plant import full_drive_speeds
 
 #: The ranges of ``config.CALIBRATED``, the constants calibrated on the measured data (log scale):
@@ -128,6 +130,8 @@ class Fit:
     free: tuple[str, ...] = ()  #: effects whose strengths were fitted along (those added so far)
     #: the COMPANIONS of ``free`` effects: the value each one's range is centred on (the CONFIG's)
     companion_anchor: dict[str, float] = dataclasses.field(default_factory=dict)
+    #: plant constants fitted on a linear scale within ``config.LINEAR_RANGES`` (their columns last)
+    linear: tuple[str, ...] = ()
 
     def companions(self) -> dict[str, float]:
         """The fitted COMPANIONS (name: value) of the free effects."""
@@ -136,11 +140,12 @@ class Fit:
 
 def calibrate(model: PhysicsConfig, data: Data, anchor: np.ndarray, log_range: np.ndarray | float,
               free: Sequence[str] = (), max_nfev: int = 40,
-              companion_anchor: dict[str, float] | None = None) -> Fit:
+              companion_anchor: dict[str, float] | None = None, linear: Sequence[str] = ()) -> Fit:
     """The CALIBRATED constants (log scale, within a factor exp(log_range) of ``anchor``; a
     constant with a zero range is held at ``model``'s value), the strengths of the effects
     ``free`` and their COMPANIONS (within COMPANION_LOG_RANGE of ``companion_anchor``, by default
-    ``model``'s values) fitted by least squares from ``model``'s values: an effect added earlier
+    ``model``'s values), and the plant constants ``linear`` (within ``config.LINEAR_RANGES``: those
+    whose "off" is 0) fitted by least squares from ``model``'s values: an effect added earlier
     gets its strength refitted with each later one, so it cannot keep standing in for a missing one."""
     nc = len(CALIBRATED)
     span = np.broadcast_to(np.asarray(log_range, dtype=float), (nc,)).copy()
@@ -153,7 +158,8 @@ def calibrate(model: PhysicsConfig, data: Data, anchor: np.ndarray, log_range: n
     # The solver's variables are the log constants shifted by 1: scipy's 'trf' starts with a trust
     # radius of ||x0|| (1 only when x0 is exactly 0), so a start a rounding error away from the
     # anchor (log 1e-16) would never move; shifted, the radius is ~1 wherever the start is.
-    shift = np.concatenate([np.ones(len(live)), np.zeros(len(free)), np.ones(len(comp))])
+    shift = np.concatenate([np.ones(len(live)), np.zeros(len(free)), np.ones(len(comp)), np.zeros(len(linear))])
+    n_before_linear = len(live) + len(free) + len(comp)
 
     def unpack(z: np.ndarray) -> PhysicsConfig:
         x = z - shift
@@ -164,22 +170,32 @@ def calibrate(model: PhysicsConfig, data: Data, anchor: np.ndarray, log_range: n
             m = m.with_effect(name, v)
         if comp:
             # (untyped: replace(**) checks each field's type by name, which a name -> value dict cannot state)
-            compensation: dict[str, Any] = {
-                n: comp_anchor[n] * math.exp(v) for n, v in zip(comp, x[len(live) + len(free):], strict=True)}
+            logs_comp = x[len(live) + len(free):n_before_linear]
+            compensation: dict[str, Any] = {n: comp_anchor[n] * math.exp(v)
+                                            for n, v in zip(comp, logs_comp, strict=True)}
             m = dataclasses.replace(m, params=dataclasses.replace(m.params, **compensation))
+        if linear:
+            values: dict[str, Any] = dict(zip(linear, map(float, x[n_before_linear:]), strict=True))
+            m = dataclasses.replace(m, params=dataclasses.replace(m.params, **values))
         return m
 
-    lo = np.concatenate([-span[live], np.zeros(len(free)), np.full(len(comp), -COMPANION_LOG_RANGE)]) + shift
-    hi = np.concatenate([span[live], [STRENGTH_MAX[n] for n in free], np.full(len(comp), COMPANION_LOG_RANGE)]) + shift
-    x0 = np.concatenate([start[live], [model.effects[n] for n in free], comp_start]) + shift
+    lo = np.concatenate([-span[live], np.zeros(len(free)), np.full(len(comp), -COMPANION_LOG_RANGE),
+                         [LINEAR_RANGES[n][0] for n in linear]]) + shift
+    hi = np.concatenate([span[live], [STRENGTH_MAX[n] for n in free], np.full(len(comp), COMPANION_LOG_RANGE),
+                         [LINEAR_RANGES[n][1] for n in linear]]) + shift
+    x0 = np.concatenate([start[live], [model.effects[n] for n in free], comp_start,
+                         [getattr(model.params, n) for n in linear]]) + shift
     res = least_squares(lambda z: data.residual(unpack(z)), np.clip(x0, lo, hi), bounds=(lo, hi),
-                        diff_step=difference_steps(model, len(live), free, len(comp)), max_nfev=max_nfev)
+                        diff_step=difference_steps(model, len(live), free, len(comp) + len(linear)),
+                        max_nfev=max_nfev)
     # a parameter held at its bound is not refitted per fold (a linear step would leave the bounds),
     # nor is a held constant (a zero column: the per-fold ridge solve ignores it)
-    J = np.zeros((len(res.fun), nc + len(free) + len(comp)))
-    J[:, np.concatenate([live, nc + np.arange(len(free) + len(comp))]).astype(int)] = np.where(
+    n_fit = len(free) + len(comp) + len(linear)
+    J = np.zeros((len(res.fun), nc + n_fit))
+    J[:, np.concatenate([live, nc + np.arange(n_fit)]).astype(int)] = np.where(
         np.isclose(res.x, lo, atol=1e-6) | np.isclose(res.x, hi, atol=1e-6), 0.0, res.jac)
-    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span, tuple(free), comp_anchor)
+    return Fit(unpack(res.x), res.fun, J, float(res.fun @ res.fun), anchor, span, tuple(free), comp_anchor,
+               tuple(linear))
 
 
 def inert_constants(model: PhysicsConfig, data: Data, free: Sequence[str] = ()) -> set[str]:
@@ -251,21 +267,22 @@ def with_base_effects(model: PhysicsConfig) -> tuple[PhysicsConfig, tuple[str, .
 
 
 def fit_reference(model: PhysicsConfig, data: Data, hold: Sequence[str] = (), switched: Sequence[str] = (),
-                  held_effects: Sequence[str] = ()) -> Fit:
+                  held_effects: Sequence[str] = (), linear: Sequence[str] = ()) -> Fit:
     """Reference first: the CALIBRATED constants (wide range, ``base_window``; those in ``hold``
     kept at ``model``'s values) and the strength of every effect the CONFIG switches on, fitted to
     the reference recordings: what the model needs to agree with its own data (structural), before
     the measured data are asked what they need beyond it. The base effects ``with_base_effects``
     ``switched`` on are fitted from two starts (BASE_LOW_START), the better fit kept. Effects in
-    ``held_effects`` keep ``model``'s strength (one the recordings state, not fitted)."""
+    ``held_effects`` keep ``model``'s strength (one the recordings state, not fitted); the plant
+    constants ``linear`` are fitted too (``calibrate``)."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0 and n not in held_effects)
-    fit = calibrate(model, data, *base_window(model, hold), on, max_nfev=60)
+    fit = calibrate(model, data, *base_window(model, hold), on, max_nfev=60, linear=linear)
     low = {n: v for n, v in BASE_LOW_START.items() if n in switched}
     if low:
         other = model
         for name, v in low.items():
             other = other.with_effect(name, v)
-        alt = calibrate(other, data, *base_window(model, hold), on, max_nfev=60)
+        alt = calibrate(other, data, *base_window(model, hold), on, max_nfev=60, linear=linear)
         fit = alt if alt.sse < fit.sse else fit
     return fit
 
@@ -397,6 +414,10 @@ def fit_flags(fit: Fit, config: PhysicsConfig, what: str) -> list[FitFlag]:
         low, high, at_bound = log_range(value, fit.companion_anchor[name], COMPANION_LOG_RANGE)
         if at_bound:
             out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated, other))
+    for name in fit.linear:  # their low end is "off", physical (as spin-down's 1), not a bound hit
+        value, (low, high) = float(getattr(fit.model.params, name)), LINEAR_RANGES[name]
+        if value >= high - 1e-3:
+            out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated, other))
     loaded = loaded_speed_flag(fit.model, what)
     if loaded is not None:
         out.append(loaded)
@@ -440,6 +461,7 @@ def strength_at_bound(name: str, strength: float) -> str | None:
 
 
 def recalibrate(fit: Fit, model: PhysicsConfig, data: Data, free: Sequence[str] | None = None) -> Fit:
-    """``calibrate`` with ``fit``'s anchor and range (and free strengths unless given)."""
+    """``calibrate`` with ``fit``'s anchor and range (and free strengths unless given) and its linear
+    constants."""
     return calibrate(model, data, fit.anchor, fit.log_range, fit.free if free is None else free,
-                     companion_anchor=fit.companion_anchor)
+                     companion_anchor=fit.companion_anchor, linear=fit.linear)

@@ -46,6 +46,13 @@ class PlantParams:
     # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
     # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
     esc_throttle_exponent: float = 1.0
+    # where the throttle map starts (duty 0 of its linear part), below the start threshold, as a
+    # share of the threshold's distance above PWM_STOP: 0, the map starts where the drive starts
+    # (the drive rises from 0 at the threshold); 1, at PWM_STOP (the threshold only cuts the drive
+    # off below it, which jumps to the map's value there: an ESC that will not start a motor at a
+    # low duty); above 1, below PWM_STOP. A real BLHeli_32 ESC (esc_test F80 log) drives a duty
+    # linear in the command from ~990 us, yet starts the rotor only at ~1100-1150 us.
+    esc_map_origin_share: float = 0.0
 
     # --- AXI 2212/34 outrunner (Model Motors datasheet) -----------------------------------
     motor_kv_rpm_per_v: float = 710.0  # datasheet: 710 rpm/V
@@ -109,11 +116,15 @@ PLANT_MAY_BE_ZERO = frozenset({
     "battery_series_resistance_ohm",
     "esc_resistance_ohm",
     "esc_deadband_pwm",
+    "esc_map_origin_share",
     "esc_input_delay_s",
     "motor_no_load_current_a",
     "copper_temperature_coefficient_per_k",
     "motor_rotor_inertia_kg_m2",
 })
+#: Constants a model file may lack, read at their default: added after model files were written
+#: (a file written before holds the same model it held).
+PLANT_OPTIONAL_FIELDS = frozenset({"esc_map_origin_share"})
 #: Constants whose value is a temperature (any finite value).
 PLANT_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
 #: Coarsest integration step the rotor tolerates (its time constant is ~0.1 s at nominal inertia).

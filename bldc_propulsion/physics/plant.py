@@ -10,7 +10,9 @@ sensors).
 Model (SI units throughout):
 
 * ESC: the PWM level held from each frame, delayed by a dead time, mapped to a duty cycle between
-  the start threshold (no drive below it) and PWM_FULL (``throttle``), applied to the supply.
+  the start threshold (no drive below it) and PWM_FULL (``throttle``), applied to the supply. The
+  map's linear part may start below the threshold (``map_origin``, ``esc_map_origin_share``): an
+  ESC whose duty follows the command from about PWM_STOP but that starts the motor only higher up.
   Averaged (quasi-static) electrics: the winding's L/R (~30 uH / 0.26 Ohm ~ 0.1 ms) is far below
   the 1 ms step and the ~0.1 s rotor time constant, so i = (duty V - Ke w) / R_total, with the
   source's series resistance seen through the duty (R_s duty^2). The motor current is continuous
@@ -56,17 +58,40 @@ def _clip(x: Level, lo: float, hi: float) -> Level:
     return min(max(x, lo), hi)
 
 
-def throttle(level: Level, threshold: float, exponent: float = 1.0) -> Level:
-    """ESC throttle map, PWM level -> duty (0..1): no drive below the start threshold, then
-    (linear map)**exponent to full duty at PWM_FULL (exponent 1: linear). Arrays or one float."""
+def throttle(level: Level, threshold: float, exponent: float = 1.0, origin: float | None = None) -> Level:
+    """ESC throttle map, PWM level -> duty (0..1): no drive at or below the start threshold, then
+    (linear map)**exponent to full duty at PWM_FULL (exponent 1: linear). The linear map runs from
+    ``origin`` (None: the threshold itself, so the drive rises from 0 there); an origin below the
+    threshold makes the drive jump to the map's value just above it. Arrays or one float."""
     lv = _clip(level, PWM_STOP, PWM_FULL)
-    x = _clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    if origin is None or origin == threshold:
+        x = _clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    else:
+        x = _clip((lv - origin) / (PWM_FULL - origin), 0.0, 1.0)
+        if isinstance(x, np.ndarray):
+            x = np.where(lv <= threshold, 0.0, x)
+        elif lv <= threshold:
+            x = 0.0
     return x if exponent == 1.0 else x**exponent
 
 
 def start_level(p: PlantParams, eff: Mapping[str, float]) -> float:
     """PWM level where the ESC starts to drive (esc_deadband scales its distance from PWM_STOP)."""
     return PWM_STOP + eff["esc_deadband"] * p.esc_deadband_pwm
+
+
+def map_origin(p: PlantParams, eff: Mapping[str, float]) -> float:
+    """PWM level where the throttle map's linear part starts: ``esc_map_origin_share`` of the start
+    threshold's distance from PWM_STOP below the threshold (the threshold itself at share 0). Scaled
+    with the threshold so that an ESC without one (esc_deadband 0) never drives at PWM_STOP."""
+    start = start_level(p, eff)
+    return start - p.esc_map_origin_share * (start - PWM_STOP)
+
+
+def esc_map(p: PlantParams, eff: Mapping[str, float]) -> tuple[float, float, float]:
+    """``throttle``'s (threshold, exponent, origin) for the plant ``p`` under the strengths ``eff``:
+    what the batch path and the stream map a level with."""
+    return start_level(p, eff), p.esc_throttle_exponent, map_origin(p, eff)
 
 
 def dead_time_s(p: PlantParams, eff: Mapping[str, float]) -> float:
@@ -84,7 +109,7 @@ def esc_duty(p: PlantParams, eff: Mapping[str, float], cmd_t: np.ndarray, cmd: n
     first), after the dead time, through the throttle map."""
     idx = np.searchsorted(cmd_t, t - dead_time_s(p, eff) + FRAME_TOLERANCE_S, side="right") - 1
     level = np.where(idx >= 0, cmd[np.maximum(idx, 0)], PWM_STOP)
-    return throttle(level, start_level(p, eff), p.esc_throttle_exponent)
+    return throttle(level, *esc_map(p, eff))
 
 
 def check_command(pwm: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import contract as c
 from ..errors import ModelError
-from .params import PLANT_FIELDS, PlantParams, plant_problem, strength_problem
+from .params import PLANT_FIELDS, PLANT_OPTIONAL_FIELDS, PlantParams, plant_problem, strength_problem
 from .stream import stream_params
 
 #: The arrays of a model file's physics part.
@@ -164,7 +164,7 @@ def check_physics_arrays(a: Mapping[str, np.ndarray], fail: Fail) -> None:
         unknown = [n for n in names if n not in known]
         if unknown:
             fail(f"{names_key}: '{unknown[0]}' is not known (known: {', '.join(known)})")
-        missing = [n for n in known if n not in names]
+        missing = [n for n in known if n not in names and n not in PLANT_OPTIONAL_FIELDS]
         if missing:
             fail(f"{names_key}: missing {', '.join(missing)}")
         check_floats(a, {values_key: (len(names),)}, fail)
