@@ -132,3 +132,30 @@ def test_not_ready_at_rest_late_inputs_and_reset() -> None:
     assert s.speed_at(2.0 + LATE_S) > w  # still speeding up
     s.reset()
     assert not s.ready and math.isnan(s.speed_at(3.0))
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_the_health_monitors_nominal_lane_is_the_stream(case: str, recording: SimResult) -> None:
+    """core.health.PhysicsTwins steps its own copy of the plant (one lane per fault); its nominal
+    lane is the physics model's prediction, throttle map included (its origin, start threshold and
+    exponent), at every step of the model's grid."""
+    from bldc_propulsion.core.health import PhysicsTwins
+
+    params, eff, every, tau = CASES[case]
+    t0, dt = float(recording.pwm_t[0]), params.sim_step_s
+    grid = t0 + dt * np.arange(1, int(11.0 / dt))
+    ev = events(recording, every, grid, seed=len(case))
+    stream = run(PlantStream(params, eff, 11.5, tau), ev)
+    twin = PhysicsTwins(params, eff, 11.5, tau)
+    got = []
+    for t, kind, x in ev:
+        if kind == PWM:
+            twin.update_pwm(t, x)
+        elif kind == VOLTAGE:
+            twin.update_voltage(t, x)
+        else:
+            s = twin.sample(t)
+            got.append(math.nan if s is None else s.speed_rad_s)
+    ok = np.isfinite(got)
+    assert ok.mean() > 0.95 and np.ptp(stream) > 200.0
+    assert np.max(np.abs(np.array(got)[ok] - stream[ok])) < 1e-6
