@@ -53,7 +53,7 @@ from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, veh
 from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
-from .core.health import HealthEvent, HealthStream, physics_part
+from .core.health import HealthEvent, HealthStream, require_physics
 from .core.status import CoreStatus
 from .core.tach_output import SpeedOutput
 from .core.tachometer import Samples, TachometerConfig, TachometerDecoder
@@ -234,9 +234,7 @@ def _check_health(model: object, model_path: str | os.PathLike[str] | None) -> N
     if model_path is None:
         raise BadInputError("--health needs --model with a physics or hybrid model (the first-principles "
                             "fallback has no fitted physics to give the faults' signatures)")
-    if physics_part(model) is None:
-        raise BadInputError(f"--model {model_path}: the health monitor (--health) needs a physics or hybrid "
-                            f"model; this one is a {getattr(model, 'kind', 'network')}")
+    require_physics(model, "the health monitor (--health)", f"--model {model_path}")
 
 
 def _health_json(stream: HealthStream | None) -> HealthJson | None:

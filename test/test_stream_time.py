@@ -19,6 +19,7 @@ from bldc_propulsion.nodes.stream_time import (
     Arrival,
     EventStream,
     LatencyFloor,
+    Placement,
     SampleStream,
     arrival,
 )
@@ -198,3 +199,89 @@ def test_ticker_take_decimates_samples_by_time():
     tick = Ticker(50.0)
     taken = [k for k in range(1000) if tick.take(k * 0.001)]
     assert len(taken) == 50 and taken[:3] == [0, 20, 40]
+
+
+def _stream_state(s: SampleStream) -> tuple:
+    return (s.messages, s.streams, s.publisher_restarts, s.resyncs, s.lost_messages, s.late_breaks,
+            s.late_forgiven, s.witness, s._t, s._seq, s._held is None, s._floor.value,
+            list(s._floor._q))
+
+
+def _faulty_arrivals(rng_seed: int) -> list[tuple[float, dict | None]]:
+    """(receipt time, message info) of a stream with every fault the rules handle: jitter, a
+    stall, losses, a late burst, a restarted publisher, a clock running ahead, no info."""
+    import random
+
+    rng = random.Random(rng_seed)
+    out: list[tuple[float, dict | None]] = []
+    seq, src = 1, 50.0
+    for k in range(400):
+        src += P
+        rec = src + 0.0003 + rng.uniform(0.0, 0.002)
+        if 100 <= k < 110:
+            rec += 0.05  # a stall: queued, on time on the publisher's clock
+        if k in (150, 151, 152):
+            seq += 1  # lost in transport
+        if k == 200:
+            src += 0.03  # the publisher skipped data: late on its own clock
+        if k == 250:
+            seq = 1  # restarted publisher
+        if k == 300:
+            rec -= 0.5  # counted time ahead of the node clock: resync
+        info = None if 350 <= k < 355 else {
+            "source_timestamp": int(round(src * 1e9)), "publication_sequence_number": seq}
+        out.append((rec, info))
+        seq += 1
+    return out
+
+
+@pytest.mark.parametrize("use_source", [True, False])
+def test_follow_places_the_usual_message_exactly_as_push(use_source):
+    """The nodes place a message with follow() and fall back to push() when it returns None:
+    every placement, counter and internal state equals push() alone, through every fault."""
+    for seed in range(3):
+        a, b = SampleStream(RATE, 0.005, use_source), SampleStream(RATE, 0.005, use_source)
+        followed = 0
+        for k, (rec, info) in enumerate(_faulty_arrivals(seed)):
+            expected = [(p, v) for p, v in a.push(arrival(rec, info), N, k)]
+            t = b.follow(rec, info, N)
+            if t is not None:
+                followed += 1
+                got = [(Placement(t, CONTIGUOUS), k)]
+            else:
+                got = b.push(arrival(rec, info), N, k)
+            assert got == expected, k
+            assert _stream_state(a) == _stream_state(b), k
+        assert 300 < followed < 400  # the usual message, and only it, takes the short way
+
+
+def test_follow_leaves_nothing_changed_when_it_declines():
+    s = SampleStream(RATE, 0.005)
+    assert s.follow(50.0, {"source_timestamp": 50_000_000_000, "publication_sequence_number": 1}, N) is None
+    assert s.messages == 0  # the first message: push starts the stream
+    s.push(arrival(50.0003, {"source_timestamp": 50_000_000_000, "publication_sequence_number": 1}), N, 0)
+    before = _stream_state(s)
+    info = {"source_timestamp": int((50.0 + P) * 1e9), "publication_sequence_number": 3}
+    assert s.follow(50.0003 + P, info, N) is None  # a sequence jump: push's rule
+    assert _stream_state(s) == before
+
+
+def test_event_stream_place_info_equals_place_of_the_arrival():
+    a, b = EventStream(), EventStream()
+    for rec, info in _faulty_arrivals(4):
+        assert a.place(arrival(rec, info)) == b.place_info(rec, info)
+    assert (a.messages, a.lost_messages, a.publisher_restarts, a._floor.value) == (
+        b.messages, b.lost_messages, b.publisher_restarts, b._floor.value)
+
+
+def test_ticker_next_s_follows_start_due_and_take():
+    tick = Ticker(100.0)
+    assert tick.next_s == float("inf") and not tick.started
+    assert tick.take(-1.0)  # starts the grid at -1.0 and takes that grid time
+    assert tick.started and tick.next_s == pytest.approx(-0.99)
+    assert not tick.take(-0.995)  # nothing due: answered from next_s
+    tick.due(0.5)
+    assert tick.next_s == pytest.approx(0.51)
+    other = Ticker(100.0)
+    other.start(2.0)
+    assert other.next_s == 2.0 and other.due(1.0) == [] and other.next_s == 2.0

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING, Any, TypedDict
 
-from ..errors import BadInputError
 from .common import CommandResult, add_namespace_argument, number
 
 if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, scipy and rosbags
@@ -60,14 +59,12 @@ def config_of(args: argparse.Namespace) -> HealthConfig:
 
 
 def run(args: argparse.Namespace) -> CommandResult:
-    from ..core.health import physics_part
+    from ..core.health import require_physics
     from ..model import load_model
     from ..recordings import load_all
 
     model = load_model(args.model)
-    if physics_part(model) is None:
-        raise BadInputError(f"--model {args.model}: a {model.kind} model has no physics to give the faults' "
-                            "signatures: the health monitor needs a physics or hybrid model (train --kind physics)")
+    require_physics(model, "the health monitor", f"--model {args.model}")
     cfg = config_of(args)
     signals = load_all(args.recordings, "health", namespace=args.namespace)
     out, lines = monitor_recordings(model, signals, cfg)

@@ -58,7 +58,7 @@ from ..errors import BadInputError
 from ..physics.params import PlantParams
 from ..physics.plant import REST_SPEED_RAD_S
 from ..physics.plant_model import PlantModel
-from .health import PhysicsTwins, physics_part
+from .health import PhysicsTwins, require_physics
 
 #: The adapted parameters (the contract's fault names), in PhysicsTwins' lane order.
 ADAPTED: tuple[str, ...] = ("propeller_damage", "bearing_friction")
@@ -421,8 +421,4 @@ class PhysicsAdapter:
 def adapter_for(model: object, config: AdaptationConfig | None = None) -> PhysicsAdapter:
     """The adapter of a physics or hybrid model; BadInputError for a network (it has no physical
     parameters to adapt)."""
-    plant = physics_part(model)
-    if plant is None:
-        raise BadInputError("adaptation (--adapt / parameter adapt) needs a physics or hybrid model; "
-                            f"this one is a {getattr(model, 'kind', 'network')}")
-    return PhysicsAdapter(plant, config)
+    return PhysicsAdapter(require_physics(model, "adaptation (--adapt / parameter adapt)", ""), config)

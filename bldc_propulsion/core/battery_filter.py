@@ -148,16 +148,22 @@ class BatteryFilter:
         """Filter one ADC sample (V at the pin) taken at t (s); battery volts, or None if rejected."""
         t = float(t)
         x = float(adc)
-        reason = self._reject(t, x)
-        if reason is not None:
+        cfg = self.config
+        last = self._t
+        # a sample _reject accepts (in range, hence finite; later than the last), tested inline:
+        # this runs for every sample, 1 kHz
+        if not (cfg.min_adc_v <= x <= cfg.max_adc_v and math.isfinite(t)
+                and (last is None or t > last)):
+            reason = self._reject(t, x)
+            assert reason is not None, "the test above accepts only what _reject accepts"
             self._count(reason)
             return None
         self.accepted += 1
-        if self._t is None:
+        if last is None:
             self._y = x
         else:
-            dt = t - self._t
-            if dt > self.config.max_gap_s:
+            dt = t - last
+            if dt > cfg.max_gap_s:
                 self.resets += 1
                 self._y = x
             else:
@@ -165,12 +171,12 @@ class BatteryFilter:
                     b0, b1, a1 = self._b0, self._b1, self._a1
                 else:
                     self.irregular_steps += 1
-                    b0, b1, a1 = _tustin_step(self.config.tau_s, dt)
+                    b0, b1, a1 = _tustin_step(cfg.tau_s, dt)
                 # transposed direct form II, the arithmetic scipy.signal.lfilter does
                 self._y = b0 * x + (b1 * self._x - a1 * self._y)
         self._t = t
         self._x = x
-        return self.config.divider_ratio * self._y
+        return cfg.divider_ratio * self._y
 
     # --- batch -------------------------------------------------------------------------------
 

@@ -1105,6 +1105,22 @@ def physics_part(model: object) -> PlantModel | None:
     return None
 
 
+def require_physics(model: object, what: str, where: str) -> PlantModel:
+    """The physics part of ``model``, or the one-line BadInputError every refusal of a model
+    without physics (a network, the first-principles fallback) gives: ``what`` (the feature that
+    needs the physics, e.g. "the health monitor (--health)") and ``where`` (the file, option or
+    parameter the model came from, first in the line; "" for none). The adaptation and the health
+    monitor both work on a fitted physics (the faults' signatures, the adapted parameters), so
+    the CLI, replay and the node refuse alike."""
+    plant = physics_part(model)
+    if plant is not None:
+        return plant
+    kind = getattr(model, "kind", None)
+    this = f"a {kind} model" if kind else "the first-principles fallback (no model file)"
+    raise BadInputError(f"{where + ': ' if where else ''}{what} needs a physics or hybrid model; this one is "
+                        f"{this}, which has no fitted physics (train --kind physics makes one)")
+
+
 class HealthStream:
     """The monitor fed one input at a time, as the estimator is: the code the node (parameter
     ``health``), ``replay --health`` and the offline driver (:func:`run_health`) share, so the
@@ -1119,11 +1135,7 @@ class HealthStream:
     def __init__(self, estimator: ThrustEstimator, config: HealthConfig | None = None) -> None:
         """BadInputError for a model without physics (a network, the first-principles fallback):
         it has no physics to give the faults' signatures."""
-        plant = physics_part(estimator.model)
-        if plant is None:
-            kind = getattr(estimator.model, "kind", None) or "first-principles fallback"
-            raise BadInputError("the health monitor (--health / parameter health) needs a physics or hybrid "
-                                f"model (a {kind} has no physics to give the faults' signatures)")
+        plant = require_physics(estimator.model, "the health monitor (--health / parameter health)", "")
         assert plant.supply_tau_s is not None, "PlantModel.__post_init__ resolves None"
         self.estimator = estimator
         self.config = config or HealthConfig()

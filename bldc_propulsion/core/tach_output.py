@@ -59,22 +59,22 @@ class SpeedOutput:
         """The speed (rad/s) to publish after the batch just decoded, whose last sample is at
         ``t_last`` (s), or None; sets :attr:`stamp_s` and :attr:`fresh` for it."""
         d = self.decoder
+        w, edge_t, signal_ok, rate_mismatch = d.speed_report()
         breaks = _breaks(d)
         speeds = d.counts.speeds
-        if speeds > self._speeds and not d.rate_mismatch:
+        if speeds > self._speeds and not rate_mismatch:
             self.valid = True  # a revolution measured in this batch
         elif breaks > self._breaks:
             self.valid = False
         self._speeds, self._breaks = speeds, breaks
-        if self.valid and d.signal_ok:
-            w, edge_t = d.speed_now, d.speed_edge_t
+        if self.valid and signal_ok:
             assert edge_t is not None, "a valid speed was measured over a revolution"
             stamp = float(revolution_middle(edge_t, w))
             self.fresh = stamp != self.stamp_s
             self.stamp_s = stamp
             return w
         self.valid = False
-        if d.state == STOPPED and not d.rate_mismatch:
+        if d.state == STOPPED and not rate_mismatch:
             self.stamp_s, self.fresh = float(t_last), True  # known to stand still up to now
             return 0.0
         self.fresh = False

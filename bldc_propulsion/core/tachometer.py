@@ -236,6 +236,7 @@ class TachometerDecoder:
         self._plan: RowPlan | None = None
         self._plan_start = 0
         self.planned_batches = 0  #: batches decoded through a plan (see expect)
+        self._sink = TachOutput()  #: what process_batch(result=False) accumulates and drops
         self.reset()
 
     def reset(self) -> None:
@@ -304,7 +305,13 @@ class TachometerDecoder:
             if x.ndim != 1:
                 x = x.reshape(-1)
         n = len(x)
-        out = TachOutput()
+        if result:
+            out = TachOutput()
+        else:  # nothing is returned: the one sink, emptied (cheaper than a new TachOutput)
+            out = self._sink
+            out.edge_t.clear()
+            out.speed.clear()
+            out.all_edge_t.clear()
         if n == 0:
             return self._result(out) if result else None
         t_last = float(t_last)
@@ -401,6 +408,12 @@ class TachometerDecoder:
     @property
     def speed_now(self) -> float:
         return self._gate.speed_now
+
+    def speed_report(self) -> tuple[float, float | None, bool, bool]:
+        """(speed_now, speed_edge_t, signal_ok, rate_mismatch) in one call: what a node asks
+        after every batch (``tach_output.SpeedOutput``), where four properties cost four calls."""
+        gate = self._gate
+        return gate.speed_now, gate.t_speed, gate.have_speed and not gate.lost, self._clock.rate_bad
 
     @property
     def speed_edge_t(self) -> float | None:

@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -478,70 +478,197 @@ class EdgeDetector:
         (tested). Why a second form: a live node wakes for each ~200-sample batch with cold
         caches, where segment's ~25 numpy calls cost about twice this loop (numpy is faster only
         when warm; replay plans its batches instead). False, with nothing changed, if a sample
-        is not finite or beyond ``lim``; the caller then takes segment's NaN path."""
+        is not finite or beyond ``lim``; the caller then takes segment's NaN path.
+
+        Most samples are quiet (:meth:`_quiet`): deep in the clear or the blocked level, where
+        they cannot switch and ``_crossing`` never reads their normalised level, so only the
+        trackers they can move are updated. The others go through :meth:`_loud`. A quiet
+        sample's level is computed only if the next sample is loud or it is the batch's last."""
         n = len(xs)
         ks = self._ramp_list
         if n > len(ks):
             return False
-        mc = self._min_contrast
-        low_f, high_f = self._low_f, self._high_f
         x0 = xs[0]
         if not -lim <= x0 <= lim:
             return False
+        mc = self._min_contrast
         U, V = self._entry(self.tail, self.hi, self.lo, x0)
         lc = U - mc
         if V < lc:
             lc = V
-        r = (x0 - lc) / (U - lc)
-        rs = [r] * n
+        r_first = (x0 - lc) / (U - lc)
+        rs: list[float | None] = [None] * n
+        rs[0] = r_first
         state = self.state
         if state is None:
-            state = r >= 0.5
+            state = r_first >= 0.5
         trig: list[int] = []
         his: dict[int, float] = {}
         los: dict[int, float] = {}
-        if (r < low_f) if state else (r > high_f):
+        if (r_first < self._low_f) if state else (r_first > self._high_f):
             trig.append(0)
             his[0], los[0] = U, lc
             state = not state
-        prev = x0
-        k = 0.0
-        for i in range(1, n):
-            s = xs[i]
-            if not -lim <= s <= lim:
+        k_max = ks[n - 1]
+        # the least h - lc of the batch (trackers only widen it), and a margin far above the
+        # rounding of volts within lim (~1e-16 of them) for the quiet verdicts
+        span = max(mc, (U - k_max) - V - k_max)
+        margin = 1e-9 * (1.0 + lim)
+        if not (-lim <= V and U <= lim):  # carried trackers beyond lim: cannot happen, but _quiet
+            return False  # relies on it (the caller's numpy path then gives the same result)
+        samples = enumerate(xs)
+        next(samples)  # sample 0: above
+        while True:
+            i, s, U, V = self._quiet(xs, samples, state, U, V, k_max, span, margin, lim)
+            if i == 0:  # no sample left
+                break
+            if not -lim <= s <= lim:  # NaN or beyond lim
                 return False
-            k = ks[i]
-            if s < prev:  # the 2-sample min feeds the clear level, the max the blocked level
-                u, v = s + k, prev - k
-            else:
-                u, v = prev + k, s - k
-            prev = s
-            if u > U:
-                U = u
-            if v < V:
-                V = v
+            U, V, state = self._loud(i, s, xs[i - 1], U, V, state, rs, trig, his, los)
+        prev = xs[-1]
+        last = rs[-1]
+        if last is None:
+            last = rs[-1] = self._level(prev, U, V, k_max)
+        self.tail = self.level_now = prev
+        self.hi, self.lo = U - k_max, V + k_max
+        r_prev0 = self.r_last if self.r_last is not None else r_first
+        self.r_last = last
+        self.state = state
+        # every level _finish_slice reads is set (the docstring's rule); the others stay None
+        self._finish_slice(cast(list[float], rs), trig, his, los, r_prev0, i0, out)
+        return True
+
+    def _quiet(self, xs: Sequence[float], samples: Iterator[tuple[int, float]], clear: bool,
+               U: float, V: float, k_max: float, span: float, margin: float,  # noqa: N803
+               lim: float) -> tuple[int, float, float, float]:
+        """segment_small over quiet samples: from ``samples`` (index, value: an enumerate of the
+        batch ``xs`` at sample 1 or later), in the clear state if ``clear`` else the blocked one,
+        with the trackers at ``U`` and ``V``. Returns (i, s, U, V) at the first sample that is
+        not quiet (i = 0: none left).
+
+        Quiet, whatever the trackers do meanwhile (h the clear level, lc the clamped blocked
+        one, h - lc >= ``span``; ``margin`` covers rounding): in the clear state s >= U -
+        (1 - high_fraction) span has a normalised level above high_fraction (h <= max(U, s));
+        in the blocked state s <= min(U - k_max - min_contrast, V) + low_fraction span has one
+        below low_fraction (lc >= min(h - min_contrast, V, s - k_max); so does a ramp k_max
+        under low_fraction span). Those bounds are kept from ``u_cap`` >= U and ``v_cap`` <= V,
+        moved only when a tracker passes them, so a tracker that moves every sample (a rotor
+        standing still) does not recompute them every sample. A tracker is updated, with
+        segment's arithmetic, only for a sample that can move it: above u_top (U - k_max) or
+        below v_bot (V + k_max), bounds that move with it (or stay, in the other tracker's
+        state: more samples tested, none missed); both are inside lim (segment_small's guard),
+        so a sample beyond lim is caught there."""
+        ks = self._ramp_list
+        km = k_max + margin
+        u_top, v_bot = U - km, V + km
+        slack = self.QUIET_SLACK * span
+        if clear:
+            c1 = (1.0 - self._high_f) * span - margin
+            u_cap = U + slack
+            clear_from = u_cap - c1
+            quiet_from = clear_from if clear_from > v_bot else v_bot  # and V stays
+            for i, s in samples:
+                if not s >= quiet_from:  # (not <: a NaN lands here, and is returned)
+                    if not s >= clear_from or s < -lim:
+                        return i, s, U, V
+                    k = ks[i]  # a blocked tracker decayed up to the signal
+                    prev = xs[i - 1]
+                    v = prev - k if s < prev else s - k
+                    if v < V:
+                        V = v
+                if s > u_top:
+                    if s > lim:
+                        return i, s, U, V
+                    k = ks[i]
+                    prev = xs[i - 1]
+                    u = s + k if s < prev else prev + k
+                    if u > U:
+                        U = u
+                        u_top = U - km
+                        if U > u_cap:
+                            u_cap = U + slack
+                            clear_from = u_cap - c1
+                            quiet_from = clear_from if clear_from > v_bot else v_bot
+            return 0, 0.0, U, V
+        low = self._low_f * span - margin
+        h_floor = U - k_max - self._min_contrast
+        v_cap = V - slack
+        blocked_to = (h_floor if h_floor < v_cap else v_cap) + low if k_max < low else -math.inf
+        quiet_to = blocked_to if blocked_to < u_top else u_top  # and U stays
+        for i, s in samples:
+            if not s <= quiet_to:  # (not >: a NaN lands here, and is returned)
+                if not s <= blocked_to or s > lim:
+                    return i, s, U, V
+                k = ks[i]  # a clear tracker decayed down to the signal
+                prev = xs[i - 1]
+                u = s + k if s < prev else prev + k
+                if u > U:
+                    U = u
+            if s < v_bot:
+                if s < -lim:
+                    return i, s, U, V
+                k = ks[i]
+                prev = xs[i - 1]
+                v = prev - k if s < prev else s - k
+                if v < V:
+                    V = v
+                    v_bot = V + km
+                    if V < v_cap and k_max < low:
+                        v_cap = V - slack
+                        blocked_to = (h_floor if h_floor < v_cap else v_cap) + low
+                        quiet_to = blocked_to if blocked_to < u_top else u_top
+        return 0, 0.0, U, V
+
+    def _loud(self, i: int, s: float, prev: float, U: float, V: float, state: bool,  # noqa: N803
+              rs: list[float | None], trig: list[int], his: dict[int, float],
+              los: dict[int, float]) -> tuple[float, float, bool]:
+        """segment_small's full step for sample ``i`` (``s``, after ``prev``), which is not quiet:
+        both trackers, its normalised level (and the previous sample's, if that was quiet), and
+        a switch. Returns the trackers and the hysteresis state after it."""
+        ks = self._ramp_list
+        mc = self._min_contrast
+        if rs[i - 1] is None:  # the previous sample was quiet: _crossing may read its level
+            k = ks[i - 1]  # (_level, inline: one call less per edge)
             h = U - k
             lc = h - mc
             l_ = V + k
             if l_ < lc:
                 lc = l_
-            r = rs[i] = (s - lc) / (h - lc)
-            if state:
-                if r < low_f:
-                    state = False
-                    trig.append(i)
-                    his[i], los[i] = h, lc
-            elif r > high_f:
-                state = True
-                trig.append(i)
-                his[i], los[i] = h, lc
-        self.tail = self.level_now = prev
-        self.hi, self.lo = U - k, V + k
-        r_prev0 = self.r_last if self.r_last is not None else rs[0]
-        self.r_last = rs[-1]
-        self.state = state
-        self._finish_slice(rs, trig, his, los, r_prev0, i0, out)
-        return True
+            rs[i - 1] = (prev - lc) / (h - lc)
+        k = ks[i]
+        if s < prev:  # the 2-sample min feeds the clear level, the max the blocked level
+            u, v = s + k, prev - k
+        else:
+            u, v = prev + k, s - k
+        if u > U:
+            U = u
+        if v < V:
+            V = v
+        h = U - k
+        lc = h - mc
+        l_ = V + k
+        if l_ < lc:
+            lc = l_
+        r = rs[i] = (s - lc) / (h - lc)
+        if (r < self._low_f) if state else (r > self._high_f):
+            trig.append(i)
+            his[i], los[i] = h, lc
+            state = not state
+        return U, V, state
+
+    def _level(self, s: float, U: float, V: float, k: float) -> float:  # noqa: N803 - as in segment_small
+        """The normalised level of sample ``s`` with the trackers at ``U``, ``V`` and ramp ``k``:
+        segment_small's arithmetic, operation for operation."""
+        h = U - k
+        lc = h - self._min_contrast
+        l_ = V + k
+        if l_ < lc:
+            lc = l_
+        return (s - lc) / (h - lc)
+
+    #: how far past a tracker segment_small's quiet bounds are set (a fraction of the span),
+    #: so that a tracker moving every sample moves them once in many samples
+    QUIET_SLACK = 0.05
 
     # --- many batches' levels at once (the same arithmetic as segment, row by row) ----------
     def plan_rows(self, X: np.ndarray) -> RowPlan:

@@ -21,20 +21,19 @@ class Ticker:
         self.max_backlog_s = max_backlog_s
         self.skipped = 0  #: grid times dropped after the clock jumped more than max_backlog_s
         self._next: float | None = None
+        #: the next grid time (inf before the grid starts): a cheap 'anything due?' test, read
+        #: for every input of a node (an attribute, kept equal to _next: a property costs more
+        #: than the test)
+        self.next_s = math.inf
 
     def start(self, t: float) -> None:
         """Start the grid at ``t`` (if it has not started)."""
         if self._next is None:
-            self._next = float(t)
+            self._next = self.next_s = float(t)
 
     @property
     def started(self) -> bool:
         return self._next is not None
-
-    @property
-    def next_s(self) -> float:
-        """The next grid time (inf before the grid starts): a cheap 'anything due?' test."""
-        return math.inf if self._next is None else self._next
 
     def due(self, t: float) -> list[float]:
         """Grid times <= t not yet emitted (oldest first); a jump over max_backlog_s is skipped."""
@@ -45,12 +44,16 @@ class Ticker:
         limit = max(1, int(self.max_backlog_s / self.period_s))
         if n > limit:  # a clock jump (paused or skipped bag): no burst of stale outputs
             self.skipped += n - 1
-            self._next = nxt + n * self.period_s
+            self._next = self.next_s = nxt + n * self.period_s
             return [nxt + (n - 1) * self.period_s]
-        self._next = nxt + n * self.period_s
+        self._next = self.next_s = nxt + n * self.period_s
         return [nxt + k * self.period_s for k in range(n)]
 
     def take(self, t: float) -> bool:
-        """True if a grid time was passed by ``t`` (starting the grid at ``t``): decimation."""
-        self.start(t)
+        """True if a grid time was passed by ``t`` (starting the grid at ``t``): decimation.
+        Runs per battery sample: nothing due is answered without building ``due``'s list."""
+        if self._next is None:
+            self._next = self.next_s = float(t)
+        elif t < self._next:
+            return False
         return bool(self.due(t))

@@ -59,15 +59,24 @@ class BatteryFilterNode(Node):
         self.diagnostics_timer = self.create_timer(DIAGNOSTICS_PERIOD_S, self.publish_diagnostics)
 
     def on_adc(self, msg: Float64, info: dict | None) -> None:
-        self.filter(self.stream.push(arrival(self.now_s(), info), 1, msg.data))
+        received = self.now_s()
+        t = self.stream.follow(received, info, 1)  # the usual sample, cheaply (1 kHz)
+        if t is not None:
+            self.filter_sample(t, msg.data)
+        else:
+            self.filter(self.stream.push(arrival(received, info), 1, msg.data))
 
     def filter(self, settled: list[tuple[Placement, float]]) -> None:
         for place, value in settled:
             if place.event == NEW_STREAM and self.stream.streams > 1:
                 self.core.reset()  # restarted publisher or resync: the count starts over
-            volts = self.core.update(place.t_last, value)
-            if volts is not None and self.output.take(place.t_last):
-                self.voltage_pub.publish(battery_state(place.t_last, volts))
+            self.filter_sample(place.t_last, value)
+
+    def filter_sample(self, t: float, value: float) -> None:
+        """Filter one sample placed at ``t`` (s, node clock); publish when the rate is due."""
+        volts = self.core.update(t, value)
+        if volts is not None and self.output.take(t):
+            self.voltage_pub.publish(battery_state(t, volts))
 
     def publish_diagnostics(self) -> None:
         self.filter(self.stream.release_held())  # a last sample nobody followed

@@ -78,13 +78,14 @@ def arrival(receipt_s: float, info: Mapping[str, int] | None) -> Arrival:
     """An :class:`Arrival` from rclpy's message-info dict (None: the executor gave none)."""
     if not info:
         return Arrival(receipt_s)
+    return Arrival(receipt_s, *_source_and_seq(info))
+
+
+def _source_and_seq(info: Mapping[str, int]) -> tuple[float | None, int | None]:
+    """(source time in s, sequence number) of a message-info dict, None where not known."""
     src = info.get("source_timestamp")
     seq = info.get("publication_sequence_number")
-    return Arrival(
-        receipt_s,
-        None if not src else src * 1e-9,
-        None if seq is None or seq in _NO_SEQ else int(seq),
-    )
+    return None if not src else src * 1e-9, None if seq is None or seq in _NO_SEQ else int(seq)
 
 
 class LatencyFloor:
@@ -97,9 +98,12 @@ class LatencyFloor:
     def __init__(self, window_s: float = FLOOR_WINDOW_S) -> None:
         self.window_s = float(window_s)
         self._q: deque[tuple[float, float]] = deque()  # (observed time, offset), offsets rising
+        #: the floor now (None: no observation): :meth:`peek` as an attribute, read per message
+        self.value: float | None = None
 
     def reset(self) -> None:
         self._q.clear()
+        self.value = None
 
     def floor(self, observed_s: float, offset_s: float) -> float:
         """Add one observation; the floor including it."""
@@ -109,10 +113,11 @@ class LatencyFloor:
         q.append((observed_s, offset_s))
         while q[0][0] < observed_s - self.window_s:
             q.popleft()
-        return q[0][1]
+        self.value = q[0][1]
+        return self.value
 
     def peek(self) -> float | None:
-        return self._q[0][1] if self._q else None
+        return self.value
 
 
 class Placement(NamedTuple):
@@ -213,6 +218,45 @@ class SampleStream(Generic[PayloadT]):
             out.append((Placement(t, CONTIGUOUS), payload))
         return out
 
+    def follow(self, receipt_s: float, info: Mapping[str, int] | None, n: int) -> float | None:
+        """Place a message of ``n`` samples received at ``receipt_s`` with message info
+        ``info`` if it simply continues the stream: the time of its last sample, with the state
+        :meth:`push` would leave for ``arrival(receipt_s, info)`` (a CONTIGUOUS placement).
+        None, with nothing changed, whenever another rule may apply (first message, a sequence
+        number that is not the next, a message held or to hold, a resync): then call push.
+
+        Why a second way in: it runs for every message (battery/adc at 1 kHz), and the usual
+        message needs neither an Arrival nor a Placement, each of which costs as much as the
+        rest of this method."""
+        t_last = self._t
+        if t_last is None or self._held is not None:
+            return None
+        source: float | None = None
+        seq: int | None = None
+        if info:  # _source_and_seq, inline
+            src = info.get("source_timestamp")
+            seq = info.get("publication_sequence_number")
+            source = None if not src else src * 1e-9
+            seq = None if seq is None or seq in _NO_SEQ else int(seq)
+        if seq is not None and self._seq is not None and seq != self._seq + 1:
+            return None  # lost messages or a restarted publisher
+        t = t_last + n * self.period_s  # push's arithmetic for a message with none lost
+        if t > receipt_s + AHEAD_S:
+            return None
+        if not self.use_source:
+            source = None
+        observed = source if source is not None else receipt_s
+        floor = self._floor.value
+        excess = 0.0 if floor is None else (observed - t) - floor
+        if excess > self.tolerance_s:
+            return None
+        self.messages += 1
+        self.witness = "source" if source is not None else "receipt"
+        self._seq = seq
+        self._t = t
+        self._floor.floor(observed, observed - t)
+        return t
+
     def release_held(self) -> list[tuple[Placement, PayloadT]]:
         """Settle a held message with no successor to judge it: as a break (nothing bridged)."""
         if self._held is None:
@@ -272,19 +316,28 @@ class EventStream:
 
     def place(self, a: Arrival) -> tuple[float, int]:
         """(time on the node clock, messages lost just before this one)."""
+        return self._place(a.receipt_s, a.source_s, a.seq)
+
+    def place_info(self, receipt_s: float, info: Mapping[str, int] | None) -> tuple[float, int]:
+        """:meth:`place` of ``arrival(receipt_s, info)``, without building the Arrival (it runs
+        for every message)."""
+        source, seq = _source_and_seq(info) if info else (None, None)
+        return self._place(receipt_s, source, seq)
+
+    def _place(self, receipt_s: float, source_s: float | None, seq: int | None) -> tuple[float, int]:
         self.messages += 1
         lost = 0
-        if a.seq is not None:
-            if self._seq is not None and a.seq <= self._seq:
+        if seq is not None:
+            if self._seq is not None and seq <= self._seq:
                 self.publisher_restarts += 1
                 self._floor.reset()
             elif self._seq is not None:
-                lost = a.seq - self._seq - 1
-            self._seq = a.seq
+                lost = seq - self._seq - 1
+            self._seq = seq
         self.lost_messages += lost
-        if not self.use_source or a.source_s is None:
-            return a.receipt_s, lost
+        if not self.use_source or source_s is None:
+            return receipt_s, lost
         # receipt = source + offset + queueing; the least offset is the clocks' difference
-        floor = self._floor.floor(a.source_s, a.receipt_s - a.source_s)
-        t = a.source_s + floor
-        return (t if math.isfinite(t) and t <= a.receipt_s else a.receipt_s), lost
+        floor = self._floor.floor(source_s, receipt_s - source_s)
+        t = source_s + floor
+        return (t if math.isfinite(t) and t <= receipt_s else receipt_s), lost

@@ -81,20 +81,30 @@ class TachometerNode(Node):
         received = self.now_s()
         self.last_receipt_s = received
         data = msg.data
-        self.decode(self.stream.push(arrival(received, info), len(data), data))
+        t = self.stream.follow(received, info, len(data))  # the usual batch, cheaply
+        if t is not None:
+            self.decode_batch(t, data)
+        else:
+            self.decode(self.stream.push(arrival(received, info), len(data), data))
 
     def decode(self, settled: list[tuple[Placement, Samples]]) -> None:
         """Decode the batches the timing rules have placed; publish what may be published."""
         for place, data in settled:
             if place.event == NEW_STREAM and self.stream.streams > 1:
                 self.core.reset()  # a restarted publisher: its samples do not follow the old
-            self.core.process_batch(place.t_last, data, result=False)  # state is enough
-            speed = self.output.after_batch(place.t_last)
-            if speed is not None:
-                self.speed_out.publish(float(speed))
-                self.rpm_out.publish(float(speed) * contract.RAD_S_TO_RPM)
-                if self.output.fresh:
-                    self.state_out.publish(self.output.stamp_s, float(speed))
+            self.decode_batch(place.t_last, data)
+
+    def decode_batch(self, t_last: float, data: Samples) -> None:
+        """Decode one batch whose last sample is at ``t_last`` (s, node clock); publish."""
+        self.core.process_batch(t_last, data, result=False)  # state is enough
+        speed = self.output.after_batch(t_last)
+        if speed is not None:  # (the outputs' listened tests first: a call less if unread)
+            w = float(speed)
+            self.speed_out.publish(w)
+            if self.rpm_out.listened:
+                self.rpm_out.publish(w * contract.RAD_S_TO_RPM)
+            if self.output.fresh and self.state_out.listened:
+                self.state_out.publish(self.output.stamp_s, w)
 
     def input_lost(self) -> bool:
         """No batch for timeout_s on the node clock (publisher dead, link down)."""

@@ -95,7 +95,7 @@ from bldc_propulsion.nodes.common import (
     stamped_name,
 )
 from bldc_propulsion.nodes.params import DIAGNOSTICS_PERIOD_S, THRUST_ESTIMATOR, THRUST_ESTIMATOR_PARAMS
-from bldc_propulsion.nodes.stream_time import EventStream, arrival
+from bldc_propulsion.nodes.stream_time import EventStream
 from bldc_propulsion.physics.fallback import fallback_model
 
 FALLBACK_TIMER_HZ = 25.0
@@ -165,10 +165,11 @@ class ThrustEstimatorNode(Node):
         self.add_on_set_parameters_callback(self.on_set_parameters)
 
     def on_pwm(self, msg: Float64, info: dict | None) -> None:
-        t, _lost = self.pwm_stream.place(arrival(self.now_s(), info))
+        t, _lost = self.pwm_stream.place_info(self.now_s(), info)
         self.count_late(t)
         self.publish_until(t)
-        if self.command_stale(t) and self.core.measured_speed_at(t) is not None:
+        if self.pwm_timeout_s > 0.0 and self.command_stale(t) \
+                and self.core.measured_speed_at(t) is not None:
             self.core.restart_physics()  # the rotor did something unknown meanwhile: measured
             if self.health is not None:
                 self.health.restart_physics()
@@ -179,7 +180,7 @@ class ThrustEstimatorNode(Node):
                 self.health.update_pwm(t, msg.data)
 
     def on_speed(self, msg: Float64, info: dict | None) -> None:
-        t, _lost = self.speed_stream.place(arrival(self.now_s(), info))
+        t, _lost = self.speed_stream.place_info(self.now_s(), info)
         self.count_late(t)
         self.publish_until(t)
         if not self.core.update_speed(t, msg.data):
@@ -249,15 +250,20 @@ class ThrustEstimatorNode(Node):
 
     def publish_until(self, t: float) -> None:
         """Predict and publish every output grid time up to ``t``."""
+        if t < self.ticks.next_s:  # nothing due (most inputs): no list built
+            return
+        # the outputs' own listened tests, made here first: a call less per output nobody reads
         for tick in self.ticks.due(t):
-            if self.command_stale(tick):
+            if self.pwm_timeout_s > 0.0 and self.command_stale(tick):
                 self.stale_ticks += 1
                 continue
             p = self.core.predict(tick)
             if p.ready:
                 w = float(p.speed_rad_s)
-                self.speed_out.publish(w)
-                self.state_out.publish(tick, w)  # stamped with the grid time it answers
+                if self.speed_out.listened:
+                    self.speed_out.publish(w)
+                if self.state_out.listened:
+                    self.state_out.publish(tick, w)  # stamped with the grid time it answers
                 if self.speed_sigma_out is not None and p.speed_sigma_rad_s is not None:
                     self.speed_sigma_out.publish(float(p.speed_sigma_rad_s))
                     if self.thrust_sigma_out is not None and p.thrust_sigma_n is not None:
@@ -327,10 +333,10 @@ def make_estimator(model_path: str, thrust_coefficient: float | None, adapt: boo
     model = load_model(model_path) if model_path else fallback_model()
     adapter = None
     if adapt:
-        if not model_path:
-            raise BadInputError(f"{node_name}: parameter adapt: needs a physics or hybrid model_path "
-                                "(the first-principles fallback has no fitted parameters to adapt)")
         from bldc_propulsion.core.adaptation import adapter_for
+        from bldc_propulsion.core.health import require_physics
+
+        require_physics(model, "adaptation", f"{node_name}: parameter adapt: model_path {model_path or '(empty)'}")
 
         try:
             adapter = adapter_for(model)
@@ -342,10 +348,10 @@ def make_estimator(model_path: str, thrust_coefficient: float | None, adapt: boo
 def make_health(core: ThrustEstimator, model_path: str, node_name: str = THRUST_ESTIMATOR) -> HealthStream:
     """The health monitor on ``core``'s inputs; BadInputError naming the parameter for a model
     without physics (the fallback, a network)."""
-    if not model_path:
-        raise BadInputError(f"{node_name}: parameter health: needs a physics or hybrid model_path (the "
-                            "first-principles fallback has no fitted physics to give the faults' signatures)")
-    from bldc_propulsion.core.health import HealthStream
+    from bldc_propulsion.core.health import HealthStream, require_physics
+
+    require_physics(core.model, "the health monitor",
+                    f"{node_name}: parameter health: model_path {model_path or '(empty)'}")
 
     try:
         return HealthStream(core)
