@@ -483,16 +483,20 @@ def render_real(f: dict[str, Any]) -> list[str]:
         lines += [f"`{f['log']}` cut in {1 + max(r['split'] for r in splits)} parts in time; each part is the test "
                   "of models trained and validated on the others. RMSE in % of the log's speed range "
                   f"({f['log_range_rad_s']:.0f} rad/s):", "",
-                  "| test part | kind | RMSE | Kv, rpm/V (rated 1900) | b / direct fit on the part |",
-                  "|---|---|---|---|---|"]
+                  "| test part | kind | RMSE | Kv, rpm/V (rated 1900) | b / direct fit: training, test part | "
+                  "thrust RMSE, % of the log's thrust range |",
+                  "|---|---|---|---|---|---|"]
         for r in splits:
             if r.get("refused"):  # train's one line: what it refused, up to the first ";"
                 why = r["refused"].split("error: ", 1)[-1].split(";", 1)[0]
-                lines.append(f"| {r['split']} | {r['kind']} | refused: {why} | | |")
+                lines.append(f"| {r['split']} | {r['kind']} | refused: {why} | | | |")
                 continue
             ratio = r["b"] / r["b_direct"] if r.get("b") and r.get("b_direct") else None
+            trained = r["b"] / r["b_direct_training"] if r.get("b") and r.get("b_direct_training") else None
+            thrust = (100.0 * r["thrust_rmse_n"] / f["log_thrust_range_n"]
+                      if r.get("thrust_rmse_n") is not None and f.get("log_thrust_range_n") else None)
             lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
-                         f"{num(ratio, 3)} |")
+                         f"{num(trained, 3)}, {num(ratio, 3)} | {num(thrust)} % |")
     if (health := f.get("health")) is not None:
         lines += ["", "The health monitor over the whole log with each split's model. Nobody changed the stand, "
                   "but its supply current-limits at 90 s (1950 µs: 14.45 → 13.60 V for 1.5 A more, where each step "
