@@ -18,7 +18,6 @@ effect's strength is refitted along with the constants from then on.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,8 +26,8 @@ from typing import TypedDict
 import numpy as np
 
 from .. import contract as c
-from ..physics.config import PhysicsConfig, Recorded
-from ..physics.fit import STRENGTH_MAX, Data, Fit, calibrate, recalibrate
+from ..physics.config import PhysicsConfig
+from ..physics.fit import STRENGTH_MAX, Data, Fit, recalibrate
 from ..physics.params import BenchParams
 from ..physics.plant import full_drive_speeds, spin_up_time_constant_s
 from ..recordings import Signals
@@ -185,82 +184,17 @@ def score(null: Fit, cands: Sequence[Fit], grid: Sequence[float], data: BlockedD
     )
 
 
-#: A command level is "held" when the recordings keep it this long (s): long enough for the rotor
-#: to show whether the ESC drives there.
-HELD_LEVEL_S = 0.5
-#: At most this many start levels from the data's holds (the fixed grid, refined by fit_strength,
-#: serves a command with more distinct levels than that).
-MAX_DATA_LEVELS = 16
-#: The throttle map's origin, fitted with a start level (``physics.config.LINEAR_RANGES``), starts
-#: here: an ESC whose map runs from stop and whose start level only cuts the drive off below it.
-#: Held at the CONFIG's 0 (the map starting at the start level), the one shape a start level then
-#: implies bent the whole map, and a foreign bench's start level scored -750 % on its measured data.
-ORIGIN_START = 1.0
-ORIGIN = "esc_map_origin_share"
-
-
-def held_levels(signals: Sequence[Recorded]) -> np.ndarray:
-    """The distinct command levels (PWM level, to the microsecond) the recordings hold at least
-    HELD_LEVEL_S, sorted (a frame-by-frame command is merged into runs of one level)."""
-    out: set[float] = set()
-    for s in signals:
-        et, lv = s.pwm_events
-        if len(et) == 0:
-            continue
-        us = np.round(np.asarray(lv) * c.PWM_PERIOD_US)
-        start = np.flatnonzero(np.r_[True, us[1:] != us[:-1]])
-        ends = np.append(et[start[1:]], max(float(s.t[-1]), float(et[-1])))
-        held = (ends - et[start]) >= HELD_LEVEL_S
-        out.update(us[start][held] / c.PWM_PERIOD_US)
-    return np.array(sorted(out))
-
-
-def strength_grid(name: str, data: Data, p: BenchParams) -> tuple[float, ...]:
-    """The strengths an effect is tried at on ``data``: STRENGTH_GRID, and for esc_deadband also
-    the middle of each gap between consecutive held command levels, from stop to the first held
-    level beyond the grid's top. The data tell a start level only by which held levels the ESC
-    drives, so every level within one gap fits alike, and a fixed grid point may land in the
-    wrong gap: a start level between the measured 1106 and 1142 us holds, tried only at 1100 and
-    1200 us (a foreign bench), explained nothing."""
-    grid = STRENGTH_GRID[name]
-    if name != "esc_deadband" or p.esc_deadband_pwm <= 0.0:
-        return grid
-    top = c.PWM_STOP + max(grid) * p.esc_deadband_pwm
-    levels = held_levels(data.signals)
-    levels = levels[levels > c.PWM_STOP]
-    levels = levels[:int(np.searchsorted(levels, top)) + 1]
-    if len(levels) == 0 or len(levels) > MAX_DATA_LEVELS:
-        return grid
-    edges = np.concatenate([[c.PWM_STOP], levels])
-    found = ((edges[:-1] + edges[1:]) / 2.0 - c.PWM_STOP) / p.esc_deadband_pwm
-    return tuple(sorted({*grid, *(round(float(x), 4) for x in found if x <= STRENGTH_MAX[name])}))
-
-
 def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
-    """The effect switched on at each strength of ``strength_grid``, constants recalibrated from
-    ``base``'s (its COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``).
-    A start level frees the throttle map's origin along (from ORIGIN_START): where the map starts
-    is the same question as where the ESC starts driving."""
-    model = base.model
-    if name != "esc_deadband" or ORIGIN in base.linear:
-        return [recalibrate(base, model.with_effect(name, g), data) for g in strength_grid(name, data, model.params)]
-    if model.effects[name] == 0.0:
-        model = dataclasses.replace(model, params=dataclasses.replace(model.params, esc_map_origin_share=ORIGIN_START))
-    return [calibrate(model.with_effect(name, g), data, base.anchor, base.log_range, base.free,
-                      companion_anchor=base.companion_anchor, linear=(*base.linear, ORIGIN))
-            for g in strength_grid(name, data, model.params)]
-
-
-def grid_of(name: str, fits: Sequence[Fit]) -> list[float]:
-    """The strengths ``fits`` (from effect_fits) were made at."""
-    return [f.model.effects[name] for f in fits]
+    """The effect switched on at each grid strength, constants recalibrated from ``base``'s (its
+    COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``)."""
+    return [recalibrate(base, base.model.with_effect(name, g), data) for g in STRENGTH_GRID[name]]
 
 
 def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
     """The strength with the least SSE on all of ``data`` (jointly with the constants): the best
     grid point, the grid extended past its end when the best is there, then the vertex of the
     parabola through the best point and its neighbours."""
-    pts = dict(zip(grid_of(name, fits), fits, strict=True))
+    pts = dict(zip(STRENGTH_GRID[name], fits, strict=True))
     lo, hi = 0.0, STRENGTH_MAX[name]
     for _ in range(3):
         xs = sorted(pts)

@@ -247,12 +247,11 @@ class PhysicsKind:
         self._ref_pending = []
         out = {}
         for name in names:
+            grid = ph.STRENGTH_GRID[name]
             self._fits[name] = ph.effect_fits(self.cur, name, self.meas_data)
-            m = ph.score(self.cur, self._fits[name], ph.grid_of(name, self._fits[name]), self.meas_data)
-            r = None
-            if self.cur_ref is not None and self.ref_data is not None:
-                ref_fits = ph.effect_fits(self.cur_ref, name, self.ref_data)
-                r = ph.score(self.cur_ref, ref_fits, ph.grid_of(name, ref_fits), self.ref_data)
+            m = ph.score(self.cur, self._fits[name], grid, self.meas_data)
+            r = (ph.score(self.cur_ref, ph.effect_fits(self.cur_ref, name, self.ref_data), grid, self.ref_data)
+                 if self.cur_ref is not None and self.ref_data is not None else None)
             # (the grid strength chosen most often across the folds: the fit of step 4 refines it)
             out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model))
         return out
