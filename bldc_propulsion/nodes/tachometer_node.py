@@ -98,12 +98,11 @@ class TachometerNode(Node):
         """Decode one batch whose last sample is at ``t_last`` (s, node clock); publish."""
         self.core.process_batch(t_last, data, result=False)  # state is enough
         speed = self.output.after_batch(t_last)
-        if speed is not None:  # (the outputs' listened tests first: a call less if unread)
+        if speed is not None:
             w = float(speed)
             self.speed_out.publish(w)
-            if self.rpm_out.listened:
-                self.rpm_out.publish(w * contract.RAD_S_TO_RPM)
-            if self.output.fresh and self.state_out.listened:
+            self.rpm_out.publish(w * contract.RAD_S_TO_RPM)
+            if self.output.fresh:
                 self.state_out.publish(self.output.stamp_s, w)
 
     def input_lost(self) -> bool:

@@ -168,8 +168,7 @@ class ThrustEstimatorNode(Node):
         t, _lost = self.pwm_stream.place_info(self.now_s(), info)
         self.count_late(t)
         self.publish_until(t)
-        if self.pwm_timeout_s > 0.0 and self.command_stale(t) \
-                and self.core.measured_speed_at(t) is not None:
+        if self.command_stale(t) and self.core.measured_speed_at(t) is not None:
             self.core.restart_physics()  # the rotor did something unknown meanwhile: measured
             if self.health is not None:
                 self.health.restart_physics()
@@ -252,18 +251,15 @@ class ThrustEstimatorNode(Node):
         """Predict and publish every output grid time up to ``t``."""
         if t < self.ticks.next_s:  # nothing due (most inputs): no list built
             return
-        # the outputs' own listened tests, made here first: a call less per output nobody reads
         for tick in self.ticks.due(t):
-            if self.pwm_timeout_s > 0.0 and self.command_stale(tick):
+            if self.command_stale(tick):
                 self.stale_ticks += 1
                 continue
             p = self.core.predict(tick)
             if p.ready:
                 w = float(p.speed_rad_s)
-                if self.speed_out.listened:
-                    self.speed_out.publish(w)
-                if self.state_out.listened:
-                    self.state_out.publish(tick, w)  # stamped with the grid time it answers
+                self.speed_out.publish(w)
+                self.state_out.publish(tick, w)  # stamped with the grid time it answers
                 if self.speed_sigma_out is not None and p.speed_sigma_rad_s is not None:
                     self.speed_sigma_out.publish(float(p.speed_sigma_rad_s))
                     if self.thrust_sigma_out is not None and p.thrust_sigma_n is not None:
