@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -37,7 +39,11 @@ def events(res: SimResult, volt_every: int, grid: np.ndarray, seed: int) -> list
     return sorted(ev + [(t, PREDICT, 0.0) for t in grid.tolist()], key=lambda e: (e[0], e[1] == PREDICT))
 
 
-def run(stream: PlantStream, ev: list[tuple[float, int, float]]) -> np.ndarray:
+def run(stream: Any, ev: list[tuple[float, int, float]],
+        speed_at: Callable[[float], float] | None = None) -> np.ndarray:
+    """Feed ``ev`` to ``stream`` (update_pwm, update_voltage); the speed at each PREDICT event,
+    from ``speed_at`` (default: the stream's own)."""
+    at = stream.speed_at if speed_at is None else speed_at
     out = []
     for t, kind, x in ev:
         if kind == PWM:
@@ -45,7 +51,7 @@ def run(stream: PlantStream, ev: list[tuple[float, int, float]]) -> np.ndarray:
         elif kind == VOLTAGE:
             stream.update_voltage(t, x)
         else:
-            out.append(stream.speed_at(t))
+            out.append(at(t))
     return np.array(out)
 
 
@@ -147,15 +153,11 @@ def test_the_health_monitors_nominal_lane_is_the_stream(case: str, recording: Si
     ev = events(recording, every, grid, seed=len(case))
     stream = run(PlantStream(params, eff, 11.5, tau), ev)
     twin = PhysicsTwins(params, eff, 11.5, tau)
-    got = []
-    for t, kind, x in ev:
-        if kind == PWM:
-            twin.update_pwm(t, x)
-        elif kind == VOLTAGE:
-            twin.update_voltage(t, x)
-        else:
-            s = twin.sample(t)
-            got.append(math.nan if s is None else s.speed_rad_s)
+
+    def twin_speed(t: float) -> float:
+        s = twin.sample(t)
+        return math.nan if s is None else s.speed_rad_s
+    got = run(twin, ev, twin_speed)
     ok = np.isfinite(got)
     assert ok.mean() > 0.95 and np.ptp(stream) > 200.0
-    assert np.max(np.abs(np.array(got)[ok] - stream[ok])) < 1e-6
+    assert np.max(np.abs(got[ok] - stream[ok])) < 1e-6
