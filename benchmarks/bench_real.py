@@ -176,25 +176,17 @@ def with_command(d: Path, log: Path, esc_log: Path) -> Path:
     return out
 
 
-def speed_range(bags: list[Path]) -> float:
-    """Measured speed range (rad/s) over the bags together: the whole log's."""
+def ranges(bags: list[Path]) -> tuple[float, float | None]:
+    """Measured speed range (rad/s) and thrust range (N; None: no thrust recorded) over the bags
+    together: the whole log's."""
     sys.path.insert(0, str(ROOT))
     from bldc_propulsion.recordings import load_signals
 
-    w = np.concatenate([load_signals(str(b)).speed for b in bags])
-    return float(np.nanmax(w) - np.nanmin(w))
-
-
-def thrust_range(bags: list[Path]) -> float | None:
-    """Measured thrust range (N) over the bags together (None: no thrust recorded)."""
-    sys.path.insert(0, str(ROOT))
-    from bldc_propulsion.recordings import load_signals
-
-    parts = [s.thrust for s in map(load_signals, map(str, bags)) if s.thrust is not None]
-    if not parts:
-        return None
-    y = np.concatenate(parts)
-    return float(np.nanmax(y) - np.nanmin(y))
+    signals = [load_signals(str(b)) for b in bags]
+    w = np.concatenate([s.speed for s in signals])
+    thrusts = [s.thrust for s in signals if s.thrust is not None]
+    y = np.concatenate(thrusts) if thrusts else None
+    return float(np.nanmax(w) - np.nanmin(w)), None if y is None else float(np.nanmax(y) - np.nanmin(y))
 
 
 def direct_b(*bags: Path | str) -> float:
@@ -345,8 +337,7 @@ def main() -> int:
         jobs = [(k, kind) for k in chosen for kind in kinds]
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=priors), jobs))
-        log_range = speed_range([p["test"] for p in parts])
-        law_range_n = thrust_range([p["test"] for p in parts])
+        log_range, law_range_n = ranges([p["test"] for p in parts])
         health = monitor_whole_log(d, src, rows)
         for r in rows:
             if "refused" not in r:
