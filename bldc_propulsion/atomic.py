@@ -23,6 +23,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import quiet_start
 from .errors import BadInputError, OutputExistsError
 from .specs import spec_path
 
@@ -313,7 +314,8 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False,
     so writers that derive inner file names from it (a rosbag2 directory names its .mcap
     after itself) produce the same files as a direct write. On any exception
     (KeyboardInterrupt included) the staging directory is removed and an existing ``path``
-    stays untouched. An existing ``path`` is refused unless ``force``, and with ``kind`` also
+    stays untouched; so it is after a Ctrl-C whose KeyboardInterrupt never reached the block
+    (``quiet_start.interrupted``). An existing ``path`` is refused unless ``force``, and with ``kind`` also
     unless it is that kind of output (checked again at the rename: what the user owns is
     never replaced, even if it appeared during the work).
     """
@@ -333,6 +335,8 @@ def atomic_output(path: str | os.PathLike[str], force: bool = False,
         stage.mkdir()
         tmp = stage / final.name
         yield tmp
+        if quiet_start.interrupted():  # a Ctrl-C whose KeyboardInterrupt was swallowed on the way
+            raise KeyboardInterrupt
         if not tmp.exists():
             raise RuntimeError(f"{final}: nothing was written")
         backup = stage / f"{final.name}.old"

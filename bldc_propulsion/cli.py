@@ -101,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"bldc-propulsion {args.command}: internal error (exit 1); please report it", file=sys.stderr)
         return 1
     finally:
-        if _EXECUTABLE and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        if _EXECUTABLE and signal.getsignal(signal.SIGINT) is quiet_start.interrupt:
             signal.signal(signal.SIGINT, signal.SIG_IGN)  # done (or failed): nothing left to stop
     for warning in result.warnings:
         print(f"warning: {warning}", file=sys.stderr)

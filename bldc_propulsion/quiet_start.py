@@ -19,6 +19,10 @@ from itertools import pairwise
 
 #: The handler installed for each signal (so that ``active`` and ``end`` know it is still ours).
 _HANDLERS: dict[int, object] = {}
+#: Whether a SIGINT came while the program worked (after ``end``). A KeyboardInterrupt can be
+#: swallowed on its way (raised inside a C call or a finalizer that only reports it) and the
+#: work then runs on to its end: outputs look here before they are moved into place.
+_INTERRUPTED = False
 
 
 def started_as(programs: Collection[str], modules: Collection[str] = ()) -> bool:
@@ -49,8 +53,20 @@ def active(signum: int = signal.SIGINT) -> bool:
 
 def end(signum: int = signal.SIGINT) -> None:
     """The program is about to do work that must clean up when interrupted: Python's own
-    handling of ``signum`` again (KeyboardInterrupt for SIGINT), if the start-up handler is
-    still the one installed."""
+    handling of ``signum`` again (for SIGINT, ``interrupt``: KeyboardInterrupt, recorded), if the
+    start-up handler is still the one installed."""
     if active(signum):
-        signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+        signal.signal(signum, interrupt if signum == signal.SIGINT else signal.SIG_DFL)
     _HANDLERS.pop(signum, None)
+
+
+def interrupt(signum: int, frame: object) -> None:
+    """SIGINT while working: recorded (``interrupted``), then Python's KeyboardInterrupt."""
+    global _INTERRUPTED
+    _INTERRUPTED = True
+    signal.default_int_handler(signum, frame)  # type: ignore[arg-type]
+
+
+def interrupted() -> bool:
+    """Whether a SIGINT came while the program worked, even if its KeyboardInterrupt was lost."""
+    return _INTERRUPTED

@@ -17,13 +17,13 @@ from bldc_propulsion import quiet_start
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def child(code: str, ignore_sigint: bool = False) -> subprocess.CompletedProcess:
+def child(code: str, ignore_sigint: bool = False, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     def preexec() -> None:  # a test run started in the background inherits an ignored SIGINT
         signal.signal(signal.SIGINT, signal.SIG_IGN if ignore_sigint else signal.SIG_DFL)
 
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
+    full = {**os.environ, **(env or {}), "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          env=env, timeout=60, preexec_fn=preexec)
+                          env=full, timeout=60, preexec_fn=preexec)
 
 
 def test_started_as_a_program_or_a_module(monkeypatch):
@@ -73,14 +73,49 @@ def test_after_end_sigint_is_a_keyboard_interrupt_again():
         quiet_start.install(130)
         quiet_start.end(signal.SIGINT)
         assert not quiet_start.active(signal.SIGINT)
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(signal.SIGINT) is quiet_start.interrupt
+        assert not quiet_start.interrupted()
         try:
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(5)
         except KeyboardInterrupt:
-            print("interrupted")
+            print("interrupted", quiet_start.interrupted())
     """)
-    assert (proc.returncode, proc.stdout.strip()) == (0, "interrupted"), proc.stderr
+    assert (proc.returncode, proc.stdout.strip()) == (0, "interrupted True"), proc.stderr
+
+
+def test_an_output_is_not_moved_into_place_after_a_swallowed_interrupt(tmp_path):
+    """A KeyboardInterrupt raised inside a finalizer is only reported ("Exception ignored") and
+    the work runs on to its end: the staged output must still not replace the old one."""
+    proc = child("""
+        import gc, os, signal, time
+        from pathlib import Path
+        from bldc_propulsion import quiet_start
+        from bldc_propulsion.atomic import atomic_output
+        quiet_start.install(130)
+        quiet_start.end(signal.SIGINT)
+        out = Path(os.environ["OUT"])
+        out.write_text("old")
+
+        class Slow:
+            def __del__(self):  # the signal lands here; Python reports it and goes on
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.5)
+
+        try:
+            with atomic_output(out, force=True) as tmp:
+                tmp.write_text("new")
+                Slow()
+                gc.collect()
+                print("work finished")
+        except KeyboardInterrupt:
+            print("interrupted")
+        print(out.read_text(), sorted(p.name for p in out.parent.iterdir()))
+    """, env={"OUT": str(tmp_path / "model.txt")})
+    lines = proc.stdout.split("\n")
+    # the interrupt never reached the block, but the output was not replaced nor left staged
+    assert lines[:3] == ["work finished", "interrupted", "old ['model.txt']"], (proc.stdout, proc.stderr)
+    assert "KeyboardInterrupt" in proc.stderr  # what Python reported and swallowed
 
 
 def test_end_leaves_a_handler_someone_else_installed():
