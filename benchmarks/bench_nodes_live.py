@@ -11,7 +11,8 @@ a test.
 
 The floor: before the first run of each quadrotor mode and after each run, the same recording
 is played into ``benchmarks/floor_relay.py`` (a minimal rclpy relay with the same
-subscriptions, QoS, message counts and EventsExecutor, one Float64 out per message in) as one
+subscriptions, QoS, timers and EventsExecutor, publishing the nodes' consumed outputs at their
+counts to the same consumer, with none of their work) as one
 process or as nine, and each run's CPU per input message is printed as a ratio to the mean of
 the floors played just before and just after it (absolute figures differ by up to 3x between
 machines of this class, and the load of a shared one moves both by up to a fifth between runs;
@@ -262,7 +263,7 @@ def play_floor(bag: Path, mode: str, counts: dict[str, int], tmp: Path,
     f = run(bag, processes(floor_of(mode)), MOTORS, 1.0, counts, tmp, consumed, floor=True)
     print(f"  {floor_of(mode):<29} {f['processes']} process(es): CPU "
           f"{f['cpu_core_pct']:5.1f} % of one core, {f['us_per_input_message']:5.0f} us "
-          f"per input message, lost {f['lost']}", flush=True)
+          f"per input message, lost {f['lost']}, consumed {f['consumed']}", flush=True)
     return float(f["us_per_input_message"])
 
 
