@@ -55,6 +55,13 @@ def test_a_propeller_change_is_named_with_its_onset_and_size():
     assert e.size == pytest.approx(0.1, rel=0.2)
 
 
+def test_a_rotor_that_never_holds_a_turning_speed_is_watched_without_a_crash():
+    """Every hold below min_speed_fraction of the scale: no steady block, so the voltage channel
+    learns no noise (its quiet blocks are the steady ones). Its test then once read the noise
+    it had not learned: KeyError 'voltage' (a randomized bench's flight crashed the monitor)."""
+    assert monitor_events(synthetic_flight(90.0, 4, speeds=lambda t: (20.0, 90.0))) == []
+
+
 def test_a_data_gap_while_a_change_is_being_sized_reports_it_as_it_stands():
     """The same change, then no speed sample from 106 s to 108 s (a rotor too slow for the
     tachometer) while the named change is still being sized: the window restarts after the gap

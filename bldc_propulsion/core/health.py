@@ -816,7 +816,7 @@ class HealthMonitor:
         kappa and the inflation: (z'S^-1 r)^2 / z'S^-1 z is chi-square(1) under no change.
         ``learn``: first update the channel's noise model from the reference part of the window.
         A channel with fewer than _MIN_REFERENCE_BLOCKS valid blocks in its reference (or no noise
-        learned yet) tests nothing: zeros."""
+        learned yet, even after ``learn``: too few quiet blocks) tests nothing: zeros."""
         N = ch.nuisance
         empty = np.zeros(tests.shape[::2])
         if ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS, 4 * N.shape[1]) \
@@ -826,6 +826,8 @@ class HealthMonitor:
             return empty, empty
         if learn:
             self._learn_noise(ch, self._fit(ch, N)[3], N.shape[1])
+            if ch.name not in self.noise:  # too few quiet blocks to learn it from: nothing tested yet
+                return empty, empty
         w, P, c, res, Ginv, PWN = self._fit(ch, N)
         kappa = self.noise[ch.name][3] * self.config.noise_inflation
         Zw = tests * w[None, :, None]
