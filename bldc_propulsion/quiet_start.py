@@ -16,6 +16,7 @@ import signal
 import sys
 from collections.abc import Collection, Iterable
 from itertools import pairwise
+from types import FrameType
 
 #: The handler installed for each signal (so that ``active`` and ``end`` know it is still ours).
 _HANDLERS: dict[int, object] = {}
@@ -60,11 +61,11 @@ def end(signum: int = signal.SIGINT) -> None:
     _HANDLERS.pop(signum, None)
 
 
-def interrupt(signum: int, frame: object) -> None:
+def interrupt(signum: int, frame: FrameType | None) -> None:
     """SIGINT while working: recorded (``interrupted``), then Python's KeyboardInterrupt."""
     global _INTERRUPTED
     _INTERRUPTED = True
-    signal.default_int_handler(signum, frame)  # type: ignore[arg-type]
+    signal.default_int_handler(signum, frame)
 
 
 def interrupted() -> bool:

@@ -49,6 +49,8 @@ class Ticker:
 
     def take(self, t: float) -> bool:
         """True if a grid time was passed by ``t`` (starting the grid at ``t``): decimation.
-        Runs per battery sample: nothing due is answered without building ``due``'s list."""
-        self.start(t)
+        Runs per battery sample: nothing due is answered without building ``due``'s list, and
+        without ``start``'s call and property (the same test, inline)."""
+        if self.next_s == math.inf:
+            self.next_s = float(t)
         return t >= self.next_s and bool(self.due(t))
