@@ -137,6 +137,72 @@ def test_battery_filter_undoes_the_divider_and_reports_rejected_samples(start_no
     assert any(v not in ("0", "") for v in rejected.values()), status
 
 
+def battery_reference(node, samples):
+    """What the battery filter published when it placed and filtered every sample in its own
+    callback: (index of the input after which it was published, stamp in ns, volts)."""
+    from bldc_propulsion.core.battery_filter import BatteryFilter
+    from bldc_propulsion.core.ticker import Ticker
+    from bldc_propulsion.nodes.stream_time import NEW_STREAM, SampleStream, arrival
+
+    stream = SampleStream(1000.0, node.stream.tolerance_s, node.stream.use_source)
+    core, ticker, out = BatteryFilter(node.core.config), Ticker(20.0), []
+    for i, (received, info, value) in enumerate(samples):
+        t = stream.follow(received, info, 1)
+        if t is not None:
+            settled = [(t, value)]
+        else:
+            settled = []
+            for place, v in stream.push(arrival(received, info), 1, value):
+                if place.event == NEW_STREAM and stream.streams > 1:
+                    core.reset()
+                settled.append((place.t_last, v))
+        for t_s, v in settled:
+            volts = core.update(t_s, v)
+            if volts is not None and ticker.take(t_s):
+                out.append((i, round(t_s * 1e9), volts))
+    return out
+
+
+def test_battery_filter_queue_publishes_what_one_sample_per_callback_did(start_node):
+    """The node queues samples until an output may fall due (on_adc): every output, its stamp
+    and value, and the input after which it is published are those of placing each sample in
+    its own callback, through a transport loss, late messages, rejected samples and a
+    publisher restart."""
+    h = start_node(BatteryFilterNode)  # 1 kHz samples, 20 Hz output
+    node = h.node
+    published, fed = [], []
+    node.voltage_pub.publish = lambda msg: published.append(
+        (len(fed) - 1, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg.voltage))
+    rng = np.random.default_rng(4)
+    samples, seq, t = [], 0, T0
+    for i in range(900):
+        seq = 1 if i == 700 else seq + 1  # a publisher restart at 700
+        if i in (130, 131, 132):  # lost in transport: the count jumps
+            continue
+        t += 1e-3
+        # late beyond clock_tolerance_s (0.5 s): one alone (forgiven), then two (a break)
+        receipt = t + 0.002 + (0.6 if i in (300, 520, 521) else 0.0)
+        value = 4.0 + 0.01 * rng.standard_normal()
+        if i in (200, 201, 450):
+            value = math.nan if i != 450 else 99.0  # rejected by the core
+        samples.append((receipt, {"source_timestamp": 0, "publication_sequence_number": seq}, value))
+    clock = [0.0]
+    node.now_s = lambda: clock[0]
+    for received, info, value in samples:
+        clock[0] = received
+        fed.append(value)
+        node.on_adc(Float64(data=value), info)
+    assert len(node.queue) > 0  # the samples after the last output wait
+    node.place_queue()
+    expected = battery_reference(node, samples)
+    assert len(expected) >= 10
+    assert [(i, s) for i, s, _ in published] == [(i, s) for i, s, _ in expected]
+    assert [v for *_, v in published] == [v for *_, v in expected]
+    assert node.stream.lost_messages == 3 and node.stream.publisher_restarts == 1
+    assert node.stream.late_forgiven == 1 and node.stream.late_breaks == 1
+    assert node.core.rejected == 3
+
+
 # --- thrust estimator ---
 
 def test_thrust_estimator_predicts_with_the_fallback_and_warns(start_node):

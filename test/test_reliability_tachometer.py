@@ -162,6 +162,34 @@ def test_sample_rate_mismatch_detected_and_no_speed():
     assert_no_made_up_speed(outs, rtol=0.01)
 
 
+def test_rate_check_verdict_is_the_median_of_the_window_on_jittery_batches():
+    """SampleClock.check_rate skips the median while the window's verdict cannot change; every
+    verdict must still be the median's (statistics.median of the last RATE_CHECK_BATCHES)."""
+    import statistics
+
+    from bldc_propulsion.core.tachometer_parts import SampleClock, TachCounters
+
+    cfg = TachometerConfig()
+    n, tol = 200, TachometerDecoder.RATE_TOLERANCE
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        clock = SampleClock(cfg, TachCounters(), rate_batches=TachometerDecoder.RATE_CHECK_BATCHES,
+                            rate_tolerance=tol)
+        # runs of good and bad batch intervals (too early, too late, on time), shuffled
+        ratios = rng.choice([1.0, 1.1, 0.9, 1.5, 0.6, 2.0, 0.75], size=300)
+        t, starts = 1.0, 0
+        clock.check_rate(t, n)
+        clock.advance(t, n)
+        for ratio in ratios:
+            t += n / cfg.sample_rate_hz / ratio  # batch interval implying this rate ratio
+            started = clock.check_rate(t, n)
+            clock.advance(t, n)
+            bad = abs(statistics.median(clock.rates) - 1.0) > tol
+            assert clock.rate_bad == bad
+            starts += started
+        assert 0 < clock.counts.rate_mismatch_batches < len(ratios) and starts > 0
+
+
 def test_sample_rate_mismatch_too_fast():
     fast = make_signal(W, 1.0, rate_hz=40000.0, seed=6)  # 40 kHz data, 20 kHz parameter
     dec = TachometerDecoder()

@@ -135,11 +135,19 @@ class SampleClock:
 
         True if a mismatch starts with this batch (what was measured at the wrong rate is void).
         """
+        rates = self.rates
         if self.last_batch_t is not None:
-            self.rates.append(n / (t_last - self.last_batch_t) / self._rate_hz)
-        if not self.rates:  # the first batch: no timing to compare yet
+            rate = n / (t_last - self.last_batch_t) / self._rate_hz
+            rates.append(rate)
+            if not self.rate_bad and len(rates) == rates.maxlen and rates.maxlen % 2 == 1 \
+                    and abs(rate - 1.0) <= self._rate_tolerance:
+                # a good median (of the full odd window, or of the one value short before it)
+                # leaves at most half the window bad on either side, and a good value added in
+                # place of an old one cannot make more: the verdict stays good, unsorted
+                return False
+        if not rates:  # the first batch: no timing to compare yet
             return False
-        ratio = float(_median(self.rates))  # 5 numbers: faster than np.median
+        ratio = float(_median(rates))  # 5 numbers: faster than np.median
         bad = abs(ratio - 1.0) > self._rate_tolerance
         starts = False
         if bad:

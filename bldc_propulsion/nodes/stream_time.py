@@ -257,6 +257,15 @@ class SampleStream(Generic[PayloadT]):
         self._floor.floor(observed, observed - t)
         return t
 
+    def counted_t(self, k: int, n: int) -> float | None:
+        """The time :meth:`follow` would give the ``k``-th message of ``n`` samples after the
+        last one placed, if those k follow it with none lost, held or resynced; None while no
+        message is placed or one is held. Lets a node tell that no output can fall due before
+        it places them (``battery_filter_node``)."""
+        if self._t is None or self._held is not None:
+            return None
+        return self._t + k * n * self.period_s
+
     def release_held(self) -> list[tuple[Placement, PayloadT]]:
         """Settle a held message with no successor to judge it: as a break (nothing bridged)."""
         if self._held is None:
