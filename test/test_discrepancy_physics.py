@@ -115,6 +115,50 @@ def test_calibration_recovers_changed_kv_cp_throttle_map_and_pack_resistance(tmp
     assert pf.inert_constants(stiff, pf.Data.of([s]), ("battery_voltage",)) == set()
 
 
+def test_reference_fit_recovers_a_curved_throttle_map(tmp_path):
+    """An ESC mapping duty = 0.45 x + 0.55 x^2 (a foreign bench's kind of map): the map's curvature,
+    fitted on a linear scale with the CALIBRATED constants (``pf.MAP_SHAPE``), is recovered and
+    Kv with it; with the power law alone the exponent meets the map at two levels only, Kv
+    stands in for the rest and the fit is worse."""
+    true = params_with_overrides(BenchParams(), {"esc_throttle_curvature": 0.55})
+    res = simulate("steps", 30.0, 4, params=true, pwm=command("steps", 30.0, 4))
+    write_sim_bag(res, tmp_path / "bag")
+    data = pf.Data.of([load_signals(tmp_path / "bag")])
+    model = pc.PhysicsConfig(pc.load_config(None).params, dict(ALL_ON)).with_supply(data.signals)
+    curved = pf.calibrate(model, data, *pf.base_window(model), linear=pf.MAP_SHAPE)
+    power = pf.calibrate(model, data, *pf.base_window(model))
+    assert curved.model.params.esc_throttle_curvature == pytest.approx(0.55, abs=0.05)
+    assert curved.model.params.esc_throttle_exponent == pytest.approx(1.0, abs=0.05)
+    assert curved.model.params.motor_kv_rpm_per_v == pytest.approx(true.motor_kv_rpm_per_v, rel=0.03)
+    assert power.model.params.esc_throttle_curvature == 0.0 and power.sse > 2.0 * curved.sse
+    assert [f.quantity for f in pf.fit_flags(curved, model, "curved")] == []
+    # held after the reference like the exponent: a later calibration keeps it (no column)
+    again = pf.calibrate_base(curved.model, data, pf.HELD_AFTER_REFERENCE)
+    assert again.model.params.esc_throttle_curvature == curved.model.params.esc_throttle_curvature
+    assert again.linear == ()
+
+
+@pytest.mark.parametrize("braking_removed", [0.0, 1.0])
+def test_the_base_fits_whether_the_esc_brakes_or_coasts(braking_removed, tmp_path):
+    """An ESC brakes or lets the rotor coast: the base (``pf.BASE_EFFECTS``) fits which, on a
+    reference whose CONFIG states neither, with a physical motor. A braking-only base fitted a
+    coasting reference with an instantaneous rotor and a Kv hundreds of times the motor's."""
+    effects = {"rotor_lag": 1.0, "spin_down_asymmetry": braking_removed}
+    res = simulate("steps", 30.0, 7, effects=effects, pwm=command("steps", 30.0, 7))
+    write_sim_bag(res, tmp_path / "bag")
+    data = pf.Data.of([load_signals(tmp_path / "bag")])
+    config = pc.load_config(None).with_supply(data.signals)
+    model, switched = pf.with_base_effects(config)
+    assert switched == ("rotor_lag", "spin_down_asymmetry")
+    fit = pf.fit_reference(model, data, switched=switched)
+    assert fit.model.effects["spin_down_asymmetry"] == pytest.approx(braking_removed, abs=0.1)
+    assert fit.model.effects["rotor_lag"] == pytest.approx(1.0, rel=0.25)
+    # (Kv trades with the free map exponent on speed alone: within 30 %, not the datasheet's 10 %)
+    assert fit.model.params.motor_kv_rpm_per_v == pytest.approx(BenchParams().motor_kv_rpm_per_v, rel=0.3)
+    # both ends are physical ESCs, not bounds of the fit; the motor is a loaded one
+    assert [f.text() for f in pf.fit_flags(fit, config, "reference fit")] == []
+
+
 def test_reference_fit_moves_a_dead_time_off_the_configs(tmp_path):
     """The dead time acts on the model's 5 ms grid: its strength must still be fitted (a bench with
     58 ms against the CONFIG's 40 ms stayed at 40 ms, and rotor lag took the blame)."""

@@ -47,6 +47,29 @@ def test_throttle_map_one_float_equals_the_array(threshold: float, exponent: flo
     assert pl.throttle(mid, threshold, exponent) == pytest.approx(0.5**exponent)
 
 
+@pytest.mark.parametrize("curvature", [0.0, 0.35, 1.0])
+def test_curved_throttle_map_is_the_linear_and_square_blend(curvature: float) -> None:
+    """Exponent 1: duty = (1 - c) x + c x^2 by hand, the foreign ESC's a x + (1 - a) x^2; with an
+    exponent it multiplies x**exponent; one float equals the array; an origin below the threshold
+    jumps to the curved map's value there."""
+    levels = np.linspace(0.03, 0.12, 181)
+    threshold = 0.055
+    x = np.clip((levels - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
+    arr = pl.throttle(levels, threshold, 1.0, None, curvature)
+    np.testing.assert_allclose(arr, (1.0 - curvature) * x + curvature * x * x, rtol=1e-14, atol=1e-15)
+    bent = pl.throttle(levels, threshold, 1.3, None, curvature)
+    np.testing.assert_allclose(bent, x**1.3 * ((1.0 - curvature) + curvature * x), rtol=1e-14, atol=1e-15)
+    one = np.array([pl.throttle(float(v), threshold, 1.3, None, curvature) for v in levels])
+    np.testing.assert_allclose(one, bent, rtol=1e-15, atol=0.0)
+    assert np.all(np.diff(bent) >= 0.0) and bent[-1] == 1.0
+    xo = (0.056 - PWM_STOP) / (PWM_FULL - PWM_STOP)
+    jump = pl.throttle(0.056, threshold, 1.0, PWM_STOP, curvature)
+    assert jump == pytest.approx((1 - curvature) * xo + curvature * xo**2)
+    # the plant's map carries it (esc_map), and a curvature past the square law is refused
+    p = dataclasses.replace(pp.PlantParams(), esc_throttle_curvature=curvature)
+    assert pl.esc_map(p, {"esc_deadband": 1.0})[3] == curvature
+
+
 def test_dead_time_and_start_level_scale_with_the_effects() -> None:
     p = pp.PlantParams()
     eff = pp.resolve_effects({"input_delay": 0.5, "esc_deadband": 2.0})
@@ -136,6 +159,8 @@ def test_without_braking_the_current_never_goes_negative() -> None:
     ("propeller_cp", math.nan, "finite"),
     ("esc_deadband_pwm", 0.05, "no throttle range"),
     ("sim_step_s", 0.01, "too coarse"),
+    ("esc_throttle_curvature", 1.2, "past the square law"),
+    ("esc_throttle_curvature", -0.1, ">= 0"),
 ])
 def test_unphysical_constants_are_named(field: str, value: float, needle: str) -> None:
     p = dataclasses.replace(pp.PlantParams(), **{field: value})

@@ -66,6 +66,8 @@ CASES = {
     # an ESC whose map starts below its start threshold (esc_map_origin_share), threshold at 3x
     "random bench, map from below the threshold": (dataclasses.replace(rb.draw_bench(3), esc_map_origin_share=1.4),
                                                    {"esc_deadband": 3.0}, 10, TAU),
+    # a curved map (linear and square blend)
+    "random bench, curved map": (dataclasses.replace(rb.draw_bench(4), esc_throttle_curvature=0.6), {}, 10, TAU),
 }
 
 

@@ -180,7 +180,7 @@ class PhysicsTwins:
         self.source_resistance_ohm = sp.source_resistance_ohm
         self._dt = params.sim_step_s
         self._delay = dead_time_s(params, eff)
-        self._map = esc_map(params, eff)  #: throttle's (threshold, exponent, origin), as the stream's
+        self._map = esc_map(params, eff)  #: throttle's (threshold, exponent, origin, curvature), as the stream's
         self._t0: float | None = None
         self._pt: list[float] = []
         self._pv: list[float] = []
@@ -227,7 +227,7 @@ class PhysicsTwins:
         pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
         pi, vi, k = self._pi, self._vi, self._k
         level, duty = self._level, self._duty
-        threshold, exponent, origin = self._map
+        threshold, exponent, origin, curvature = self._map
         v_ref, sbv, a_lp = self._v_ref, self._sbv, self._a_lp
         steps, rs, lift = self._steps, self._rs, self._lift
         w, temp, ib_lp, ib, w_now = self._w, self._temp, self._ib_lp, self._ib, self._w_now
@@ -241,7 +241,7 @@ class PhysicsTwins:
                     level = pv[pi]
                     pi += 1
                 if level != held:
-                    duty = throttle(level, threshold, exponent, origin)
+                    duty = throttle(level, threshold, exponent, origin, curvature)
             while vi + 1 < len(vt) and vt[vi + 1] <= ts:
                 vi += 1
             source = v_ref + sbv * (vv[vi] - v_ref)

@@ -4,17 +4,18 @@ Its specifics, behind the ``base.ModelKind`` protocol the loop (``workflow.py``)
 model and its CONFIG are ``physics/config.py``, its calibration and fit flags ``physics/fit.py``
 (``pf``), the effects' scores and strength fits ``physics.py`` here:
 
-- step 1, reference first (with --reference): Kv, CP, the throttle exponent, the strengths of
-  the CONFIG's effects and of what every bench has (``pf.BASE_EFFECTS``: the rotor's
-  inertia, whatever the CONFIG switches on; 0 allowed) fitted on the reference recordings
-  (``pf.fit_reference``). It must explain the reference (within NOT_EXPLAINED_FACTOR of the
-  speed's own noise or NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and
-  ``pf.LOADED_SPEED_RANGE``); when it does not, the base is completed with every effect the
-  CONFIG leaves off, all fitted on the reference (``PhysicsKind._complete_base``: in the base like
-  the inertia, freed on the measured data), and if that does not explain it either, no effect is
-  named and the verdict says why. Then Kv and
-  CP calibrated on the measured recordings (and, separately, on the reference), the exponent held
-  (``pf.HELD_AFTER_REFERENCE``; without --reference it is calibrated there too);
+- step 1, reference first (with --reference): Kv, CP, the throttle map's exponent and curvature
+  (``pf.MAP_SHAPE``), the strengths of the CONFIG's effects and of what every bench has
+  (``pf.BASE_EFFECTS``: the rotor's inertia and whether the ESC brakes or coasts, whatever the
+  CONFIG switches on; 0 allowed) fitted on the reference recordings (``pf.fit_reference``). It
+  must explain the reference (within NOT_EXPLAINED_FACTOR of the speed's own noise or
+  NOT_EXPLAINED_SHARE of its range) with a physical motor (Kv, CP and ``pf.LOADED_SPEED_RANGE``);
+  when it does not, the base is completed with every effect the CONFIG leaves off, all fitted on
+  the reference (``PhysicsKind._complete_base``: in the base like the inertia, freed on the
+  measured data), and if that does not explain it either, no effect is named and the verdict says
+  why. Then Kv and CP calibrated on the measured recordings (and, separately, on the reference),
+  the map held (``pf.HELD_AFTER_REFERENCE``; without --reference its exponent is calibrated there
+  too);
 - step 3: every effect scored on held-out time blocks of the measured data and, separately
   calibrated, of the reference data: one that is off switched on, one in the base freed (its
   strength refitted from a grid, constants recalibrated). The score is on the measured data
@@ -114,7 +115,7 @@ class PhysicsKind:
             on = [n for n in c.EFFECTS if model.effects[n] > 0.0]
             progress(f"step 1: reference first: {', '.join([*CALIBRATED, *on])} fitted on "
                      f"{len(reference)} reference recording(s)")
-            rf = pf.fit_reference(model, self.ref_data, switched=switched)
+            rf = pf.fit_reference(model, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
             flags = self._judge_reference(rf, [], reference, progress)
             if self.unexplained is not None:
                 rf, flags = self._complete_base(model, switched, rf, flags, reference, progress)
@@ -148,7 +149,8 @@ class PhysicsKind:
         base = (*pf.BASE_EFFECTS, *completed)
         in_base = {n: ph.value_text(ph.fitted_value(n, model.effects[n], model.params, model.supply_v))
                    for n in base if model.effects[n] > ph.BASE_SAME_ZERO}
-        self.reference_fit = {"constants": model.constants(), "strengths": {n: model.effects[n] for n in on},
+        constants = {**model.constants(), **{n: float(getattr(model.params, n)) for n in rf.linear}}
+        self.reference_fit = {"constants": constants, "strengths": {n: model.effects[n] for n in on},
                               "in_base": in_base, "rmse_rad_s": float(np.sqrt(rf.sse / max(len(rf.r), 1))),
                               "at_bound": [f.text() for f in flags if f.at_bound],
                               "implausible": [f.text() for f in flags if not f.at_bound],
@@ -156,6 +158,7 @@ class PhysicsKind:
         progress(f"  reference fit: {constants_text(model)}; strengths "
                  + (", ".join(f"{n} {model.effects[n]:.2f}" for n in on) or "none")
                  + "".join(f", {k} {v:.4g}" for k, v in rf.companions().items())
+                 + "".join(f", {n} {getattr(model.params, n):.3g}" for n in rf.linear)
                  + f"; RMSE {self.reference_fit['rmse_rad_s']:.2f} rad/s")
         self.base_effects = base
         self.unexplained = self._not_explained(flags, reference, progress)
@@ -184,7 +187,7 @@ class PhysicsKind:
         for name in more:
             full = full.with_effect(name, COMPLETION_START[name])
         assert self.ref_data is not None  # only a reference fit is completed
-        done = pf.fit_reference(full, self.ref_data, switched=switched)
+        done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
         done_flags = self._judge_reference(done, more, reference, progress)
         if self.unexplained is None or done.sse < rf.sse:
             return done, done_flags

@@ -38,8 +38,11 @@ CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp", "esc_throttle_exponent", "ba
 #: calibrated by default. ``esc_map_origin_share``: where the throttle map starts below the ESC's
 #: start threshold (``plant.map_origin``), from the threshold itself (0) to as far below PWM_STOP as
 #: the threshold is above it (2); the esc_test F80's BLHeli_32 ESC maps from ~990 us and starts the
-#: rotor between 1100 and 1150 us (~1.1).
-LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2.0)}
+#: rotor between 1100 and 1150 us (~1.1). ``esc_throttle_curvature``: the map's square-law share
+#: (``plant.throttle``), from none (0) to the square law (1); the discrepancy workflow fits it on
+#: the reference (``fit.MAP_SHAPE``).
+LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2.0),
+                                                 "esc_throttle_curvature": (0.0, 1.0)}
 #: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
 #: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
 #: the error is ~0.5 rad/s RMS, 2.5 rad/s at most, below the tachometer's ~5 rad/s noise).

@@ -46,6 +46,12 @@ class PlantParams:
     # linear map in [0, 1]. 1 is the linear map of BLHeli's default; other ESCs (or a "throttle
     # curve" setting) bend it. Randomized benches draw it to give the ESC a structure of its own.
     esc_throttle_exponent: float = 1.0
+    # the map's second shape constant: duty = x**exponent * ((1 - c) + c x), c in [0, 1]. 0 is the
+    # power law alone; 1 with exponent 1 the square law. Real ESC curves and "throttle curve"
+    # settings are a blend of a linear and a quadratic part (duty = a x + (1 - a) x^2, a = 1 - c):
+    # a power law matches such a blend at two levels only, and the 1-2 % of the duty it misses
+    # elsewhere is what a start threshold or a dead time is then fitted to stand in for.
+    esc_throttle_curvature: float = 0.0
     # where the throttle map starts (duty 0 of its linear part), below the start threshold, as a
     # share of the threshold's distance above PWM_STOP: 0, the map starts where the drive starts
     # (the drive rises from 0 at the threshold); 1, at PWM_STOP (the threshold only cuts the drive
@@ -117,6 +123,7 @@ PLANT_MAY_BE_ZERO = frozenset({
     "esc_resistance_ohm",
     "esc_deadband_pwm",
     "esc_map_origin_share",
+    "esc_throttle_curvature",
     "esc_input_delay_s",
     "motor_no_load_current_a",
     "copper_temperature_coefficient_per_k",
@@ -124,7 +131,7 @@ PLANT_MAY_BE_ZERO = frozenset({
 })
 #: Constants a model file may lack, read at their default: added after model files were written
 #: (a file written before holds the same model it held).
-PLANT_OPTIONAL_FIELDS = frozenset({"esc_map_origin_share"})
+PLANT_OPTIONAL_FIELDS = frozenset({"esc_map_origin_share", "esc_throttle_curvature"})
 #: Constants whose value is a temperature (any finite value).
 PLANT_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
 #: Coarsest integration step the rotor tolerates (its time constant is ~0.1 s at nominal inertia).
@@ -153,6 +160,9 @@ def plant_problem(p: PlantParams) -> tuple[str, str] | None:
             return name, why
     if p.esc_deadband_pwm >= 0.04:
         return "esc_deadband_pwm", f"{p.esc_deadband_pwm!r} leaves no throttle range (must be < 0.04)"
+    if p.esc_throttle_curvature > 1.0:
+        why = f"{p.esc_throttle_curvature!r} bends the map past the square law (must be <= 1)"
+        return "esc_throttle_curvature", why
     if p.sim_step_s > MAX_STEP_S:
         return "sim_step_s", f"{p.sim_step_s!r} too coarse for the rotor (must be <= {MAX_STEP_S} s)"
     return None

@@ -10,9 +10,10 @@ sensors).
 Model (SI units throughout):
 
 * ESC: the PWM level held from each frame, delayed by a dead time, mapped to a duty cycle between
-  the start threshold (no drive below it) and PWM_FULL (``throttle``), applied to the supply. The
-  map's linear part may start below the threshold (``map_origin``, ``esc_map_origin_share``): an
-  ESC whose duty follows the command from about PWM_STOP but that starts the motor only higher up.
+  the start threshold (no drive below it) and PWM_FULL (``throttle``: a power law blended with a
+  square law), applied to the supply. The map's linear part may start below the threshold
+  (``map_origin``, ``esc_map_origin_share``): an ESC whose duty follows the command from about
+  PWM_STOP but that starts the motor only higher up.
   Averaged (quasi-static) electrics: the winding's L/R (~30 uH / 0.26 Ohm ~ 0.1 ms) is far below
   the 1 ms step and the ~0.1 s rotor time constant, so i = (duty V - Ke w) / R_total, with the
   source's series resistance seen through the duty (R_s duty^2). The motor current is continuous
@@ -58,11 +59,13 @@ def _clip(x: Level, lo: float, hi: float) -> Level:
     return min(max(x, lo), hi)
 
 
-def throttle(level: Level, threshold: float, exponent: float = 1.0, origin: float | None = None) -> Level:
+def throttle(level: Level, threshold: float, exponent: float = 1.0, origin: float | None = None,
+             curvature: float = 0.0) -> Level:
     """ESC throttle map, PWM level -> duty (0..1): no drive at or below the start threshold, then
-    (linear map)**exponent to full duty at PWM_FULL (exponent 1: linear). The linear map runs from
-    ``origin`` (None: the threshold itself, so the drive rises from 0 there); an origin below the
-    threshold makes the drive jump to the map's value just above it. Arrays or one float."""
+    x**exponent * ((1 - curvature) + curvature x) to full duty at PWM_FULL, x the linear map
+    (exponent 1 and curvature 0: linear). The linear map runs from ``origin`` (None: the threshold
+    itself, so the drive rises from 0 there); an origin below the threshold makes the drive jump
+    to the map's value just above it. Arrays or one float."""
     lv = _clip(level, PWM_STOP, PWM_FULL)
     if origin is None or origin == threshold:
         x = _clip((lv - threshold) / (PWM_FULL - threshold), 0.0, 1.0)
@@ -72,7 +75,8 @@ def throttle(level: Level, threshold: float, exponent: float = 1.0, origin: floa
             x = np.where(lv <= threshold, 0.0, x)
         elif lv <= threshold:
             x = 0.0
-    return x if exponent == 1.0 else x**exponent
+    duty = x if exponent == 1.0 else x**exponent
+    return duty if curvature == 0.0 else duty * ((1.0 - curvature) + curvature * x)
 
 
 def start_level(p: PlantParams, eff: Mapping[str, float]) -> float:
@@ -88,10 +92,10 @@ def map_origin(p: PlantParams, eff: Mapping[str, float]) -> float:
     return start - p.esc_map_origin_share * (start - PWM_STOP)
 
 
-def esc_map(p: PlantParams, eff: Mapping[str, float]) -> tuple[float, float, float]:
-    """``throttle``'s (threshold, exponent, origin) for the plant ``p`` under the strengths ``eff``:
-    what the batch path and the stream map a level with."""
-    return start_level(p, eff), p.esc_throttle_exponent, map_origin(p, eff)
+def esc_map(p: PlantParams, eff: Mapping[str, float]) -> tuple[float, float, float, float]:
+    """``throttle``'s (threshold, exponent, origin, curvature) for the plant ``p`` under the
+    strengths ``eff``: what the batch path and the stream map a level with."""
+    return start_level(p, eff), p.esc_throttle_exponent, map_origin(p, eff), p.esc_throttle_curvature
 
 
 def dead_time_s(p: PlantParams, eff: Mapping[str, float]) -> float:

@@ -114,7 +114,7 @@ class PlantStream:
         self._step = make_step(p, eff, sp.source_resistance_ohm)
         self._dt = p.sim_step_s
         self._delay = dead_time_s(p, eff)
-        self._map = esc_map(p, eff)  #: throttle's (threshold, exponent, origin)
+        self._map = esc_map(p, eff)  #: throttle's (threshold, exponent, origin, curvature)
         self._supply = (sp.v_ref, sp.strength, sp.source_resistance_ohm, sp.lowpass_gain)
         self.late_inputs = 0
         self.reset(initial_speed)
@@ -239,7 +239,7 @@ class PlantStream:
         pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
         n_p, n_v = len(pt), len(vt)
         t0, dt, lead = self._t0, self._dt, self._delay
-        threshold, exponent, origin = self._map
+        threshold, exponent, origin, curvature = self._map
         v_ref, sbv, rs, a_lp = self._supply
         step = self._step
         assert t0 is not None, "steps exist only after the first command"
@@ -252,7 +252,7 @@ class PlantStream:
                     level = pv[pi]
                     pi += 1
                 if level != held:  # a 50 Hz command repeats its level most of the time
-                    duty = throttle(level, threshold, exponent, origin)
+                    duty = throttle(level, threshold, exponent, origin, curvature)
             while vi + 1 < n_v and vt[vi + 1] <= ts:
                 vi += 1
             if k == 0 and w > 0.0:  # started running: the supply current already filtered
