@@ -129,11 +129,12 @@ def test_a_reference_the_base_cannot_explain_names_nothing(reference):
 
 def test_a_base_that_cannot_explain_its_reference_is_completed_from_it(tmp_path):
     """The reference has a high ESC start level (PWM 0.075, esc_deadband 5) that the CONFIG (every
-    effect off) leaves out: the first base (inertia and braking) bends its throttle map to its bound
-    and leaves more than 5 % of the speed range, so the base is completed with every effect the
-    CONFIG leaves off, fitted on the reference: the start level and the motor come back as the
-    simulator has them, a strength the reference shows as absent (0) is no bound, and a dead time
-    twice the nominal in the measured data is named (new) with its value."""
+    effect off) leaves out: the first base (inertia, and whether the ESC brakes or coasts) bends
+    its throttle map to its bounds and leaves more than 5 % of the speed range, so the base is
+    completed with every effect the CONFIG leaves off, fitted on the reference: the start level
+    and the motor come back as the simulator has them, a strength the reference shows as absent
+    (0) is no bound, and a dead time twice the nominal in the measured data is named (new) with
+    its value."""
     ref = [load_signals(_bag(tmp_path, f"ref{k}", kd, 3100 + k, {"esc_deadband": 5.0}))
            for k, kd in enumerate(["steps", "lowsteps"])]
     changed = {"esc_deadband": 5.0, "input_delay": 2.0}
