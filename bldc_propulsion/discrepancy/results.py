@@ -196,7 +196,9 @@ class ReferenceFitJson(_ReferenceFitCore, total=False):
     """The physics kind's fit on the reference recordings (--json ``reference_fit``)."""
 
     speed_noise_rad_s: float  #: once the reference is judged explained or not
-    #: effects the CONFIG left off that the base was completed with (``PhysicsKind._complete_base``)
+    #: effects the CONFIG left off that the base was completed with: all of them when the base did
+    #: not explain the reference (``PhysicsKind._complete_base``), else those the reference alone
+    #: shows, in the order they were added (``PhysicsKind._shown_by_reference``)
     completed: list[str]
 
 
