@@ -167,6 +167,17 @@ class PhysicsKind:
         self.unexplained = self._not_explained(flags, reference, progress)
         return flags
 
+    def _fit_with(self, model: PhysicsConfig, switched: Sequence[str], added: Sequence[str],
+                  reference: Sequence[Signals], progress: Progress) -> tuple[pf.Fit, list[pf.FitFlag]]:
+        """The base with the effects ``added`` (from COMPLETION_START) fitted on the reference and
+        judged; from ``model``, the CONFIG's constants, so that the fit's window stays the CONFIG's."""
+        assert self.ref_data is not None  # only a reference fit is completed
+        full = model
+        for name in added:
+            full = full.with_effect(name, COMPLETION_START[name])
+        done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
+        return done, self._judge_reference(done, added, reference, progress)
+
     def _complete_base(self, model: PhysicsConfig, switched: Sequence[str], rf: pf.Fit, flags: list[pf.FitFlag],
                        reference: Sequence[Signals], progress: Progress) -> tuple[pf.Fit, list[pf.FitFlag]]:
         """The base that did not explain its reference, completed with every effect the CONFIG
@@ -186,12 +197,7 @@ class PhysicsKind:
             return rf, flags
         first, first_fit, first_flags, first_base = self.unexplained, self.reference_fit, flags, self.base_effects
         progress(f"  {first}: the base completed with {', '.join(more)} (off in the CONFIG), fitted on the reference")
-        full = model
-        for name in more:
-            full = full.with_effect(name, COMPLETION_START[name])
-        assert self.ref_data is not None  # only a reference fit is completed
-        done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
-        done_flags = self._judge_reference(done, more, reference, progress)
+        done, done_flags = self._fit_with(model, switched, more, reference, progress)
         if self.unexplained is None or done.sse < rf.sse:
             return done, done_flags
         progress(f"  the completed base explains it no better: {first}")
@@ -227,11 +233,7 @@ class PhysicsKind:
             progress(f"  the reference shows {best}: fitted into the base with "
                      f"{', '.join([*shown, best])} on the reference")
             kept = self.unexplained, self.reference_fit, self.base_effects
-            full = model  # from the CONFIG's constants: the fit's window stays the CONFIG's
-            for name in (*shown, best):
-                full = full.with_effect(name, COMPLETION_START[name])
-            done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
-            done_flags = self._judge_reference(done, [*shown, best], reference, progress)
+            done, done_flags = self._fit_with(model, switched, [*shown, best], reference, progress)
             if self.unexplained is not None or done.sse >= rf.sse:
                 progress(f"  not kept: the base with {best} "
                          + ("does not explain the reference" if self.unexplained else "fits it no better"))
