@@ -127,14 +127,13 @@ def test_a_reference_the_base_cannot_explain_names_nothing(reference):
     assert data["named"] == [] and data["evidence"] == {}
 
 
-def test_a_base_that_cannot_explain_its_reference_is_completed_from_it(tmp_path):
+def test_a_start_threshold_the_config_leaves_out_is_fitted_into_the_base(tmp_path):
     """The reference has a high ESC start level (PWM 0.075, esc_deadband 5) that the CONFIG (every
-    effect off) leaves out: the first base (inertia, and whether the ESC brakes or coasts) bends
-    its throttle map to its bounds and leaves more than 5 % of the speed range, so the base is
-    completed with every effect the CONFIG leaves off, fitted on the reference: the start level
-    and the motor come back as the simulator has them, a strength the reference shows as absent
-    (0) is no bound, and a dead time twice the nominal in the measured data is named (new) with
-    its value."""
+    effect off) leaves out: the start level is fitted into the base from the reference (with the
+    throttle map's origin, which starts its fit at PWM_STOP and comes back to the simulator's
+    map rescaled from the threshold), the motor comes back as the simulator has it, a strength
+    the reference shows as absent (0) is no bound, and a dead time twice the nominal in the
+    measured data is named (new) with its value."""
     ref = [load_signals(_bag(tmp_path, f"ref{k}", kd, 3100 + k, {"esc_deadband": 5.0}))
            for k, kd in enumerate(["steps", "lowsteps"])]
     changed = {"esc_deadband": 5.0, "input_delay": 2.0}
@@ -142,8 +141,9 @@ def test_a_base_that_cannot_explain_its_reference_is_completed_from_it(tmp_path)
     hold = [load_signals(_bag(tmp_path, "hold", "steps", 3300, changed))]
     data = run_physics_workflow(pc.load_config(None), meas, ref, hold, Options(max_effects=1), lambda m: None).data
     fit = data["reference_fit"]
-    assert set(fit["completed"]) == set(c.EFFECTS) - set(pf.BASE_EFFECTS), fit
+    assert "esc_deadband" in fit["completed"], fit
     assert fit["strengths"]["esc_deadband"] == pytest.approx(5.0, rel=0.1), fit["strengths"]
+    assert fit["constants"]["esc_map_origin_share"] < 0.2, fit["constants"]
     assert fit["constants"]["motor_kv_rpm_per_v"] == pytest.approx(710.0, rel=0.1), fit["constants"]
     assert fit["rmse_rad_s"] < 0.02 * max(float(np.nanmax(s.speed)) for s in ref), fit["rmse_rad_s"]
     assert not any("strength 0 at its bound" in w for w in fit["at_bound"]), fit["at_bound"]

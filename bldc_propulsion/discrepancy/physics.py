@@ -27,7 +27,7 @@ import numpy as np
 
 from .. import contract as c
 from ..physics.config import PhysicsConfig
-from ..physics.fit import STRENGTH_MAX, Data, Fit, recalibrate
+from ..physics.fit import STRENGTH_MAX, Data, Fit, recalibrate_with
 from ..physics.params import BenchParams
 from ..physics.plant import full_drive_speeds, spin_up_time_constant_s
 from ..recordings import Signals
@@ -41,7 +41,11 @@ STRENGTH_GRID: dict[str, tuple[float, ...]] = {
     # 80 ms; longer ones are reached by the fit (up to STRENGTH_MAX). A 120 ms point would let a
     # dead time stand in for a missing inertia with every effect off (167 ms on the demo's bags)
     "input_delay": (0.25, 0.5, 1.0, 1.5, 2.0),
-    "esc_deadband": (0.5, 1.0, 2.0),
+    # a start threshold on the wrong side of one commanded level predicts a stopped rotor where it
+    # runs (or the reverse) for that whole hold, so the grid is as fine as the levels a random
+    # staircase commands (1.25e-3 PWM level between points): with 0.5, 1, 2 (0.0525, 0.055,
+    # 0.06) a foreign bench's 0.0567 scored -127 % with its rotor resting at 0.0558 and running at 0.0574
+    "esc_deadband": (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0),
     "spin_down_asymmetry": (0.5, 1.0),
     "motor_heating": (0.25, 0.5, 1.0, 2.0),
 }
@@ -186,8 +190,9 @@ def score(null: Fit, cands: Sequence[Fit], grid: Sequence[float], data: BlockedD
 
 def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
     """The effect switched on at each grid strength, constants recalibrated from ``base``'s (its
-    COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``)."""
-    return [recalibrate(base, base.model.with_effect(name, g), data) for g in STRENGTH_GRID[name]]
+    COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``; its
+    SWITCH_COMPANIONS fitted along: ``physics.fit.recalibrate_with``)."""
+    return [recalibrate_with(base, base.model.with_effect(name, g), data, [name]) for g in STRENGTH_GRID[name]]
 
 
 def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
@@ -205,7 +210,7 @@ def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
             nxt = best / 2.0
         else:
             break
-        pts[nxt] = recalibrate(base, base.model.with_effect(name, nxt), data)
+        pts[nxt] = recalibrate_with(base, base.model.with_effect(name, nxt), data, [name])
     xs = sorted(pts)
     j = min(range(len(xs)), key=lambda i: pts[xs[i]].sse)
     if 0 < j < len(xs) - 1:
@@ -214,10 +219,11 @@ def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
         a, b, _ = np.polyfit(x, y, 2)
         if a > 0:
             s = float(np.clip(-b / (2 * a), x[0], x[2]))
-            cand = recalibrate(base, pts[xs[j]].model.with_effect(name, s), data)
+            cand = recalibrate_with(base, pts[xs[j]].model.with_effect(name, s), data, [name],
+                                    companions_from=pts[xs[j]].model)
             if cand.sse < pts[xs[j]].sse:
                 pts[s] = cand
                 xs[j] = s
     # polished jointly with its strength free, as it will be refitted with every later effect
     # (see calibrate): the next round's null then has the same free parameters as its candidates
-    return recalibrate(base, pts[xs[j]].model, data, (*base.free, name))
+    return recalibrate_with(base, pts[xs[j]].model, data, [name], (*base.free, name), pts[xs[j]].model)

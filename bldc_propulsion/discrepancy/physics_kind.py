@@ -116,7 +116,8 @@ class PhysicsKind:
             on = [n for n in c.EFFECTS if model.effects[n] > 0.0]
             progress(f"step 1: reference first: {', '.join([*CALIBRATED, *on])} fitted on "
                      f"{len(reference)} reference recording(s)")
-            rf = pf.fit_reference(model, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
+            rf = pf.fit_reference(model, self.ref_data, switched=switched, linear=pf.MAP_SHAPE,
+                                  base_companions=pf.BASE_COMPANIONS)
             flags = self._judge_reference(rf, [], reference, progress)
             if self.unexplained is not None:
                 rf, flags = self._complete_base(model, switched, rf, flags, reference, progress)
@@ -175,7 +176,8 @@ class PhysicsKind:
         full = model
         for name in added:
             full = full.with_effect(name, COMPLETION_START[name])
-        done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE)
+        done = pf.fit_reference(full, self.ref_data, switched=switched, linear=pf.MAP_SHAPE, with_companions=added,
+                                base_companions=pf.BASE_COMPANIONS)
         return done, self._judge_reference(done, added, reference, progress)
 
     def _complete_base(self, model: PhysicsConfig, switched: Sequence[str], rf: pf.Fit, flags: list[pf.FitFlag],
@@ -294,7 +296,8 @@ class PhysicsKind:
             ref_model = self.cur_ref.model
             for name in self._ref_pending:
                 ref_model = ref_model.with_effect(name, self.cur.model.effects[name])
-            self.cur_ref = pf.recalibrate(self.cur_ref, ref_model, self.ref_data, self.cur.free)
+            self.cur_ref = pf.recalibrate_with(self.cur_ref, ref_model, self.ref_data, self._ref_pending,
+                                               self.cur.free, companions_from=self.cur.model)
         self._ref_pending = []
         out = {}
         for name in names:
