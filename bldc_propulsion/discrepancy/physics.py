@@ -29,7 +29,7 @@ from .. import contract as c
 from ..physics.config import PhysicsConfig
 from ..physics.fit import STRENGTH_MAX, Data, Fit, recalibrate_with
 from ..physics.params import BenchParams
-from ..physics.plant import full_drive_speeds, spin_up_time_constant_s
+from ..physics.plant import full_drive_speeds, map_origin, spin_up_time_constant_s
 from ..recordings import Signals
 from . import scoring as sc
 
@@ -94,6 +94,8 @@ class FittedValue(_FittedValueCore, total=False):
     recordings identify of it (for some effects, and only with the model's supply voltage)."""
 
     thermal_time_constant_s: float
+    map_origin_pwm: float
+    friction_current_a: float
     time_constant_ms: float
     at_speed_rad_s: float
     warm_speed_loss_percent: float
@@ -121,6 +123,9 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
     out: FittedValue = {"quantity": quantity, "value": float(value), "unit": unit, "strength": float(strength)}
     if name == "motor_heating":  # fitted along with it (COMPANIONS)
         out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
+    if name == "esc_deadband":  # fitted along with it (SWITCH_COMPANIONS)
+        out["map_origin_pwm"] = float(map_origin(p, {"esc_deadband": strength}))
+        out["friction_current_a"] = float(p.motor_no_load_current_a)
     if supply_v is not None and name in ("rotor_lag", "motor_heating"):
         eff = {**{n: 0.0 for n in c.EFFECTS}, name: float(strength)}
         cold, warm = full_drive_speeds(p, eff, supply_v)
@@ -139,6 +144,9 @@ def value_text(value: FittedValue) -> str:
     text = f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()
     if value.get("thermal_time_constant_s") is not None:
         text += f", thermal time constant {value['thermal_time_constant_s']:.0f} s"
+    if value.get("map_origin_pwm") is not None:
+        text += (f" (throttle map from {value['map_origin_pwm']:.4g}; friction as "
+                 f"{value.get('friction_current_a', float('nan')):.2g} A of no-load current)")
     if value.get("time_constant_ms") is not None:
         text += f"; spin-up time constant {value['time_constant_ms']:.0f} ms at {value['at_speed_rad_s']:.0f} rad/s"
     if value.get("warm_speed_loss_percent") is not None:
