@@ -196,6 +196,13 @@ def score(null: Fit, cands: Sequence[Fit], grid: Sequence[float], data: BlockedD
     )
 
 
+def score_effect(base: Fit, name: str, data: BlockedData) -> tuple[sc.Score, list[Fit]]:
+    """``name`` scored against ``base`` on held-out blocks of ``data`` (``score`` over
+    ``effect_fits`` at its STRENGTH_GRID), and those fits (``fit_strength`` starts from them)."""
+    fits = effect_fits(base, name, data)
+    return score(base, fits, STRENGTH_GRID[name], data), fits
+
+
 def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
     """The effect switched on at each grid strength, constants recalibrated from ``base``'s (its
     COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``; its

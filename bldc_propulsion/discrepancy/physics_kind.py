@@ -226,7 +226,7 @@ class PhysicsKind:
                 break
             best, best_share = None, MIN_EFFECT
             for name in more:
-                s = ph.score(rf, ph.effect_fits(rf, name, self.ref_data), ph.STRENGTH_GRID[name], self.ref_data)
+                s = ph.score_effect(rf, name, self.ref_data)[0]
                 progress(f"  on the reference alone: {name} {100 * s.fraction:.1f} % (p {s.p_value:.2g})")
                 if s.p_value < ALPHA / len(more) and s.fraction >= best_share:
                     best, best_share = name, s.fraction
@@ -301,10 +301,8 @@ class PhysicsKind:
         self._ref_pending = []
         out = {}
         for name in names:
-            grid = ph.STRENGTH_GRID[name]
-            self._fits[name] = ph.effect_fits(self.cur, name, self.meas_data)
-            m = ph.score(self.cur, self._fits[name], grid, self.meas_data)
-            r = (ph.score(self.cur_ref, ph.effect_fits(self.cur_ref, name, self.ref_data), grid, self.ref_data)
+            m, self._fits[name] = ph.score_effect(self.cur, name, self.meas_data)
+            r = (ph.score_effect(self.cur_ref, name, self.ref_data)[0]
                  if self.cur_ref is not None and self.ref_data is not None else None)
             # (the grid strength chosen most often across the folds: the fit of step 4 refines it)
             out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model))
