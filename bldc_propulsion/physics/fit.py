@@ -102,7 +102,8 @@ SWITCH_COMPANIONS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: that had none (foreign bench 2), the friction fitted along doing the work.
 BASE_COMPANIONS = ("motor_no_load_current_a",)
 #: Where a linear SWITCH_COMPANIONS constant starts its fit: the map from PWM_STOP, the threshold
-#: only cutting the drive off below it (a least-squares fit from the rescaled map, 0, stays there).
+#: only cutting the drive off below it, as training's origin fit starts (real ESCs: the esc_test
+#: F80 maps from ~990 us and starts the rotor at 1100-1150 us).
 SWITCH_START = {"esc_map_origin_share": 1.0}
 #: Upper bounds of a fitted strength: 6x nominal covers a bench with twice the nominal dead time,
 #: inertia or start threshold and an effect twice as strong; spin-down's 1 is physical (all braking
