@@ -145,8 +145,8 @@ def value_text(value: FittedValue) -> str:
     if value.get("thermal_time_constant_s") is not None:
         text += f", thermal time constant {value['thermal_time_constant_s']:.0f} s"
     if value.get("map_origin_pwm") is not None:
-        text += (f" (throttle map from {value['map_origin_pwm']:.4g}; friction as "
-                 f"{value.get('friction_current_a', float('nan')):.2g} A of no-load current)")
+        text += (f", throttle map from {value['map_origin_pwm']:.4g}, friction "
+                 f"{value.get('friction_current_a', float('nan')):.2g} A of no-load current")
     if value.get("time_constant_ms") is not None:
         text += f"; spin-up time constant {value['time_constant_ms']:.0f} ms at {value['at_speed_rad_s']:.0f} rad/s"
     if value.get("warm_speed_loss_percent") is not None:

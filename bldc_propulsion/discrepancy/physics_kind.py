@@ -305,7 +305,9 @@ class PhysicsKind:
             r = (ph.score_effect(self.cur_ref, name, self.ref_data)[0]
                  if self.cur_ref is not None and self.ref_data is not None else None)
             # (the grid strength chosen most often across the folds: the fit of step 4 refines it)
-            out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], self.cur.model))
+            # (described by the fit at that strength: its companions are fitted there)
+            at = self._fits[name][ph.STRENGTH_GRID[name].index(m.params["strength"])].model
+            out[name] = Scores(m, m, r, "grid " + ph.describe(name, m.params["strength"], at))
         return out
 
     def add(self, name: str, params: dict[str, float] | None, reference_params: dict[str, float] | None,
