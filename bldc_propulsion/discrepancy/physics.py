@@ -125,7 +125,7 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
         out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
     if name == "esc_deadband":  # fitted along with it (SWITCH_COMPANIONS)
         out["map_origin_pwm"] = float(map_origin(p, {"esc_deadband": strength}))
-        out["friction_current_a"] = float(p.motor_no_load_current_a)
+        out["friction_current_a"] = float(p.motor_no_load_current_a)  # the base's (BASE_COMPANIONS)
     if supply_v is not None and name in ("rotor_lag", "motor_heating"):
         eff = {**{n: 0.0 for n in c.EFFECTS}, name: float(strength)}
         cold, warm = full_drive_speeds(p, eff, supply_v)
