@@ -81,9 +81,9 @@ LOG_RANGE_EFFECT = math.log(3.0)
 COMPANIONS: dict[str, str] = {"motor_heating": "motor_thermal_resistance_k_per_w"}
 COMPANION_LOG_RANGE = math.log(4.0)
 #: Constants fitted along with an effect wherever the discrepancy workflow switches it on, at a
-#: grid strength as much as with its strength fitted (``recalibrate_with``): (log-scale ones,
-#: within COMPANION_LOG_RANGE of the CONFIG's; linear ones, config.LINEAR_RANGES, from
-#: SWITCH_START). Without them an effect cannot fit what it is, so its score says nothing.
+#: grid strength as much as with its strength fitted (``recalibrate_with``), on a linear scale
+#: (config.LINEAR_RANGES, from SWITCH_START). Without them an effect cannot fit what it is, so
+#: its score says nothing.
 #: Where the throttle map starts is the ESC's (``esc_map_origin_share``): an ESC may cut its map
 #: off below the start threshold (share 1) or rescale the map from it (0, this project's
 #: simulator). With it held at the CONFIG's 0 (foreign bench 1, start level 0.0577, map from
@@ -92,9 +92,7 @@ COMPANION_LOG_RANGE = math.log(4.0)
 #: went from 6.0 to 1.6 rad/s. The friction is not a companion here: fitted along with the
 #: threshold it wandered with every later effect (the demo's bags: 0.62 A, then 0.1 A at its
 #: bound with the dead time, for the bench's 0.4 A), and the bound hit refused the dead time.
-SWITCH_COMPANIONS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    "esc_deadband": ((), ("esc_map_origin_share",)),
-}
+SWITCH_COMPANIONS: dict[str, tuple[str, ...]] = {"esc_deadband": ("esc_map_origin_share",)}
 #: Constants of the base fitted on the reference in the discrepancy workflow along with the CALIBRATED
 #: ones (log scale, within COMPANION_LOG_RANGE of the CONFIG's; ``fit_reference``'s ``base_companions``),
 #: then held on the measured data like them: every real bench has friction, another motor's than
@@ -192,7 +190,7 @@ def calibrate(model: PhysicsConfig, data: Data, anchor: np.ndarray, log_range: n
     span[[j for j, n in enumerate(CALIBRATED) if n in inert_constants(model, data, free)]] = 0.0
     live = np.flatnonzero(span > 0.0)
     start = np.log(np.array([getattr(model.params, n) for n in CALIBRATED]) / anchor)
-    # (and every constant ``companion_anchor`` names: a SWITCH_COMPANIONS one stays fitted)
+    # (and every constant ``companion_anchor`` names: a BASE_COMPANIONS one of a reference fit)
     comp = [COMPANIONS[n] for n in free if n in COMPANIONS]
     comp += [n for n in companion_anchor or {} if n not in comp]
     comp_anchor = {n: (companion_anchor or {}).get(n, float(getattr(model.params, n))) for n in comp}
@@ -321,8 +319,8 @@ def fit_reference(model: PhysicsConfig, data: Data, hold: Sequence[str] = (), sw
     ``with_companions`` (``switch_companions``) and the constants ``base_companions`` (log scale,
     within COMPANION_LOG_RANGE of ``model``'s: BASE_COMPANIONS)."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0 and n not in held_effects)
-    model, anchors, linear = switch_companions(model, with_companions, linear=linear)
-    anchors = {**{n: float(getattr(model.params, n)) for n in base_companions}, **anchors}
+    model, linear = switch_companions(model, with_companions, linear)
+    anchors = {n: float(getattr(model.params, n)) for n in base_companions}
     fit = calibrate(model, data, *base_window(model, hold), on, max_nfev=60, linear=linear,
                     companion_anchor=anchors)
     low = {n: v for n, v in BASE_LOW_START.items() if n in switched}
@@ -520,32 +518,22 @@ def recalibrate_with(fit: Fit, model: PhysicsConfig, data: Data, names: Sequence
                      free: Sequence[str] | None = None, companions_from: PhysicsConfig | None = None) -> Fit:
     """``recalibrate`` with the effects ``names`` switched on in ``model``, their SWITCH_COMPANIONS
     fitted along (``switch_companions``)."""
-    model, anchors, linear = switch_companions(model, names, fit, companions_from)
+    model, linear = switch_companions(model, names, fit.linear, companions_from)
     return calibrate(model, data, fit.anchor, fit.log_range, fit.free if free is None else free,
-                     companion_anchor=anchors, linear=linear)
+                     companion_anchor=fit.companion_anchor, linear=linear)
 
 
-def switch_companions(model: PhysicsConfig, names: Sequence[str], fit: Fit | None = None,
-                      companions_from: PhysicsConfig | None = None,
-                      linear: Sequence[str] = ()) -> tuple[PhysicsConfig, dict[str, float], tuple[str, ...]]:
-    """(``model``, companion anchors, linear constants) for ``calibrate`` with the SWITCH_COMPANIONS
-    of the effects ``names`` added to ``fit``'s (or to none and ``linear``): those not fitted yet
-    start from ``companions_from``'s values (a fit of the same bench on other recordings) or,
-    without it, the CONFIG's (log scale: also the anchor) and SWITCH_START (linear)."""
-    anchors = dict(fit.companion_anchor) if fit is not None else {}
-    lin = list(fit.linear) if fit is not None else list(linear)
+def switch_companions(model: PhysicsConfig, names: Sequence[str], linear: Sequence[str] = (),
+                      companions_from: PhysicsConfig | None = None) -> tuple[PhysicsConfig, tuple[str, ...]]:
+    """(``model``, linear constants) for ``calibrate`` with the SWITCH_COMPANIONS of the effects
+    ``names`` added to ``linear``: those not there yet start from ``companions_from``'s values (a
+    fit of the same bench on other recordings) or, without it, SWITCH_START."""
+    lin = list(linear)
     values: dict[str, Any] = {}  # (untyped: see calibrate)
-    for name in names:
-        logs, lins = SWITCH_COMPANIONS.get(name, ((), ()))
-        for n in logs:
-            if n not in anchors:
-                anchors[n] = float(getattr((fit.model if fit is not None else model).params, n))
-                if companions_from is not None:
-                    values[n] = float(getattr(companions_from.params, n))
-        for n in lins:
-            if n not in lin:
-                lin.append(n)
-                values[n] = float(getattr(companions_from.params, n)) if companions_from else SWITCH_START[n]
+    for n in (n for name in names for n in SWITCH_COMPANIONS.get(name, ())):
+        if n not in lin:
+            lin.append(n)
+            values[n] = float(getattr(companions_from.params, n)) if companions_from else SWITCH_START[n]
     if values:
         model = dataclasses.replace(model, params=dataclasses.replace(model.params, **values))
-    return model, anchors, tuple(lin)
+    return model, tuple(lin)
