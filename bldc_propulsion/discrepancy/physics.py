@@ -95,7 +95,6 @@ class FittedValue(_FittedValueCore, total=False):
 
     thermal_time_constant_s: float
     map_origin_pwm: float
-    friction_current_a: float
     time_constant_ms: float
     at_speed_rad_s: float
     warm_speed_loss_percent: float
@@ -125,7 +124,6 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
         out["thermal_time_constant_s"] = float(p.motor_thermal_capacity_j_per_k * p.motor_thermal_resistance_k_per_w)
     if name == "esc_deadband":  # fitted along with it (SWITCH_COMPANIONS)
         out["map_origin_pwm"] = float(map_origin(p, {"esc_deadband": strength}))
-        out["friction_current_a"] = float(p.motor_no_load_current_a)  # the base's (BASE_COMPANIONS)
     if supply_v is not None and name in ("rotor_lag", "motor_heating"):
         eff = {**{n: 0.0 for n in c.EFFECTS}, name: float(strength)}
         cold, warm = full_drive_speeds(p, eff, supply_v)
@@ -145,8 +143,7 @@ def value_text(value: FittedValue) -> str:
     if value.get("thermal_time_constant_s") is not None:
         text += f", thermal time constant {value['thermal_time_constant_s']:.0f} s"
     if value.get("map_origin_pwm") is not None:
-        text += (f", throttle map from {value['map_origin_pwm']:.4g}, friction "
-                 f"{value.get('friction_current_a', float('nan')):.2g} A of no-load current")
+        text += f", throttle map from {value['map_origin_pwm']:.4g}"
     if value.get("time_constant_ms") is not None:
         text += f"; spin-up time constant {value['time_constant_ms']:.0f} ms at {value['at_speed_rad_s']:.0f} rad/s"
     if value.get("warm_speed_loss_percent") is not None:
