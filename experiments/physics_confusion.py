@@ -156,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     check_record_path(args.json)
     t_all = time.perf_counter()
     effects = [e for e in args.effects.split(",") if e]
+    unknown = [e for e in effects if e not in c.EFFECTS]
+    if unknown:  # the control runs on every seed anyway
+        ap.error(f"--effects: unknown {', '.join(unknown)} (known: {', '.join(c.EFFECTS)}; the control always runs)")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     kind = "nominal" if args.nominal_bench else "far" if args.far_bench else "random"
     print(f"{kind} benches, seeds {seeds.start}-{seeds.stop - 1}")

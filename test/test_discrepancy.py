@@ -40,6 +40,9 @@ EPOCHS = 300
 #: "sweep": slow triangles 0.05 -> 0.10 -> 0.05 (every level at a slowly varying state);
 #: "updown": full throttle and just above the start level in turn (large spin-downs);
 #: "lowsteps": random levels 0.05-0.075 held 1-3 s (below and above the ESC start level);
+#: "lowstarts": the same levels held 1-2.5 s, each from a stop of 0.5-1 s: an ESC that cuts its map
+#: off below its start level (the rotor coasts there as it does under a drive below its
+#: back-EMF) shows the level only when the rotor is slow, so a staircase shows it once at most;
 #: "low": ramps and steps below and just above the ESC start level (0.05-0.07) between mid levels;
 #: "load": long full throttle with short dips (the winding heats up).
 def command(kind: str, duration: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -56,6 +59,10 @@ def command(kind: str, duration: float, seed: int) -> tuple[np.ndarray, np.ndarr
             lev = 0.05 + 0.05 * (1.0 - np.abs(np.linspace(-1.0, 1.0, n)))
         elif kind == "lowsteps":
             n, lev = int(rng.uniform(1.0, 3.0) * c.PWM_FRAME_HZ), np.full(1, rng.uniform(0.05, 0.075))
+        elif kind == "lowstarts":
+            n1, n2 = int(rng.uniform(0.5, 1.0) * c.PWM_FRAME_HZ), int(rng.uniform(1.0, 2.5) * c.PWM_FRAME_HZ)
+            lev = np.concatenate([np.full(n1, c.PWM_STOP), np.full(n2, rng.uniform(0.05, 0.075))])
+            n = len(lev)
         elif kind == "updown":
             n1, n2 = int(rng.uniform(1.0, 2.5) * c.PWM_FRAME_HZ), int(rng.uniform(1.5, 3.0) * c.PWM_FRAME_HZ)
             lev = np.concatenate([np.full(n1, rng.uniform(0.085, 0.10)), np.full(n2, rng.uniform(0.058, 0.068))])
@@ -93,8 +100,9 @@ SCENARIOS: dict[str, tuple[tuple[str, ...], list[Spec], list[Spec], list[Spec]]]
     # large command drops (full to just above the start level): a coasting rotor shows
     "spin_down_asymmetry": (c.DEFAULT_INPUTS, [("updown", 1.0, DURATION_S)], [("updown", 1.0, DURATION_S)] * 2,
                             [("updown", 1.0, DURATION_S)]),
-    "esc_deadband": (c.DEFAULT_INPUTS, [("lowsteps", 1.0, DURATION_S)],
-                     [("lowsteps", 1.0, DURATION_S), ("lowsteps", 1.0, DURATION_S)], [("lowsteps", 1.0, DURATION_S)]),
+    # low levels from rest and in a staircase: a start level shows where the rotor is slow
+    "esc_deadband": (c.DEFAULT_INPUTS, [("lowstarts", 1.0, DURATION_S)],
+                     [("lowstarts", 1.0, DURATION_S), ("lowsteps", 1.0, DURATION_S)], [("lowstarts", 1.0, DURATION_S)]),
     # heating needs minutes at full throttle (thermal time constant ~2 min)
     "motor_heating": (c.DEFAULT_INPUTS, [("load", 1.0, 120.0)], [("load", 1.0, 180.0)], [("load", 1.0, 180.0)]),
     # the reference's own conditions (same commands, same full pack), other seeds

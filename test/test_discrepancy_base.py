@@ -188,3 +188,64 @@ def test_a_start_threshold_is_fitted_with_where_its_map_starts(tmp_path):
     assert fitted.model.params.esc_map_origin_share == pytest.approx(1.0, abs=0.1), fitted.model.params
     assert fitted.sse < 0.01 * held.sse, (fitted.sse, held.sse)
     assert fitted.linear == ("esc_map_origin_share",)
+
+
+def test_a_start_threshold_is_placed_between_the_levels_the_data_command(tmp_path, monkeypatch):
+    """A start level inside a gap between two commanded levels that no grid strength falls in (an ESC
+    whose map is cut off there, so the rotor jumps from rest to a run at the level above; a grid
+    of 0.5, 1, 2 to make such a gap wide): every grid point stops or runs the rotor on the wrong
+    side of one of those holds, and the strength fit (``discrepancy.physics.fit_strength``) tries
+    the gaps, so the fitted threshold stops and runs the rotor where the simulator does and leaves
+    no more than the truth does (4222 (rad/s)^2 against 7676 at the best grid point)."""
+    from bldc_propulsion.discrepancy import physics as dp
+    from test_discrepancy import command
+
+    monkeypatch.setitem(dp.STRENGTH_GRID, "esc_deadband", (0.5, 1.0, 2.0))
+    seed = 3700
+    _, cmd = command("lowsteps", 30.0, seed)
+    levels = np.unique(cmd[cmd > c.PWM_STOP])
+    scale = BenchParams().esc_deadband_pwm
+    grid = c.PWM_STOP + scale * np.asarray(dp.STRENGTH_GRID["esc_deadband"])
+    gaps = [(a, b) for a, b in zip(levels[:-1], levels[1:], strict=True)
+            if not np.any((grid > a) & (grid < b)) and grid[0] < a and b < grid[-1]]
+    lo, hi = max(gaps, key=lambda g: g[1] - g[0])
+    assert hi - lo > 2e-3, (lo, hi)  # the command has a wide gap between two grid points
+    truth = (lo + 0.4 * (hi - lo) - c.PWM_STOP) / scale
+    effects = {**{n: 0.0 for n in c.EFFECTS}, "rotor_lag": 1.0, "spin_down_asymmetry": 1.0, "esc_deadband": truth}
+    params = dataclasses.replace(BenchParams(), esc_map_origin_share=1.0)
+    signals = [load_signals(_bag(tmp_path, "low", "lowsteps", seed, effects, params=params))]
+    model = dataclasses.replace(pc.load_config(None), effects={**effects, "esc_deadband": 0.0}).with_supply(signals)
+    data = pf.Data.of(signals)
+    base = pf.calibrate(model, data, *pf.base_window(model))
+    fits = dp.effect_fits(base, "esc_deadband", data)
+    fitted = dp.fit_strength(base, "esc_deadband", data, fits)
+    start = c.PWM_STOP + fitted.model.effects["esc_deadband"] * scale
+    assert lo < start < hi, (lo, start, hi)
+    at_truth = pf.recalibrate_with(base, base.model.with_effect("esc_deadband", truth), data, ["esc_deadband"])
+    assert fitted.sse < 1.001 * at_truth.sse, (fitted.sse, at_truth.sse)
+    assert fitted.sse < 0.7 * min(f.sse for f in fits), (fitted.sse, [f.sse for f in fits])
+
+
+def test_a_holdout_with_conditions_the_measured_data_lack_is_said_so():
+    """Hand-made residuals: a holdout the calibrated model misses by 10 rad/s RMS where the measured
+    data are missed by 2 gets the coverage line, 5.0x, with its worst window (the larger RMS over
+    the longer stretch); one missed by 5 (2.5x, within COVERAGE_FACTOR 3) gets none."""
+    from types import SimpleNamespace
+
+    from bldc_propulsion.discrepancy.dataset import DataSet
+    from bldc_propulsion.discrepancy.workflow import coverage_warning
+
+    def ds(rms: float) -> DataSet:
+        speed = np.full(100, 500.0)
+        sig = SimpleNamespace(speed=speed)
+        return DataSet([sig], [speed - rms * np.tile([1.0, -1.0], 50)])  # type: ignore[list-item]
+
+    def window(t0: float, t1: float, rms: float, pwm: float) -> rs.Window:
+        return rs.Window("/bags/holdout0", t0, t1, rms, rms, pwm, 0.0, "steady", 16.0, 0.0)
+
+    wins = [window(1.0, 1.2, 30.0, 0.060), window(4.0, 6.0, 20.0, 0.0565)]
+    text = coverage_warning(ds(2.0), ds(10.0), wins)
+    assert text is not None and "5.0x" in text and "10.00 vs 2.00 rad/s" in text, text
+    assert "holdout0 4.0-6.0 s" in text and "PWM 0.0565" in text, text
+    assert coverage_warning(ds(2.0), ds(5.0), wins) is None
+    assert coverage_warning(ds(0.0), ds(5.0), wins) is None  # a perfect measured fit: no ratio to state

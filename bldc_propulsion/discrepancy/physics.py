@@ -49,6 +49,14 @@ STRENGTH_GRID: dict[str, tuple[float, ...]] = {
     "spin_down_asymmetry": (0.5, 1.0),
     "motor_heating": (0.25, 0.5, 1.0, 2.0),
 }
+#: Effects whose strength sets a threshold on the commanded level: fitted by trying the gaps between
+#: the levels the data command (``threshold_strengths``), not by a parabola
+THRESHOLDS = frozenset({"esc_deadband"})
+#: Most gaps between commanded levels tried in one round of the search (a sweep commands every
+#: level: evenly spread then)
+THRESHOLD_TRIES = 8
+#: Rounds of that search: all gaps (spread), then those between the best and its neighbours
+THRESHOLD_ROUNDS = 3
 #: A base effect freed on the measured data is no new effect when its strength there is within this
 #: factor of the reference's: the same bench recalibrated (the reference fit trades inertia and dead
 #: time with the constants, so a freed rotor_lag refitted after battery_voltage would otherwise be
@@ -200,6 +208,25 @@ def score_effect(base: Fit, name: str, data: BlockedData) -> tuple[sc.Score, lis
     return score(base, fits, STRENGTH_GRID[name], data), fits
 
 
+def threshold_strengths(model: PhysicsConfig, data: Data, lo: float, hi: float,
+                        exclude: Sequence[float] = ()) -> list[float]:
+    """Start-threshold strengths in (``lo``, ``hi``) worth a fit: the middle of each gap between two
+    consecutive distinct levels ``data`` commands (at most THRESHOLD_TRIES, evenly spread), less
+    those in ``exclude``. A threshold anywhere in a gap predicts the same stopped and running
+    holds, so the SSE is a staircase in the strength: a parabola or a gradient finds nothing, a
+    grid point can sit on the wrong side of the one level that matters, and the middle is as far
+    as the data allow from either side."""
+    scale = model.params.esc_deadband_pwm
+    levels = np.unique(np.concatenate([[c.PWM_STOP], *(np.asarray(s.pwm_events[1], dtype=float)
+                                                        for s in data.signals)]))
+    mids = (0.5 * (levels[1:] + levels[:-1]) - c.PWM_STOP) / scale
+    mids = mids[(mids > lo) & (mids < hi)]
+    mids = mids[[not np.any(np.isclose(m, exclude, rtol=0.0, atol=1e-9)) for m in mids]]
+    if len(mids) > THRESHOLD_TRIES:
+        mids = mids[np.unique(np.round(np.linspace(0, len(mids) - 1, THRESHOLD_TRIES)).astype(int))]
+    return [float(m) for m in mids]
+
+
 def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
     """The effect switched on at each grid strength, constants recalibrated from ``base``'s (its
     COMPANIONS held at the CONFIG's: fitted with its strength in ``fit_strength``; its
@@ -210,7 +237,8 @@ def effect_fits(base: Fit, name: str, data: Data) -> list[Fit]:
 def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
     """The strength with the least SSE on all of ``data`` (jointly with the constants): the best
     grid point, the grid extended past its end when the best is there, then the vertex of the
-    parabola through the best point and its neighbours."""
+    parabola through the best point and its neighbours; for a threshold (THRESHOLDS) the gaps
+    between the levels the data command instead (``threshold_strengths``)."""
     pts = dict(zip(STRENGTH_GRID[name], fits, strict=True))
     lo, hi = 0.0, STRENGTH_MAX[name]
     for _ in range(3):
@@ -225,7 +253,21 @@ def fit_strength(base: Fit, name: str, data: Data, fits: Sequence[Fit]) -> Fit:
         pts[nxt] = recalibrate_with(base, base.model.with_effect(name, nxt), data, [name])
     xs = sorted(pts)
     j = min(range(len(xs)), key=lambda i: pts[xs[i]].sse)
-    if 0 < j < len(xs) - 1:
+    if name in THRESHOLDS:
+        # every gap first (the SSE is flat across the gaps that change no hold, so the one that
+        # matters may lie past a neighbour of the best grid point), then around the best
+        lo, hi = xs[0], xs[-1]
+        for _ in range(THRESHOLD_ROUNDS):
+            gaps = threshold_strengths(base.model, data, lo, hi, exclude=xs)
+            if not gaps:
+                break
+            for s in gaps:
+                pts[s] = recalibrate_with(base, pts[xs[j]].model.with_effect(name, s), data, [name],
+                                          companions_from=pts[xs[j]].model)
+            xs = sorted(pts)
+            j = min(range(len(xs)), key=lambda i: pts[xs[i]].sse)
+            lo, hi = xs[max(j - 1, 0)], xs[min(j + 1, len(xs) - 1)]
+    elif 0 < j < len(xs) - 1:
         x = np.array(xs[j - 1:j + 2])
         y = np.array([pts[v].sse for v in x])
         a, b, _ = np.polyfit(x, y, 2)

@@ -110,6 +110,8 @@ def classify(meas: sc.Score, ref: sc.Score | None, alpha: float, min_effect: flo
 
 #: Most candidates fitted and judged per round (each costs a fit, a network's a retraining).
 MAX_TRIALS = 3
+#: The holdout's residual (calibrated base) this many times the measured data's: a coverage warning
+COVERAGE_FACTOR = 3.0
 
 #: The deciding rule, printed with every run (module docstring, step 5).
 RULE = ("the measured data only propose and rank the candidates; the test that adds or rejects each one is the "
@@ -187,6 +189,25 @@ def windows_of(ds: DataSet, threshold: float) -> tuple[list[rs.Window], list[np.
         wins += w
         masks.append(m)
     return wins, masks
+
+
+def coverage_warning(meas: DataSet, hold_base: DataSet, hold_windows: Sequence[rs.Window]) -> str | None:
+    """A line when the holdout disagrees with the calibrated model far more than the measured data
+    do (COVERAGE_FACTOR): it holds conditions the measured recordings lack (a level commanded from
+    rest, a charge, a length under load), where they can neither show nor fit what is missing, so
+    "nothing named" there is no verdict on it. Names the holdout's worst window."""
+    before, measured = rmse(hold_base.residuals), rmse(meas.residuals)
+    if not (measured > 0 and before > COVERAGE_FACTOR * measured):
+        return None
+    text = (f"the holdout disagrees with the calibrated model {before / measured:.1f}x as much as the measured "
+            f"data do ({before:.2f} vs {measured:.2f} rad/s RMS): it has conditions the measured recordings "
+            "do not cover, where they cannot show what is missing")
+    if hold_windows:
+        w = max(hold_windows, key=lambda w: w.rms_residual_rad_s * (w.t_end_s - w.t_start_s) ** 0.5)
+        text += (f"; worst: {Path(w.path).name} {w.t_start_s:.1f}-{w.t_end_s:.1f} s, RMS "
+                 f"{w.rms_residual_rad_s:.1f} rad/s at PWM {w.pwm_mean:.4f} ({w.pwm_direction}); record "
+                 "measured data there")
+    return text
 
 
 def find_disagreement(meas: DataSet, ref: DataSet | None, progress: Progress) -> Disagreement:
@@ -367,6 +388,10 @@ def run(kind: ModelKind[ModelT, FitT], measured: Sequence[Signals], reference: S
 
     # step 5: the gap
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
+    uncovered = None if in_sample else coverage_warning(meas, hold_base, hold_windows)
+    if uncovered:
+        warnings.append(uncovered)
+        progress(f"  {uncovered}")
     kind_fields, head, tail = kind.finish(added)
     result = Result(
         loop.named, loop.structural, evidence, loop.rounds, gap_fields(hold_base, hold_cur, hold_masks), found,
