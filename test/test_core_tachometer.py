@@ -318,17 +318,12 @@ def test_bad_config(kw):
 
 
 def test_against_simulator_truth():
-    sim = pytest.importorskip("bldc_propulsion.sim", reason="simulator (bldc_propulsion.sim) not available yet")
-    if not hasattr(sim, "simulate"):
-        pytest.skip("bldc_propulsion.sim has no simulate() yet")
+    from bldc_propulsion.sim.bench import simulate
+
     # a command that steps through the range (0.5 s at standstill first)
     t_cmd = np.arange(0.0, 6.0, 0.02)
     level = np.select([t_cmd < 0.5, t_cmd < 2.0, t_cmd < 3.5, t_cmd < 4.5], [0.05, 0.075, 0.095, 0.065], 0.085)
-    try:
-        res = sim.simulate(profile="custom", duration_s=6.0, seed=1, effects=None, soc=1.0,
-                           pwm=(t_cmd, level))
-    except TypeError:  # a simulator without the pwm= argument
-        res = sim.simulate(profile="triangle", duration_s=30.0, seed=1, effects=None, soc=1.0)
+    res = simulate("custom", 6.0, seed=1, effects=None, soc=1.0, pwm=(t_cmd, level))
     dec = TachometerDecoder(TachometerConfig(sample_rate_hz=res.tach_rate_hz))
     out = dec.process(res.tach_t0, res.tach, batch_size=200)
     assert len(out.speed) > 50
