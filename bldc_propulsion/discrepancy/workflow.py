@@ -390,8 +390,7 @@ def run(kind: ModelKind[ModelT, FitT], measured: Sequence[Signals], reference: S
     hold_windows, hold_masks = windows_of(hold_base, found.threshold)
     uncovered = None if in_sample else coverage_warning(meas, hold_base, hold_windows)
     if uncovered:
-        warnings.append(uncovered)
-        progress(f"  {uncovered}")
+        warnings.append(uncovered)  # printed with the command's other warnings, once
     kind_fields, head, tail = kind.finish(added)
     result = Result(
         loop.named, loop.structural, evidence, loop.rounds, gap_fields(hold_base, hold_cur, hold_masks), found,
