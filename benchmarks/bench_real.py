@@ -259,6 +259,45 @@ def monitor_whole_log(d: Path, log: Path, rows: list[dict]) -> list[dict]:
     return out
 
 
+#: A hold's settled part: its last share, after the rotor and the supply have followed the step.
+SETTLED_SHARE = 2.0 / 3.0
+#: Shortest hold of a level that counts as a visit (s).
+MIN_HOLD_S = 1.0
+
+
+def revisited_levels(bag: Path, splits: int) -> list[dict]:
+    """Each command level the log holds both on the way up to its highest command and on the way
+    down (settled medians of the measured speed, supply current and voltage; no model), with the
+    test part each visit falls in. A staircase's way down comes after its top: a part trained
+    without the top has seen only the way up, so whatever the way down does differently (a motor
+    and ESC still warm from full drive) is nothing any model trained there can predict."""
+    sys.path.insert(0, str(ROOT))
+    from bldc_propulsion import contract as c
+    from bldc_propulsion.recordings import load_signals
+
+    s = load_signals(bag)
+    if s.current is None or not len(s.t):
+        return []
+    change = np.flatnonzero(np.diff(s.pwm) != 0) + 1
+    top = int(np.argmax(s.pwm))
+    duration = float(s.t[-1] - s.t[0])
+    visits: dict[str, dict[float, dict]] = {"up": {}, "down": {}}
+    for seg in np.split(np.arange(len(s.t)), change):
+        if s.t[seg[-1]] - s.t[seg[0]] < MIN_HOLD_S or s.pwm[seg[0]] <= c.PWM_STOP:
+            continue
+        settled = seg[int(len(seg) * (1.0 - SETTLED_SHARE)):]
+        speed = float(np.nanmedian(s.speed[settled]))
+        if not speed > 0.0:
+            continue
+        level = round(float(s.pwm[seg[0]]), 6)
+        way = "up" if seg[-1] <= top else "down"
+        visits[way][level] = {"speed_rad_s": speed, "current_a": float(np.nanmedian(s.current[settled])),
+                              "voltage_v": float(np.nanmedian(s.voltage[settled])),
+                              "part": min(splits - 1, int(splits * (s.t[seg[0]] - s.t[0]) / duration))}
+    return [{"level": level, "us": level * c.PWM_PERIOD_US, "up": visits["up"][level], "down": visits["down"][level]}
+            for level in sorted(set(visits["up"]) & set(visits["down"]))]
+
+
 #: The esc_test logs: six ESC + motor pairs on the one DALPROP T7056 propeller (../shared/real/README.md).
 THRUST_LAW_LOGS = ("Log_2019-11-05_171350.csv", "Log_2019-11-07_174807.csv", "Log_2019-11-07_175456.csv",
                    "Log_2019-11-07_184325.csv", "Log_2019-11-07_211050.csv", "Log_2019-11-09_181347.csv")
@@ -339,6 +378,7 @@ def main() -> int:
             rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=priors), jobs))
         log_range, law_range_n = ranges([p["test"] for p in parts])
         health = monitor_whole_log(d, src, rows)
+        revisited = revisited_levels(d / "whole", args.splits)
         for r in rows:
             if "refused" not in r:
                 r["percent"] = 100.0 * r["rmse_rad_s"] / log_range
@@ -387,10 +427,20 @@ def main() -> int:
     for h in health:
         said = "; ".join(map(str, h["events"])) or "no change"
         print(f"  split {h['split']} {h['kind']}: {said} ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)")
+    if revisited:
+        print("the same command on the way up and on the way down (settled medians of the log, no model):")
+        print(f"{'level':>7s} {'us':>5s} {'part':>5s} {'up rad/s':>9s} {'A':>6s} {'V':>6s} {'part':>5s} "
+              f"{'down rad/s':>10s} {'A':>6s} {'V':>6s} {'speed down/up':>13s}")
+        for r in revisited:
+            u, w = r["up"], r["down"]
+            print(f"{r['level']:7.4f} {r['us']:5.0f} {u['part']:5d} {u['speed_rad_s']:9.0f} "
+                  f"{u['current_a']:6.1f} {u['voltage_v']:6.2f} {w['part']:5d} {w['speed_rad_s']:10.0f} "
+                  f"{w['current_a']:6.1f} {w['voltage_v']:6.2f} {w['speed_rad_s'] / u['speed_rad_s']:13.3f}")
     if args.json:
         write_record(args.json, {"thrust_law": law, "log": log.name, "log_range_rad_s": log_range,
                                  "log_thrust_range_n": law_range_n,
-                                 "rated_kv": spec.rated_kv, "splits": rows, "health": health},
+                                 "rated_kv": spec.rated_kv, "splits": rows, "health": health,
+                                 "revisited": revisited},
                      seconds=time.perf_counter() - t_start)
     return 0 if ok else 1
 

@@ -497,6 +497,23 @@ def render_real(f: dict[str, Any]) -> list[str]:
                       if r.get("thrust_rmse_n") is not None and f.get("log_thrust_range_n") else None)
             lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
                          f"{num(trained, 3)}, {num(ratio, 3)} | {num(thrust)} % |")
+    if revisited := f.get("revisited"):
+        lines += ["", "The same command on the staircase's way up and on its way down (settled medians of the log, "
+                  "no model):", "",
+                  "| command | way up: part, speed, current, voltage | way down: part, speed, current, voltage | "
+                  "speed down / up |", "|---|---|---|---|"]
+        for r in revisited:
+            u, w = r["up"], r["down"]
+            lines.append(f"| {r['us']:.0f} µs | {u['part']}, {u['speed_rad_s']:.0f} rad/s, {u['current_a']:.1f} A, "
+                         f"{u['voltage_v']:.2f} V | {w['part']}, {w['speed_rad_s']:.0f} rad/s, {w['current_a']:.1f} A, "
+                         f"{w['voltage_v']:.2f} V | {w['speed_rad_s'] / u['speed_rad_s']:.3f} |")
+        slower = [100.0 * (1.0 - r["down"]["speed_rad_s"] / r["up"]["speed_rad_s"]) for r in revisited]
+        less = [100.0 * (1.0 - r["down"]["current_a"] / r["up"]["current_a"]) for r in revisited]
+        down = sorted({r["down"]["part"] for r in revisited})
+        lines += ["", f"At the same command and supply voltage the way down runs {min(slower):.1f}-{max(slower):.1f} % "
+                  f"slower on {min(less):.1f}-{max(less):.1f} % less current, as a motor and ESC still warm from full "
+                  f"drive would. Every hold of the way down lies in part {', '.join(map(str, down))}: the models "
+                  "tested there were trained on parts that show only the way up."]
     if (health := f.get("health")) is not None:
         lines += ["", "The health monitor over the whole log with each split's model. Nobody changed the stand, "
                   "but its supply current-limits at 90 s (1950 µs: 14.45 → 13.60 V for 1.5 A more, where each step "
