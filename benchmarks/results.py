@@ -434,15 +434,27 @@ def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
     lines += ["", f"Named right first: **{right}/{len(runs)}**; false names on the controls: {false}; "
               + (f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else f"seed {seeds[0]}")
               + ". Holdout RMSE reduction, median [min, max] over seeds:", ""]
+    what = "strength" if any("strength" in r for r in runs) else "value"
     for case in cases:
         red = [100.0 * (1.0 - r["after"] / r["before"]) for r in runs
                if r[key] == case and r.get("before") and r.get("after") is not None]
-        ratio = [r["strength"] / r["truth"] for r in runs
-                 if r[key] == case and r.get("strength") is not None and r.get("truth")]
+        # the strength against the truth (own benches), or the physical value (a foreign bench's)
+        ratio = [_value(r) / r["truth"] for r in runs
+                 if r[key] == case and math.isfinite(_value(r)) and r.get("truth")]
         within = f", {sum(abs(x - 1.0) <= 0.3 for x in ratio)}/{len(ratio)} within 30 %" if ratio else ""
         lines.append(f"- {case}: {spread(red, 1, '%')}"
-                     + (f"; fitted strength / truth {spread(ratio)}{within}" if ratio else ""))
+                     + (f"; fitted {what} / truth {spread(ratio)}{within}" if ratio else ""))
+    extra = [f"{r[key]} seed {r['seed']}: {', '.join(n for n in r['named'][1:] if n != r[key])}" for r in runs
+             if r[key] != "control" and any(n != r[key] for n in r["named"][1:])]
+    lines += ["", f"Names after the first that are not the hidden effect: {len(extra)} of "
+              f"{sum(r[key] != 'control' for r in runs)} effect runs" + (f" ({'; '.join(extra)})." if extra else ".")]
     return lines
+
+
+def _value(run: dict[str, Any]) -> float:
+    """A run's fitted strength (own benches) or physical value (foreign); NaN when none."""
+    v = run.get("strength", run.get("fitted"))
+    return float(v) if isinstance(v, int | float) else math.nan
 
 
 def render_foreign(f: dict[str, Any], path: str) -> list[str]:
