@@ -37,6 +37,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from bldc_propulsion.atomic import OutputKind, atomic_output, check_output  # noqa: E402
+from bldc_propulsion.contract import PWM_STOP  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 
 RESULTS_DIR = ROOT / "docs" / "results"
@@ -439,8 +440,7 @@ def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
         red = [100.0 * (1.0 - r["after"] / r["before"]) for r in runs
                if r[key] == case and r.get("before") and r.get("after") is not None]
         # the strength against the truth (own benches), or the physical value (a foreign bench's)
-        ratio = [_value(r) / r["truth"] for r in runs
-                 if r[key] == case and math.isfinite(_value(r)) and r.get("truth")]
+        ratio = [_ratio(r) for r in runs if r[key] == case and math.isfinite(_ratio(r))]
         within = f", {sum(abs(x - 1.0) <= 0.3 for x in ratio)}/{len(ratio)} within 30 %" if ratio else ""
         lines.append(f"- {case}: {spread(red, 1, '%')}"
                      + (f"; fitted {what} / truth {spread(ratio)}{within}" if ratio else ""))
@@ -451,10 +451,15 @@ def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
     return lines
 
 
-def _value(run: dict[str, Any]) -> float:
-    """A run's fitted strength (own benches) or physical value (foreign); NaN when none."""
-    v = run.get("strength", run.get("fitted"))
-    return float(v) if isinstance(v, int | float) else math.nan
+def _ratio(run: dict[str, Any]) -> float:
+    """A run's fitted strength over its truth (own benches), or its physical value over the
+    bench's (foreign; a start level as its distance from PWM_STOP); NaN when either is missing."""
+    v, truth = run.get("strength", run.get("fitted")), run.get("truth")
+    if not isinstance(v, int | float) or not isinstance(truth, int | float) or not truth:
+        return math.nan
+    if run.get("unit") == "PWM level":
+        v, truth = v - PWM_STOP, truth - PWM_STOP
+    return float(v) / float(truth)
 
 
 def render_foreign(f: dict[str, Any], path: str) -> list[str]:
