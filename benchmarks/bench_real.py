@@ -273,27 +273,27 @@ def revisited_levels(bag: Path, splits: int) -> list[dict]:
     and ESC still warm from full drive) is nothing any model trained there can predict."""
     sys.path.insert(0, str(ROOT))
     from bldc_propulsion import contract as c
+    from bldc_propulsion.discrepancy.identify.steps import held_levels
     from bldc_propulsion.recordings import load_signals
 
     s = load_signals(bag)
-    if s.current is None or not len(s.t):
+    if s.current is None or len(s.pwm_events[0]) == 0:
         return []
-    change = np.flatnonzero(np.diff(s.pwm) != 0) + 1
-    top = int(np.argmax(s.pwm))
+    starts, levels, ends = held_levels(s)
+    top = starts[int(np.argmax(levels))]
     duration = float(s.t[-1] - s.t[0])
     visits: dict[str, dict[float, dict]] = {"up": {}, "down": {}}
-    for seg in np.split(np.arange(len(s.t)), change):
-        if s.t[seg[-1]] - s.t[seg[0]] < MIN_HOLD_S or s.pwm[seg[0]] <= c.PWM_STOP:
+    for t0, level, t1 in zip(starts, levels, ends, strict=True):
+        if t1 - t0 < MIN_HOLD_S or level <= c.PWM_STOP:
             continue
-        settled = seg[int(len(seg) * (1.0 - SETTLED_SHARE)):]
+        settled = (s.t >= t1 - SETTLED_SHARE * (t1 - t0)) & (s.t < t1)
         speed = float(np.nanmedian(s.speed[settled]))
         if not speed > 0.0:
             continue
-        level = round(float(s.pwm[seg[0]]), 6)
-        way = "up" if seg[-1] <= top else "down"
-        visits[way][level] = {"speed_rad_s": speed, "current_a": float(np.nanmedian(s.current[settled])),
-                              "voltage_v": float(np.nanmedian(s.voltage[settled])),
-                              "part": min(splits - 1, int(splits * (s.t[seg[0]] - s.t[0]) / duration))}
+        visits["up" if t0 <= top else "down"][round(float(level), 6)] = {
+            "speed_rad_s": speed, "current_a": float(np.nanmedian(s.current[settled])),
+            "voltage_v": float(np.nanmedian(s.voltage[settled])),
+            "part": min(splits - 1, int(splits * (t0 - s.t[0]) / duration))}
     return [{"level": level, "us": level * c.PWM_PERIOD_US, "up": visits["up"][level], "down": visits["down"][level]}
             for level in sorted(set(visits["up"]) & set(visits["down"]))]
 

@@ -440,7 +440,7 @@ def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
         red = [100.0 * (1.0 - r["after"] / r["before"]) for r in runs
                if r[key] == case and r.get("before") and r.get("after") is not None]
         # the strength against the truth (own benches), or the physical value (a foreign bench's)
-        ratio = [_ratio(r) for r in runs if r[key] == case and math.isfinite(_ratio(r))]
+        ratio = [x for r in runs if r[key] == case and math.isfinite(x := _ratio(r))]
         within = f", {sum(abs(x - 1.0) <= 0.3 for x in ratio)}/{len(ratio)} within 30 %" if ratio else ""
         lines.append(f"- {case}: {spread(red, 1, '%')}"
                      + (f"; fitted {what} / truth {spread(ratio)}{within}" if ratio else ""))
