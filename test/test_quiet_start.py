@@ -139,3 +139,47 @@ def test_importing_it_pulls_nothing_heavy():
         assert not heavy, heavy
     """)
     assert proc.returncode == 0, proc.stderr
+
+
+@pytest.mark.parametrize("hang", ["time.sleep(30)", "while True: pass"])  # the GIL free, held
+def test_a_node_executable_whose_teardown_hangs_ends_itself_and_says_where(hang):
+    """nodes.guard_teardown: past TEARDOWN_LIMIT_S the process prints its Python stack and
+    exits 1, even while a busy loop holds the GIL."""
+    done = child(f"""
+        import sys, time
+        sys.argv[0] = "/opt/ros/lib/bldc_propulsion/tachometer"
+        import bldc_propulsion.nodes as nodes
+        assert nodes.EXECUTABLE
+        nodes.TEARDOWN_LIMIT_S = 0.5
+        def stuck_in_teardown():
+            {hang}
+        started = time.monotonic()
+        nodes.guard_teardown()
+        stuck_in_teardown()
+        """)
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "Timeout" in done.stderr and "stuck_in_teardown" in done.stderr, done.stderr
+
+
+def test_a_teardown_that_ends_in_time_leaves_quietly_and_a_library_is_never_guarded():
+    done = child("""
+        import sys, time
+        sys.argv[0] = "/opt/ros/lib/bldc_propulsion/tachometer"
+        import bldc_propulsion.nodes as nodes
+        nodes.TEARDOWN_LIMIT_S = 0.5
+        nodes.guard_teardown()
+        nodes.guard_teardown()  # armed once: a second stop does not move the limit
+        time.sleep(0.2)
+        nodes.leave(0)
+        """)
+    assert (done.returncode, done.stderr) == (0, "")
+    done = child("""
+        import time
+        import bldc_propulsion.nodes as nodes
+        assert not nodes.EXECUTABLE
+        nodes.TEARDOWN_LIMIT_S = 0.2
+        nodes.guard_teardown()
+        time.sleep(1.0)
+        print(nodes.leave(3))
+        """)
+    assert (done.returncode, done.stdout.strip(), done.stderr) == (0, "3", "")

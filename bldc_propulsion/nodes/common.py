@@ -37,7 +37,7 @@ from std_msgs.msg import Float64
 from bldc_propulsion.core.status import CoreStatus
 from bldc_propulsion.core.wrench import check_rotor_name
 from bldc_propulsion.errors import BadInputError, one_line
-from bldc_propulsion.nodes import leave
+from bldc_propulsion.nodes import guard_teardown, leave
 from bldc_propulsion.nodes.params import (
     NODE_PARAMS,
     Param,
@@ -196,7 +196,12 @@ def stop_on_signals() -> Iterator[threading.Event]:
     """
     stop = threading.Event()
     signums = (signal.SIGINT, signal.SIGTERM)
-    previous = [signal.signal(signum, lambda *_: stop.set()) for signum in signums]
+
+    def stopped(*_: object) -> None:
+        stop.set()
+        guard_teardown()  # a node executable that has not ended within the limit says where
+
+    previous = [signal.signal(signum, stopped) for signum in signums]
     try:
         yield stop
     finally:
@@ -301,6 +306,7 @@ def _run(name: str, build: Callable[[], Node | Sequence[Node]], args: list[str] 
         return 2
     finally:
         stop.set()
+        guard_teardown()
         for executor in executors:
             executor.shutdown(timeout_sec=SHUTDOWN_TIMEOUT_S)
         for thread in threads:  # no entity is destroyed under a spinning executor
