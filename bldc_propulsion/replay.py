@@ -113,6 +113,7 @@ class HealthJson(TypedDict):
     duration_s: float  #: from the first to the last measured speed it took
     monitored_s: float  #: the part after the healthy reference, where changes can be found
     threshold: float
+    minor: list[dict[str, object]]  #: named changes below HealthConfig.min_size (never an alarm)
 
 
 class ReplaySummary(TypedDict):
@@ -243,7 +244,8 @@ def _health_json(stream: HealthStream | None) -> HealthJson | None:
         return None
     run = stream.run()
     return {"events": [e.as_dict() for e in run.events], "duration_s": run.duration_s,
-            "monitored_s": run.monitored_s, "threshold": run.threshold}
+            "monitored_s": run.monitored_s, "threshold": run.threshold,
+            "minor": [e.as_dict() for e in run.minor]}
 
 
 def health_lines(events: list[HealthEvent], indent: str = "  ") -> list[str]:

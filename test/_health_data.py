@@ -8,7 +8,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bldc_propulsion.core.health import HealthEvent, HealthMonitor, HealthSample, TwinSample
+from bldc_propulsion.core.health import HealthConfig, HealthEvent, HealthMonitor, HealthSample, TwinSample
 
 TAU_S = 2.0  #: the battery filter's time constant in the hand-made data
 
@@ -45,10 +45,15 @@ def synthetic_flight(duration_s: float, seed: int, change: tuple[float, np.ndarr
     return out
 
 
-def monitor_events(samples: list[HealthSample]) -> list[HealthEvent]:
-    """The events a monitor of the hand-made data's constants reports over ``samples``."""
-    mon = HealthMonitor(TAU_S, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
+def monitor_over(samples: list[HealthSample], config: HealthConfig | None = None) -> HealthMonitor:
+    """A monitor of the hand-made data's constants, run over ``samples``."""
+    mon = HealthMonitor(TAU_S, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04, config=config)
     for s in samples:
         mon.update(s)
     mon.finish()
-    return mon.events
+    return mon
+
+
+def monitor_events(samples: list[HealthSample]) -> list[HealthEvent]:
+    """The events a monitor of the hand-made data's constants reports over ``samples``."""
+    return monitor_over(samples).events

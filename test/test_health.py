@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _health_data import monitor_events, synthetic_flight
+from _health_data import monitor_events, monitor_over, synthetic_flight
 from _models import healthy_physics_model
 from bldc_propulsion import cli
 from bldc_propulsion.core.health import (
     FAULTS,
     UNNAMED,
     HealthConfig,
+    HealthMonitor,
     HealthSample,
     TwinSample,
     chi2_1_isf,
@@ -53,6 +54,37 @@ def test_a_propeller_change_is_named_with_its_onset_and_size():
     assert e.name == "propeller_damage" and e.unit == "fraction"
     assert 100.0 <= e.detected_s <= 105.0 and abs(e.onset_s - 100.0) <= 0.5
     assert e.size == pytest.approx(0.1, rel=0.2)
+
+
+def test_a_change_below_the_smallest_worth_an_alarm_is_kept_as_minor_never_an_alarm():
+    """The same 10 % propeller loss with the smallest worth an alarm set at 20 %: seen, named
+    and sized as before, but kept in ``minor`` (no event); with the default 3 % it is an alarm
+    (the test above)."""
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    sizes = dict(HealthConfig().min_size) | {"propeller_damage": 0.2}
+    mon = monitor_over(samples, HealthConfig(min_size=tuple(sizes.items())))
+    assert mon.events == []
+    assert len(mon.minor) == 1, [e.as_dict() for e in mon.minor]
+    e = mon.minor[0]
+    assert e.name == "propeller_damage" and abs(e.onset_s - 100.0) <= 0.5
+    assert e.size == pytest.approx(0.1, rel=0.2)
+
+
+def test_minor_is_decided_at_two_sigma_in_each_faults_unit():
+    """Hand-computed: sigma = theta / sqrt(statistic); a pack's factor is 1 + theta / sag."""
+    mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
+    f = FAULTS.index
+    assert mon._minor(f("propeller_damage"), 0.02, 400.0)  # 0.02 + 2 * 0.001 < 0.03
+    assert not mon._minor(f("propeller_damage"), 0.02, 16.0)  # 0.02 + 2 * 0.005 = 0.03: not below
+    assert mon._minor(f("pack_resistance"), 0.004, 400.0)  # 1.1x + 2 sigma (0.01x) < 1.3x
+    assert not mon._minor(f("pack_resistance"), 0.02, 400.0)  # 1.5x
+    assert mon._minor(f("bearing_friction"), 0.3, 100.0)  # 1.3x + 2 * 0.03 < 1.5x
+    assert not mon._minor(f("bearing_friction"), 0.45, 100.0)  # 1.45x + 0.09 > 1.5x
+    assert mon._minor(f("motor_heating"), 5.0, 100.0) and not mon._minor(f("motor_heating"), 9.0, 100.0)
+    with pytest.raises(ValueError, match="min_size"):
+        HealthConfig(min_size=(("propeller_damage", 0.03),))
+    with pytest.raises(ValueError, match="pack_resistance"):
+        HealthConfig(min_size=tuple((dict(HealthConfig().min_size) | {"pack_resistance": 0.5}).items()))
 
 
 def test_a_rotor_that_never_holds_a_turning_speed_is_watched_without_a_crash():

@@ -100,6 +100,7 @@ class RecordingHealth(TypedDict):
     monitored_s: float
     threshold: float
     events: list[dict[str, object]]
+    minor: list[dict[str, object]]  #: named changes below the smallest worth an alarm (no alarm)
     injected_faults: list[str]
     noise: dict[str, dict[str, float]]  #: channel -> the monitor's noise figures (a, b, visit, kappa)
 
@@ -107,7 +108,8 @@ class RecordingHealth(TypedDict):
 def recording_dict(path: str, r: HealthRun, injected: list[str]) -> RecordingHealth:
     """One recording's result as --json gives it."""
     return {"path": path, "duration_s": r.duration_s, "monitored_s": r.monitored_s, "threshold": r.threshold,
-            "events": [e.as_dict() for e in r.events], "injected_faults": injected,
+            "events": [e.as_dict() for e in r.events], "minor": [e.as_dict() for e in r.minor],
+            "injected_faults": injected,
             "noise": {k: {"a": v[0], "b": v[1], "visit": v[2], "kappa": v[3]} for k, v in r.noise.items()}}
 
 
@@ -122,4 +124,5 @@ def timeline(path: str, r: HealthRun, injected: list[str]) -> list[str]:
     elif not r.events:
         out.append(f"  no change detected over {r.monitored_s:.1f} s")
     out += ["  " + e.text() for e in r.events]
+    out += ["  minor, no alarm: " + e.text().strip() for e in r.minor]
     return out

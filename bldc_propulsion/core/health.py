@@ -305,6 +305,26 @@ class HealthConfig:
     noise_inflation: float = 2.0
     #: a data gap longer than this restarts the window (s)
     max_gap_s: float = 1.0
+    #: the smallest change of each fault worth an alarm, in its unit (FAULT_UNITS: a fraction of
+    #: CT and CP lost, a factor on the pack's or the friction's resistance, kelvin): a third of
+    #: the sizes a vehicle must be warned of (issue 34: a 10 % propeller loss, a 2x pack
+    #: resistance, a 30 K winding rise; friction 1.5x). A named change whose size is, at two
+    #: sigma, below it is a minor change: kept in ``HealthMonitor.minor``, never an alarm. Why:
+    #: on clean data a change of a few per mille is significant (a real stand log's supply
+    #: stiffening by 5 %; a propeller 0.7 % weaker on a healthy simulated flight), and an alarm
+    #: for it is a false one to whoever flies
+    min_size: tuple[tuple[str, float], ...] = (
+        ("propeller_damage", 0.03), ("pack_resistance", 1.3), ("bearing_friction", 1.5),
+        ("motor_heating", 10.0))
+
+    def __post_init__(self) -> None:
+        sizes = dict(self.min_size)
+        if set(sizes) != set(FAULTS) or len(sizes) != len(self.min_size):
+            raise ValueError(f"health min_size: {self.min_size!r} must give each of {', '.join(FAULTS)} once")
+        for name, v in sizes.items():
+            neutral = 1.0 if FAULT_UNITS[name] == "factor" else 0.0
+            if not (math.isfinite(v) and v >= neutral):
+                raise ValueError(f"health min_size {name}: {v!r} must be a finite size >= {neutral:g}")
 
     def threshold(self, n_faults: int) -> float:
         """The alarm level h: chi-square(1) exceeded with probability false_alarms_per_hour / M,
@@ -522,6 +542,8 @@ class HealthMonitor:
         self._cols = _S0 + 2 * self.n_faults
         self._buf = np.zeros((self.window_blocks + 1, self._cols))
         self.events: list[HealthEvent] = []
+        #: named changes below the config's min_size at two sigma: seen, sized, never an alarm
+        self.minor: list[HealthEvent] = []
         self.blocks = 0  #: blocks closed since the start
         self.evaluations = 0
         self.state = _ARMING
@@ -1016,6 +1038,8 @@ class HealthMonitor:
             ev.named_s = t_now
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
             ev.statistic = float(row[best])
+            if self._minor(best, float(theta[o, best]), float(row[best])):
+                return self._set_aside(ev)
             self.state = _REFINING
             return []
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
@@ -1047,6 +1071,26 @@ class HealthMonitor:
             worst = max(worst, self._single(ch, np.column_stack([ch.nuisance, ch.tests[o, :, f]]), post))
         return worst
 
+    def _minor(self, f: int, theta: float, statistic: float) -> bool:
+        """Whether fault f's change of theta (its statistic: (theta / sigma)^2) is, at two
+        sigma, below the smallest worth an alarm (``HealthConfig.min_size``)."""
+        name = FAULTS[f]
+        least = dict(self.config.min_size)[name]
+        least_theta = (least - 1.0) * self._sag if name == "pack_resistance" else (
+            least - 1.0 if name == "bearing_friction" else least)
+        sigma = theta / math.sqrt(statistic) if statistic > 0.0 else math.inf
+        return theta + 2.0 * sigma < least_theta
+
+    def _set_aside(self, ev: HealthEvent) -> list[HealthEvent]:
+        """A named change too small to be a fault: kept in ``minor``, and, as after a reported
+        one, a fresh window (the change is the new normal). Returns no event."""
+        ev.note = "below the smallest change worth an alarm (HealthConfig.min_size)"
+        self.minor.append(ev)
+        self._pending = None
+        self.state = _ARMING
+        self._reset_window()
+        return []
+
     def _size(self, f: int, theta: float) -> float:
         name = FAULTS[f]
         if name == "pack_resistance":
@@ -1066,6 +1110,8 @@ class HealthMonitor:
             ev.size = self._size(f, float(theta[o, f]))
             ev.statistic = max(ev.statistic, float(stat[o, f]))
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
+            if stat[o, f] > 0 and self._minor(f, float(theta[o, f]), float(stat[o, f])):
+                return self._set_aside(ev)
             return [self._settle(ev)]
         return []
 
@@ -1088,6 +1134,8 @@ class HealthRun:
     monitored_s: float  #: the part after the first full window, where changes can be found
     threshold: float
     noise: dict[str, tuple[float, float, float, float]]  #: channel -> HealthMonitor.noise at the end
+    #: named changes below HealthConfig.min_size (no alarm), in time order
+    minor: list[HealthEvent] = field(default_factory=list)
 
 
 class _Hybrid(Protocol):
@@ -1199,7 +1247,8 @@ class HealthStream:
         duration = self.last_s - self.first_s if self.last_s == self.last_s else 0.0
         cfg = self.monitor.config
         armed = max(0.0, duration - cfg.reference_s - cfg.window_s)
-        return HealthRun(list(self.monitor.events), duration, armed, self.monitor.threshold, dict(self.monitor.noise))
+        return HealthRun(list(self.monitor.events), duration, armed, self.monitor.threshold, dict(self.monitor.noise),
+                         list(self.monitor.minor))
 
     def status(self) -> CoreStatus:
         """The health status ("health"): OK while no change was seen; WARN while a change is being
@@ -1212,7 +1261,7 @@ class HealthStream:
         if pending is not None and pending.name != UNNAMED:
             named.append(pending)  # named, its size still being refined
         values: dict[str, object] = {"state": mon.state, "changes": len(mon.events),
-                                     "threshold": mon.threshold}
+                                     "minor_changes": len(mon.minor), "threshold": mon.threshold}
         if named:
             ev, level = named[-1], ERROR
             msg = f"{ev.name} {_size_text(cast(float, ev.size), ev.unit)} since {ev.onset_s:.2f} s"
