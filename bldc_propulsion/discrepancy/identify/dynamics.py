@@ -20,7 +20,7 @@ import numpy as np
 
 from ...recordings import Signals
 from .recording_fit import START_LEVEL_MARGIN, Dynamics
-from .static_shape import StartLevelShift, holds, start_level_rose, start_level_shift
+from .static_shape import StartLevelShift, holds, no_drive_bounds, start_level_rose, start_level_shift
 from .steps import TAU_MIN_RATIO, StepChange, StepResponse, relative_tau, step_change, step_responses
 
 #: The dynamic family: effects on the path from a command change to the speed.
@@ -46,13 +46,16 @@ class StepDynamics:
     spin_down_driven: StepChange | None = None
     #: ``start_level_shift`` on the settled holds: None when too few on a set
     start_level_shift: StartLevelShift | None = None
+    #: ``no_drive_bounds``: the measured start level lies above the first, at or below the second
+    start_level_bounds: tuple[float, float] | None = None
 
     def as_dict(self) -> dict[str, object]:
         out: dict[str, object] = {k: (v.as_dict() if v is not None else None) for k, v in
                                (("dead_time_s", self.dead_time), ("spin_up_time_constant_ratio", self.spin_up),
                                 ("spin_down_time_constant_ratio", self.spin_down),
                                 ("spin_down_driven_time_constant_ratio", self.spin_down_driven))}
-        out["start_level_rose"] = {"changed": self.start_level[0], "because": self.start_level[1]}
+        out["start_level_rose"] = {"changed": self.start_level[0], "because": self.start_level[1],
+                                   "bounds_pwm": list(self.start_level_bounds) if self.start_level_bounds else None}
         out["start_level_shift"] = self.start_level_shift.as_dict() if self.start_level_shift is not None else None
         return out
 
@@ -101,6 +104,7 @@ def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
                         driven_above=driven)
     hm, hr = holds(measured), holds(reference)
     out.start_level = start_level_rose(hm, hr)
+    out.start_level_bounds = no_drive_bounds(hm, hr)
     out.start_level_shift = start_level_shift(hm, hr)
     return out
 

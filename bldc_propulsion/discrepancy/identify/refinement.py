@@ -20,6 +20,7 @@ from ..results import Evidence
 from .dynamics import DYNAMIC_EFFECTS, RESPONSE_EFFECTS, StepDynamics, step_dynamics, which_dynamic
 from .heating import HEATING_TAU_S, identify_heating
 from .recording_fit import Dynamics, identify_dynamics, identify_start_level
+from .static_shape import start_level_within
 
 #: Measured residual RMSE >= this x the reference's, with no residual feature significant: the
 #: response (dynamics, start level) is identified directly all the same.
@@ -175,10 +176,15 @@ def _identified_params(choice: str, resp: Response) -> tuple[dict[str, float] | 
         change = steps.dead_time.change if steps.dead_time is not None else m.delay_s - r.delay_s
         return {"delay_s": max(change, 0.01)}, {"delay_s": 0.0}
     if choice == "esc_deadband":
+        # never at or below a held level where the measured rotor got no drive (the fits read
+        # the map's compression and how late the rotor leaves rest, which a coarse grid or the
+        # dynamics can put below such a level: a foreign bench's rotor stayed at rest at 0.0544
+        # and the fitted 0.052 left the network an input that could not say so)
+        bounds = steps.start_level_bounds
         shift = steps.start_level_shift
         if shift is not None and shift.changed:
             # the settled holds' levels: read on a finer grid reaching further than the
             # whole-recording fit's, and not moved by the dynamics
-            return {"threshold": shift.measured}, {"threshold": shift.reference}
-        return {"threshold": m.start_level}, {"threshold": r.start_level}
+            return {"threshold": start_level_within(shift.measured, bounds)}, {"threshold": shift.reference}
+        return {"threshold": start_level_within(m.start_level, bounds)}, {"threshold": r.start_level}
     return None, None

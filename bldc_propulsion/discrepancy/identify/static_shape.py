@@ -91,17 +91,10 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     NO_DRIVE_FRACTION of the reference's speed at that level, had no drive: the start level rose.
     Read from the holds, not from a fit of the throttle map (which the network re-weights, and a
     lag would take for a slower spin-down)."""
-    top = float(np.max(reference.speed[reference.settled], initial=0.0))
-    spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
-    if spin.sum() < 2:
+    found = _no_drive(measured, reference)
+    if found is None:
         return False, "the reference recordings hold too few levels at which the rotor settles spinning"
-    order = np.argsort(reference.levels[spin])
-    lv_r, w_r = reference.levels[spin][order], reference.speed[spin][order]
-    # the reference's rotor at rest at a level bounds its start level from below: levels at or
-    # below that are no evidence
-    inside = (measured.levels >= lv_r[0]) & (measured.levels <= lv_r[-1]) & ~measured.rising
-    expect = np.interp(measured.levels, lv_r, w_r)
-    none = inside & (measured.speed < NO_DRIVE_FRACTION * expect)
+    none, _, expect, lv_r = found
     if not none.any():
         return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
                        f"measured rotor spins as well")
@@ -110,6 +103,51 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                   f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
                   f"at the end of the hold, not rising, where the reference's settles at {expect[k]:.0f} rad/s; "
                   f"its rotor spins from PWM {lv_r[0]:.4f})")
+
+
+def _no_drive(measured: Holds, reference: Holds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The measured holds with no drive and those with it, within the levels where the
+    reference's rotor settles spinning, the speed the reference's gives at each measured level,
+    and those reference levels (sorted); None when the reference holds too few such levels."""
+    top = float(np.max(reference.speed[reference.settled], initial=0.0))
+    spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
+    if spin.sum() < 2:
+        return None
+    order = np.argsort(reference.levels[spin])
+    lv_r, w_r = reference.levels[spin][order], reference.speed[spin][order]
+    # the reference's rotor at rest at a level bounds its start level from below: levels at or
+    # below that are no evidence
+    inside = (measured.levels >= lv_r[0]) & (measured.levels <= lv_r[-1]) & ~measured.rising
+    expect = np.interp(measured.levels, lv_r, w_r)
+    none = inside & (measured.speed < NO_DRIVE_FRACTION * expect)
+    drive = inside & measured.settled & (measured.speed >= NO_DRIVE_FRACTION * expect)
+    return none, drive, expect, lv_r
+
+
+def no_drive_bounds(measured: Holds, reference: Holds) -> tuple[float, float] | None:
+    """Where the measured start level lies as the holds bound it (``start_level_rose``): above
+    the highest held level with no drive, at or below the lowest held level above that with
+    drive (inf: none held). None when no held level shows no drive."""
+    found = _no_drive(measured, reference)
+    if found is None or not found[0].any():
+        return None
+    none, drive = found[0], found[1]
+    floor = float(np.max(measured.levels[none]))
+    above = drive & (measured.levels > floor)
+    return floor, float(np.min(measured.levels[above])) if above.any() else math.inf
+
+
+def start_level_within(level: float, bounds: tuple[float, float] | None) -> float:
+    """``level`` (a fitted start level) moved into the holds' ``bounds`` when it lies outside:
+    to the middle of the gap between the highest level with no drive and the lowest with it (the
+    holds say no more), or one SHIFT_LEVELS step above the former when no level with drive is
+    held above it. A start level at or below a level where the rotor got no drive cannot be."""
+    if bounds is None:
+        return level
+    floor, ceiling = bounds
+    if floor < level <= ceiling:
+        return level
+    return 0.5 * (floor + ceiling) if math.isfinite(ceiling) else floor + 0.0005
 
 
 #: ESC start levels (PWM level) the held levels' static map is fitted at (start_level_shift): from
