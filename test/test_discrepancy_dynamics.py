@@ -13,6 +13,7 @@ whole recordings is held equal on both sets (``_SAME``), so only the step respon
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -176,6 +177,29 @@ def test_the_start_level_shift_is_read_from_the_settled_map():
     fell = idf.start_level_shift(_holds(0.053, 7), _holds(0.057, 8))
     assert fell is not None and not fell.changed and fell.measured < fell.reference, fell
     assert idf.start_level_shift(_holds(0.057, 9, n=idf.SHIFT_MIN_HOLDS - 1), _holds(0.053, 10)) is None
+
+
+def test_a_start_level_is_never_placed_at_a_level_where_the_rotor_got_no_drive():
+    """Hand-made holds, the measured start level 0.0572: the holds bound it between the highest
+    held level at rest and the lowest above it with drive; a fitted level below (a coarse grid's
+    0.052) is moved to the gap's middle, one inside is kept; without a level at rest there is no
+    bound, and with none driven above it the level goes one grid step above the highest at rest."""
+    meas, ref = _holds(0.0572, 11, n=60), _holds(0.052, 12, n=60)
+    bounds = idf.no_drive_bounds(meas, ref)
+    assert bounds is not None
+    floor, ceiling = bounds
+    # the highest level at rest, or one just above the start level where the map gives the rotor
+    # under a tenth of the reference's speed (within the 0.0005 grid the fits use), never one
+    # with half the reference's speed or more, which a start level only just below a hold gives
+    assert float(meas.levels[meas.speed == 0.0].max()) <= floor < 0.0572 + 0.0005
+    assert ceiling in meas.levels and meas.speed[meas.levels == ceiling][0] > 0.0
+    assert 0.0572 <= ceiling and ceiling - floor < 0.005
+    assert idf.start_level_within(0.052, bounds) == pytest.approx(0.5 * (bounds[0] + bounds[1]))
+    inside = 0.5 * (bounds[0] + bounds[1])
+    assert idf.start_level_within(inside, bounds) == inside
+    assert idf.no_drive_bounds(_holds(0.052, 13, n=60), ref) is None  # rotor spins where the reference's does
+    assert idf.start_level_within(0.052, None) == 0.052
+    assert idf.start_level_within(0.052, (0.0544, math.inf)) == pytest.approx(0.0549)
 
 
 def test_clustered_standard_error_of_a_mean_by_hand():

@@ -19,11 +19,21 @@ from .dynamics import DYNAMIC_EFFECTS, RESPONSE_EFFECTS, StepDynamics, compare_s
 from .heating import HEATING_TAU_S, Heating, identify_heating
 from .recording_fit import START_LEVEL_MARGIN, Dynamics, identify_dynamics, identify_start_level
 from .refinement import GAP_RATIO, Identification, Response, refine
-from .static_shape import SHIFT_MIN_HOLDS, Holds, StartLevelShift, holds, start_level_rose, start_level_shift
+from .static_shape import (
+    SHIFT_MIN_HOLDS,
+    Holds,
+    StartLevelShift,
+    holds,
+    no_drive_bounds,
+    start_level_rose,
+    start_level_shift,
+    start_level_within,
+)
 from .steps import TAU_MIN_RATIO, StepChange, StepResponse, step_responses
 
 __all__ = ["DYNAMIC_EFFECTS", "GAP_RATIO", "HEATING_TAU_S", "RESPONSE_EFFECTS", "SHIFT_MIN_HOLDS",
            "START_LEVEL_MARGIN", "TAU_MIN_RATIO", "Dynamics", "Heating", "Holds", "Identification", "Response",
            "StartLevelShift", "StepChange", "StepDynamics", "StepResponse", "compare_steps", "holds",
-           "identify_dynamics", "identify_heating", "identify_start_level", "refine", "start_level_rose",
-           "start_level_shift", "step_dynamics", "step_responses", "which_dynamic"]
+           "identify_dynamics", "identify_heating", "identify_start_level", "no_drive_bounds", "refine",
+           "start_level_rose", "start_level_shift", "start_level_within", "step_dynamics", "step_responses",
+           "which_dynamic"]

@@ -29,6 +29,10 @@ from .steps import STEP_ALPHA, STEP_HOLD_S, held_levels
 #: the speed the reference's rotor settles at for that level: a lower supply or a hotter winding
 #: lowers the speed by some per cent, only the loss of drive halves it.
 NO_DRIVE_FRACTION = 0.5
+#: A measured hold ends "at rest" below this share of the reference's speed at its level: what
+#: bounds the start level from below (``no_drive_bounds``). Half the speed is no drive's sign,
+#: not its proof: just above a raised start level the throttle map gives a little.
+AT_REST_FRACTION = 0.1
 #: A reference hold counts as "spinning" only above this share of the reference's fastest settled
 #: hold: a rotor that reads a few hundredths of a rad/s is at rest, and interpolating from it
 #: puts tens of rad/s at levels just above, where the static map is still at zero (the friction
@@ -94,7 +98,7 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     found = _no_drive(measured, reference)
     if found is None:
         return False, "the reference recordings hold too few levels at which the rotor settles spinning"
-    none, _, expect, lv_r = found
+    none, _, _, expect, lv_r = found
     if not none.any():
         return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
                        f"measured rotor spins as well")
@@ -105,10 +109,13 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                   f"its rotor spins from PWM {lv_r[0]:.4f})")
 
 
-def _no_drive(measured: Holds, reference: Holds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """The measured holds with no drive and those with it, within the levels where the
-    reference's rotor settles spinning, the speed the reference's gives at each measured level,
-    and those reference levels (sorted); None when the reference holds too few such levels."""
+def _no_drive(measured: Holds, reference: Holds
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The measured holds with no drive (below NO_DRIVE_FRACTION of the reference's speed at
+    their level), those at rest (below AT_REST_FRACTION of it) and those settled with drive,
+    within the levels where the reference's rotor settles spinning; the speed the reference's
+    gives at each measured level, and those reference levels (sorted). None when the reference
+    holds too few such levels."""
     top = float(np.max(reference.speed[reference.settled], initial=0.0))
     spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
     if spin.sum() < 2:
@@ -120,19 +127,20 @@ def _no_drive(measured: Holds, reference: Holds) -> tuple[np.ndarray, np.ndarray
     inside = (measured.levels >= lv_r[0]) & (measured.levels <= lv_r[-1]) & ~measured.rising
     expect = np.interp(measured.levels, lv_r, w_r)
     none = inside & (measured.speed < NO_DRIVE_FRACTION * expect)
+    rest = inside & (measured.speed < AT_REST_FRACTION * expect)
     drive = inside & measured.settled & (measured.speed >= NO_DRIVE_FRACTION * expect)
-    return none, drive, expect, lv_r
+    return none, rest, drive, expect, lv_r
 
 
 def no_drive_bounds(measured: Holds, reference: Holds) -> tuple[float, float] | None:
-    """Where the measured start level lies as the holds bound it (``start_level_rose``): above
-    the highest held level with no drive, at or below the lowest held level above that with
-    drive (inf: none held). None when no held level shows no drive."""
+    """Where the measured start level lies as the holds bound it: above the highest held level
+    where the rotor ends at rest (where the reference's spins), at or below the lowest held
+    level above that with drive (inf: none held). None when no held level ends at rest."""
     found = _no_drive(measured, reference)
-    if found is None or not found[0].any():
+    if found is None or not found[1].any():
         return None
-    none, drive = found[0], found[1]
-    floor = float(np.max(measured.levels[none]))
+    rest, drive = found[1], found[2]
+    floor = float(np.max(measured.levels[rest]))
     above = drive & (measured.levels > floor)
     return floor, float(np.min(measured.levels[above])) if above.any() else math.inf
 
