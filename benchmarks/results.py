@@ -744,15 +744,15 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
           "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (20-40 minutes)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
-          "python benchmarks/bench_foreign.py --seeds 2 --jobs 1 --path network "
+          "python benchmarks/bench_foreign.py --first-seed 48 --seeds 4 --jobs 1 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
-          "`benchmarks/foreign_bench/`'s randomized benches (about 4 minutes)."),
+          "`benchmarks/foreign_bench/`'s randomized benches (about 8 minutes)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
-          "python benchmarks/bench_health.py --first-seed 400 --seeds 4 --flights 4 --hours 4 "
+          "python benchmarks/bench_health.py --first-seed 804 --seeds 4 --flights 4 --hours 4 "
           "--json docs/results/health.json", render_health,
-          "Four benches drawn by `sim.random_bench` (seeds 400-403, never tuned on), a physics model fitted on each; "
+          "Four benches drawn by `sim.random_bench` (seeds 804-807, never tuned on), a physics model fitted on each; "
           "per bench 4 flights with each fault (propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) and "
-          "about 1 h of healthy flight (about 12 minutes)."),
+          "about 1 h of healthy flight (about 13 minutes)."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
