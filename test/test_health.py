@@ -240,6 +240,22 @@ def test_cli_health_prints_the_timeline_and_json(model_path, flights, capsys):
     assert rec["events"][0]["name"] == "propeller_damage" and rec["events"][0]["unit"] == "fraction"
 
 
+def test_cli_health_shows_a_small_propeller_loss_as_minor_never_an_alarm(model_path, tmp_path, capsys):
+    """A 1.5 % loss (half the 3 % floor) from 80 s of a 150 s flight: found and sized, printed as
+    a minor change, no event in --json."""
+    bag = tmp_path / "small_loss"
+    write_sim_bag(simulate("random_steps", 150.0, 7, faults=[Fault("propeller_damage", 0.015, 80.0)]), bag)
+    assert cli.main(["health", "--model", str(model_path), str(bag)]) == 0
+    text = capsys.readouterr().out
+    assert "no change worth an alarm over" in text and "minor, no alarm:" in text and "propeller_damage" in text
+    assert cli.main(["health", "--model", str(model_path), str(bag), "--json"]) == 0
+    (rec,) = json.loads(capsys.readouterr().out)["recordings"]
+    assert rec["events"] == []
+    (minor,) = rec["minor"]
+    assert minor["name"] == "propeller_damage" and abs(minor["onset_s"] - 80.0) <= 1.0
+    assert 0.005 <= minor["size"] <= 0.025
+
+
 def test_cli_health_says_no_change_on_a_healthy_flight(model_path, flights, capsys):
     bag = flights(None)
     assert cli.main(["health", "--model", str(model_path), str(bag)]) == 0

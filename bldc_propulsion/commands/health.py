@@ -122,7 +122,7 @@ def timeline(path: str, r: HealthRun, injected: list[str]) -> list[str]:
     if r.monitored_s <= 0.0:
         out.append("  too short to monitor: the first reference + window seconds are the healthy reference")
     elif not r.events:
-        out.append(f"  no change detected over {r.monitored_s:.1f} s")
+        out.append(f"  no change {'worth an alarm' if r.minor else 'detected'} over {r.monitored_s:.1f} s")
     out += ["  " + e.text() for e in r.events]
     out += ["  minor, no alarm: " + e.text().strip() for e in r.minor]
     return out
