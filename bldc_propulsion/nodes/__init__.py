@@ -45,7 +45,7 @@ def guard_teardown() -> None:
     """In a node executable: unless the process has ended :data:`TEARDOWN_LIMIT_S` from now,
     print every thread's Python stack on stderr and exit 1; as a library, nothing.
 
-    Why: a stop normally takes 0.2-0.5 s, but rarely (once in about 60 stops of the quadrotor's
+    Why: a stop normally takes 0.2-0.5 s, but rarely (once in about 100 stops of the quadrotor's
     nine processes at once under busy loops, and once on CI, still running after 10 s) a node
     hangs in rclpy's ``destroy_node``: the last node's destroy deletes the DDS participant,
     which waits inside Fast DDS while its peers are going away too. Leaving without that
