@@ -1074,12 +1074,8 @@ class HealthMonitor:
     def _minor(self, f: int, theta: float, statistic: float) -> bool:
         """Whether fault f's change of theta (its statistic: (theta / sigma)^2) is, at two
         sigma, below the smallest worth an alarm (``HealthConfig.min_size``)."""
-        name = FAULTS[f]
-        least = dict(self.config.min_size)[name]
-        least_theta = (least - 1.0) * self._sag if name == "pack_resistance" else (
-            least - 1.0 if name == "bearing_friction" else least)
         sigma = theta / math.sqrt(statistic) if statistic > 0.0 else math.inf
-        return theta + 2.0 * sigma < least_theta
+        return self._size(f, theta + 2.0 * sigma) < dict(self.config.min_size)[FAULTS[f]]
 
     def _set_aside(self, ev: HealthEvent) -> list[HealthEvent]:
         """A named change too small to be a fault: kept in ``minor``, and, as after a reported

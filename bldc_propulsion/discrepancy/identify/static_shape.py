@@ -148,19 +148,20 @@ def no_drive_bounds(measured: Holds, reference: Holds) -> tuple[float, float] | 
 def start_level_within(level: float, bounds: tuple[float, float] | None) -> float:
     """``level`` (a fitted start level) moved into the holds' ``bounds`` when it lies outside:
     to the middle of the gap between the highest level with no drive and the lowest with it (the
-    holds say no more), or one SHIFT_LEVELS step above the former when no level with drive is
+    holds say no more), or one SHIFT_STEP above the former when no level with drive is
     held above it. A start level at or below a level where the rotor got no drive cannot be."""
     if bounds is None:
         return level
     floor, ceiling = bounds
     if floor < level <= ceiling:
         return level
-    return 0.5 * (floor + ceiling) if math.isfinite(ceiling) else floor + 0.0005
+    return 0.5 * (floor + ceiling) if math.isfinite(ceiling) else floor + SHIFT_STEP
 
 
 #: ESC start levels (PWM level) the held levels' static map is fitted at (start_level_shift): from
-#: PWM_STOP to well past any start level an ESC ships with, in steps of 0.0005 (10 us of pulse).
-SHIFT_LEVELS = tuple(round(c.PWM_STOP + 0.0005 * k, 4) for k in range(41))  # 0.0500 ... 0.0700
+#: PWM_STOP to well past any start level an ESC ships with, in steps of SHIFT_STEP (10 us of pulse).
+SHIFT_STEP = 0.0005
+SHIFT_LEVELS = tuple(round(c.PWM_STOP + SHIFT_STEP * k, 4) for k in range(41))  # 0.0500 ... 0.0700
 #: Least settled holds on each set for the start-level shift test (the static map has 7 terms).
 SHIFT_MIN_HOLDS = 8
 #: Least rise that counts: two steps of SHIFT_LEVELS, since a start level between two of them lands
