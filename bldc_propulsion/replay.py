@@ -102,6 +102,7 @@ class AdaptationJson(TypedDict):
     state: str  #: "on", or why it was frozen last (the estimator's ``adaptation_state``)
     updates: int  #: measured speeds that updated the parameters
     frozen_samples: int  #: measured speeds that did not
+    in_use: bool  #: whether the prediction used the adapted parameters at the end (the guard)
     parameters: dict[str, AdaptedJson]
     saved: str | None  #: --save-adapted's model file
 
@@ -273,6 +274,7 @@ def _adaptation_json(est: ThrustEstimator, saved: str | os.PathLike[str] | None)
     if not isinstance(ad, PhysicsAdapter):
         return None
     return {"state": est.adaptation_state(), "updates": ad.updates, "frozen_samples": ad.frozen_samples,
+            "in_use": ad.in_use,
             "parameters": {n: {"value": v, "sigma": s, "unit": UNITS[n]} for n, (v, s) in ad.values().items()},
             "saved": None if saved is None else str(saved)}
 

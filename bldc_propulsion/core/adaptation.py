@@ -42,6 +42,14 @@ lanes' difference ``w(theta) - w(0)``: a lane stepped at theta = 0 (``_ref``) gi
 is not 0. The lanes are sampled at prediction times and at the measured speeds' stamps, which lag
 them by a batch and half a revolution: a short history (``history_s``) aligns the two.
 
+A guard keeps the adaptation from costing accuracy where it learns the wrong thing (a change it
+cannot represent, such as a pack whose resistance rose, moves theta along the nearest direction it
+has): at every measured speed the adapted and the offline predictions are both scored on it
+before theta learns from it (a priori errors, so the adapted one is not judged on what it just
+fitted), as squared errors forgotten over ``memory_s``, the adapter's own memory. The correction
+(speed and thrust) applies only while the adapted scores no worse (``in_use``); theta goes on
+learning either way, so the adapted prediction comes back as soon as it is the better one.
+
 ``reset()`` returns to the offline model (theta = 0). ``adapted_plant()`` is the physics model
 with the adapted constants (``replay --save-adapted`` writes it).
 """
@@ -183,6 +191,9 @@ class PhysicsAdapter:
     def reset(self) -> None:
         """Back to the offline model: theta = 0, the prior covariance, the lanes restarted."""
         self.theta = [0.0] * len(ADAPTED)
+        self._judged_t: float | None = None  #: the latest measured speed the guard scored
+        self._sq_offline = self._sq_adapted = 0.0  #: the guard's forgotten squared errors
+        self.in_use = True  #: whether the correction applies (the guard: it scores no worse)
         sig = self.config.prior_sigma
         self._p_max = [s * s for s in sig]
         self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
@@ -294,8 +305,8 @@ class PhysicsAdapter:
     def correction(self, t: float) -> tuple[float, float]:
         """(speed to add to the offline model's at t (rad/s), its variance from theta's covariance
         ((rad/s)^2, S P S^T)); (0, 0) before the lanes have inputs."""
-        row = self._sample(t)
-        if row is None:
+        row = self._sample(t)  # stepped whether in use or not: the lanes must keep up
+        if row is None or not self.in_use:
             return 0.0, 0.0
         return self._delta(row), self._variance(row)
 
@@ -311,6 +322,11 @@ class PhysicsAdapter:
     def thrust_factor(self) -> float:
         """b adapted / b offline: CT scales with the propeller's loss."""
         return 1.0 - self.theta[0]
+
+    @property
+    def applied_thrust_factor(self) -> float:
+        """What the prediction scales b by: ``thrust_factor`` while the correction is in use, else 1."""
+        return self.thrust_factor if self.in_use else 1.0
 
     def values(self) -> dict[str, tuple[float, float]]:
         """name -> (adapted value in ``UNITS``, its one sigma)."""
@@ -343,6 +359,8 @@ class PhysicsAdapter:
         else:
             row = self._aligned(t)
             why = "frozen: measured speed older than the model's history" if row is None else ""
+            if row is not None:
+                self._judge(t, measured_rad_s - offline_rad_s, self._delta(row))
             if row is not None and not self._linear(row, offline_rad_s):
                 row, why = None, "frozen: the rotor is starting or stopping (the model is not linear in theta there)"
         if row is None:
@@ -358,6 +376,16 @@ class PhysicsAdapter:
         if abs(th[0] - lin[0]) > step[0] or abs(th[1] - lin[1]) > step[1]:
             self._rebase()
         return True
+
+    def _judge(self, t: float, error_offline: float, delta: float) -> None:
+        """The guard: score both predictions on a measured speed (its error from the offline
+        model, rad/s, and the correction the adapted one adds there), forget over memory_s."""
+        last, self._judged_t = self._judged_t, t
+        keep = math.exp(-(t - last) / self.config.memory_s) if last is not None and t > last else 1.0
+        e_adapted = error_offline - delta
+        self._sq_offline = keep * self._sq_offline + error_offline * error_offline
+        self._sq_adapted = keep * self._sq_adapted + e_adapted * e_adapted
+        self.in_use = self._sq_adapted <= self._sq_offline
 
     def _linear(self, row: tuple[float, float, float], w: float) -> bool:
         """Whether the lanes' own steps move the speed by at most _LINEAR_SHARE of it: where a lane

@@ -82,9 +82,10 @@ class Adapter(Protocol):
     (core/adaptation.py's PhysicsAdapter; a protocol, so that the estimator imports none of it)."""
 
     note: str  #: "on", or why the latest measured speed did not update it
+    in_use: bool  #: whether ``correction`` applies (else the offline model scores better lately)
 
     @property
-    def thrust_factor(self) -> float: ...
+    def applied_thrust_factor(self) -> float: ...
     def update_pwm(self, t: float, level: float) -> None: ...
     def update_voltage(self, t: float, volts: float) -> None: ...
     def update(self, t: float, measured_rad_s: float, offline_rad_s: float) -> bool: ...
@@ -423,7 +424,7 @@ class ThrustEstimator:
         dw, var = self.adapter.correction(t)
         self.adaptation_speed_variance = var
         self._predicted_t = t
-        return w + dw, None if b is None else b * self.adapter.thrust_factor
+        return w + dw, None if b is None else b * self.adapter.applied_thrust_factor
 
     # --- diagnostics -------------------------------------------------------------------------
 
@@ -440,7 +441,8 @@ class ThrustEstimator:
     def _adaptation_values(self) -> dict[str, object]:
         """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma."""
         assert self.adapter is not None
-        out: dict[str, object] = {"adaptation": self.adaptation_state()}
+        out: dict[str, object] = {"adaptation": self.adaptation_state(),
+                                  "adapted_in_use": self.adapter.in_use}
         for name, (value, sigma) in self.adapter.values().items():
             out[f"adapted_{name}"] = value
             out[f"adapted_{name}_sigma"] = sigma
