@@ -353,15 +353,17 @@ class PhysicsAdapter:
         prev, self._prev_offline = self._prev_offline, (t, offline_rad_s)
         if self._start_t is None or t - self._start_t < cfg.settle_s:
             why = "frozen: settling after the start"
-        elif not (measured_rad_s >= REST_SPEED_RAD_S
-                  and offline_rad_s >= cfg.min_speed_fraction * self.speed_scale_rad_s):  # (NaN: not ready)
-            why = "frozen: rotor at rest or below the ESC start"
         else:
             row = self._aligned(t)
-            why = "frozen: measured speed older than the model's history" if row is None else ""
-            if row is not None:
-                self._judge(t, measured_rad_s - offline_rad_s, self._delta(row))
-            if row is not None and not self._linear(row, offline_rad_s):
+            error = measured_rad_s - offline_rad_s
+            if row is not None and math.isfinite(error):  # judged at every speed, rest included
+                self._judge(t, error, self._delta(row))
+            if not (measured_rad_s >= REST_SPEED_RAD_S
+                    and offline_rad_s >= cfg.min_speed_fraction * self.speed_scale_rad_s):  # (NaN: not ready)
+                row, why = None, "frozen: rotor at rest or below the ESC start"
+            elif row is None:
+                why = "frozen: measured speed older than the model's history"
+            elif not self._linear(row, offline_rad_s):
                 row, why = None, "frozen: the rotor is starting or stopping (the model is not linear in theta there)"
         if row is None:
             self.note = why
