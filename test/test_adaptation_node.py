@@ -84,6 +84,7 @@ def test_replay_adapt_follows_the_loss_and_writes_predicted_adapted(flight, repl
     assert (loss["unit"], friction["unit"]) == ("fraction", "factor")
     assert loss["value"] == pytest.approx(LOSS, abs=0.04), ad  # the truth
     assert 0.0 < loss["sigma"] < 0.1 and ad["updates"] > 100
+    assert ad["in_use"] is True  # the loss followed: the adapted model scores better than the offline
     with open_recording(d / "adapted") as rec:
         assert rec.topics()[c.TOPIC_PREDICTED_ADAPTED] == c.FLOAT64_ARRAY
         speeds = rec.count(c.TOPIC_ROTOR_SPEED)
@@ -193,6 +194,7 @@ def test_node_adapts_publishes_predicted_adapted_as_replay_and_diagnoses(flight,
     assert last["adaptation"] == "on" or last["adaptation"].startswith("frozen")
     assert math.isclose(float(last["adapted_propeller_damage"]), live[-1, 0], rel_tol=1e-5)  # (6 digits)
     assert "adapted_bearing_friction_sigma" in last
+    assert last["adapted_in_use"] == "True"  # as replay says at the end of the same flight
 
 
 def test_node_refuses_adapt_for_a_network_in_one_line(flight, context, capsys):
