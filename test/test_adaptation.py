@@ -195,15 +195,15 @@ def test_reusing_a_sample_between_steps_changes_nothing(model, monkeypatch):
 def test_the_guard_scores_both_predictions_a_priori_by_hand(model):
     """Squared errors on the measured speeds, forgotten over memory_s; the correction applies while
     the adapted one's sum is no larger. Hand-computed: errors from the offline model 1, 0, 2 rad/s
-    at 0, memory_s and 2 memory_s with the corrections 3, 1, 0.5 (adapted errors -2, -1, 1.5)."""
+    at 0, memory_s and 2 memory_s, from the adapted one -2, -1, 1.5 (corrections 3, 1, 0.5)."""
     ad = PhysicsAdapter(model)
     m, k = ad.config.memory_s, math.exp(-1.0)
-    ad._judge(10.0, 1.0, 3.0)
+    ad._judge(10.0, 1.0, -2.0)
     assert (ad._sq_offline, ad._sq_adapted, ad.in_use) == (1.0, 4.0, False)
     assert ad.correction(10.0) == (0.0, 0.0) and ad.applied_thrust_factor == 1.0
-    ad._judge(10.0 + m, 0.0, 1.0)
+    ad._judge(10.0 + m, 0.0, -1.0)
     assert ad._sq_offline == pytest.approx(k) and ad._sq_adapted == pytest.approx(4.0 * k + 1.0)
-    ad._judge(10.0 + 2.0 * m, 2.0, 0.5)
+    ad._judge(10.0 + 2.0 * m, 2.0, 1.5)
     assert ad._sq_offline == pytest.approx(k * k + 4.0)
     assert ad._sq_adapted == pytest.approx((4.0 * k + 1.0) * k + 2.25)
     assert ad.in_use  # 3.16 against 4.14: the adapted one scores better now

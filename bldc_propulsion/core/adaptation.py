@@ -349,15 +349,17 @@ class PhysicsAdapter:
     def update(self, t: float, measured_rad_s: float, offline_rad_s: float) -> bool:
         """A measured speed at t (s) and the offline model's speed there (rad/s); True if theta
         was updated, else ``note`` says why not."""
-        cfg, row = self.config, None
+        cfg, row, innovation = self.config, None, math.nan
         prev, self._prev_offline = self._prev_offline, (t, offline_rad_s)
         if self._start_t is None or t - self._start_t < cfg.settle_s:
             why = "frozen: settling after the start"
         else:
             row = self._aligned(t)
             error = measured_rad_s - offline_rad_s
-            if row is not None and math.isfinite(error):  # judged at every speed, rest included
-                self._judge(t, error, self._delta(row))
+            if row is not None:
+                innovation = error - self._delta(row)  # the adapted prediction's a priori error
+                if math.isfinite(error):  # judged at every speed, rest included
+                    self._judge(t, error, innovation)
             if not (measured_rad_s >= REST_SPEED_RAD_S
                     and offline_rad_s >= cfg.min_speed_fraction * self.speed_scale_rad_s):  # (NaN: not ready)
                 row, why = None, "frozen: rotor at rest or below the ESC start"
@@ -371,7 +373,7 @@ class PhysicsAdapter:
             return False
         slope = (offline_rad_s - prev[1]) / (t - prev[0]) if 0.0 < t - prev[0] <= _SLOPE_GAP_S else 0.0
         r = self._r + (cfg.timing_s * slope) ** 2
-        self._learn(t, measured_rad_s - offline_rad_s - self._delta(row), row[1], row[2], r)
+        self._learn(t, innovation, row[1], row[2], r)
         self.note = "on"
         self.updates += 1
         th, lin, step = self.theta, self._lin, cfg.relinearise
@@ -379,12 +381,12 @@ class PhysicsAdapter:
             self._rebase()
         return True
 
-    def _judge(self, t: float, error_offline: float, delta: float) -> None:
-        """The guard: score both predictions on a measured speed (its error from the offline
-        model, rad/s, and the correction the adapted one adds there), forget over memory_s."""
+    def _judge(self, t: float, error_offline: float, e_adapted: float) -> None:
+        """The guard: score both predictions on a measured speed (its error from the offline and
+        from the adapted prediction, rad/s, the latter the innovation theta learns from), forget
+        over memory_s."""
         last, self._judged_t = self._judged_t, t
         keep = math.exp(-(t - last) / self.config.memory_s) if last is not None and t > last else 1.0
-        e_adapted = error_offline - delta
         self._sq_offline = keep * self._sq_offline + error_offline * error_offline
         self._sq_adapted = keep * self._sq_adapted + e_adapted * e_adapted
         self.in_use = self._sq_adapted <= self._sq_offline
