@@ -41,7 +41,7 @@ from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.replay import replay_bag
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
-from bldc_propulsion.training.band import band_metadata, quantile_regression
+from bldc_propulsion.training.band import band_metadata, quantile_regression, residuals
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 from bldc_propulsion.training.fit_physics import train_hybrid, train_physics
 from bldc_propulsion.training.train import train_model
@@ -247,10 +247,15 @@ def test_band_is_calibrated_on_held_out_recordings(kind, data, models):
     model = models[kind]
     meta = model.metadata[BAND_KEY]
     assert meta["fitted_on"] == [s.path for s in val]  # validation only
-    assert meta["validation_coverage_percent"] == pytest.approx(100 * ONE_SIGMA, abs=3.0)
-    _, scores, preds = evaluate(model, held)
     band, _ = band_of(model)
     assert band is not None
+    # on its own validation the band holds ONE_SIGMA of the errors, plus those the floor lifts it
+    # over (a rotor at rest, predicted at rest: an error of 0 under a sigma of MIN_SIGMA_RAD_S)
+    X, e = residuals([predict_speed(model, s) for s in val], val)
+    floored = 100.0 * float(np.mean((band.sigma_array(X[:, 1], X[:, 2], X[:, 3]) <= MIN_SIGMA_RAD_S)
+                                    & (e <= MIN_SIGMA_RAD_S)))
+    assert 100 * ONE_SIGMA - 1.0 <= meta["validation_coverage_percent"] <= 100 * ONE_SIGMA + floored + 1.0
+    _, scores, preds = evaluate(model, held)
     err, sigma, fast, turning = [], [], [], []
     for sig, pred in zip(held, preds, strict=True):
         e = np.abs(sig.speed - pred)
