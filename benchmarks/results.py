@@ -116,7 +116,9 @@ def command_line(argv: list[str] | None = None) -> str:
 def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, command: str | None = None,
                  seconds: float | None = None) -> None:
     """Write ``figures`` with what produced them (command, date, commit, CPUs) to ``path``, atomically."""
-    dirty = bool(_git("status", "--porcelain", "--untracked-files=no"))
+    # what produced the figures: not the records (earlier runs write them) nor any markdown (renders)
+    dirty = bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                      f":(exclude){RESULTS_DIR.relative_to(ROOT)}", ":(exclude)*.md"))
     record = {
         "command": command or command_line(),
         "date": datetime.date.today().isoformat(),
