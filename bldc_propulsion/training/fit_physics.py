@@ -57,29 +57,13 @@ HELD = ("battery_series_resistance_ohm",)
 #: ~0.5 s later and without the rotor's acceleration current), so its transients would say the rotor
 #: has no inertia (rotor_lag fitted 0 when every row counted).
 CURRENT_SETTLED_S = 1.0
-#: Held at strength 1 wherever the recordings say what the ESC is fed (``supply_held``): the ESC runs
-#: on the voltage measured, so nothing is left to fit. Fitted, the strength scales the supply's
-#: variation, and stands in for what else moves slowly or with the command:
-#: - a voltage filtered from the battery ADC (``config.supply_tau_s`` > 0): on a 90 s flight the
-#:   pack's run-down and a winding warming both slow the rotor, so the two trade. Randomized bench
-#:   809 fitted the strength at 1.8e-6 (its bound) with motor_heating at 3.6x; the model then ignored
-#:   the voltage, and the health monitor alarmed six times in 3.7 h of healthy flight as the pack ran
-#:   down. Held at 1: on benches 808-811, 1 false alarm in 3.7 h instead of 7, none before a fault's
-#:   onset instead of 2 (on 800-803, 2 and none). The pack's series resistance (HELD) stays held:
-#:   fitted in its place, it traded with heating the same way (800-803: 5 false alarms, 4 before an
-#:   onset);
-#: - a recorded voltage with the supply current fitted: the strength scales the supply's sag, which on
-#:   a staircase follows the command, and so stands in for losses the physics lacks (F80 splits: 0,
-#:   0.54 and 1.31).
-#: Not held for a recorded voltage without the current: the strength is then what absorbs those losses,
-#: and held at 1 the F80 fits ended with Kv at a bound of its range on every split.
+#: Held at strength 1 when the supply current is fitted and the voltage was recorded as the ESC's
+#: supply (no battery filter to undo, ``config.supply_tau_s`` 0): the ESC is fed the voltage measured,
+#: so nothing is left to fit. Fitted, the strength scales the supply's sag, which on a staircase
+#: follows the command, and so stands in for losses the physics lacks (F80 splits: 0, 0.54 and 1.31).
+#: Not held without the current: the strength is then what absorbs those losses, and held at 1 the
+#: F80 fits ended with Kv at a bound of its range on every split.
 SUPPLY_HELD = ("battery_voltage",)
-
-
-def supply_held(tau_s: float, with_current: bool) -> tuple[str, ...]:
-    """The effects held at strength 1 in a training fit (SUPPLY_HELD): with a voltage filtered from the
-    battery ADC (``tau_s`` > 0), or a recorded one with the supply current fitted; none otherwise."""
-    return SUPPLY_HELD if tau_s > 0.0 or with_current else ()
 #: The throttle map's origin below the ESC's start threshold (``plant.map_origin``), freed in one more
 #: fit, from the better straight one, where the data can identify it: the supply current is fitted (an
 #: ESC draws duty x the motor current, so the current at held levels shows the duty there, which the
@@ -296,10 +280,9 @@ def train_physics(
     choose; random steps do. The supply is the recordings' filtered battery voltage (the stiff
     supply of battery_voltage strength 0: their median). Training recordings that carry their
     motor's supply current add it to the least squares where the command has settled
-    (``SpeedAndCurrent``, CURRENT_SETTLED_S); with it, a fifth fit may free the throttle map's
-    origin below the ESC's start threshold (ORIGIN_FREE). battery_voltage's strength is held at 1
-    wherever the recordings say what the ESC is fed (``supply_held``: a voltage filtered from the
-    battery ADC, or a recorded one with the current).
+    (``SpeedAndCurrent``, CURRENT_SETTLED_S), with battery_voltage held at 1 on a recorded supply
+    (SUPPLY_HELD); with it, a fifth fit may free the throttle map's origin below the ESC's start
+    threshold (ORIGIN_FREE).
 
     The kept fit is checked (``physics.fit.fit_flags``): a fit whose Kv or CP ended at a bound of its
     range or implausibly far from a value the user stated (a prior, or the CONFIG) is no model of
@@ -319,7 +302,7 @@ def train_physics(
     for line in notes:
         say(f"start: {line}")
     current = SpeedAndCurrent.with_current(train)
-    held = supply_held(tau, current is not None)
+    held = SUPPLY_HELD if current is not None and tau == 0.0 else ()
     if current is not None:
         say(current.summary(held))
     t0 = time.perf_counter()
