@@ -210,15 +210,20 @@ def test_the_guard_scores_both_predictions_a_priori_by_hand(model):
 
 
 def test_the_guard_keeps_a_wrong_adaptation_out_of_the_prediction(model, monkeypatch):
-    """A healthy flight on which the adapter, unguarded, learns a change that is not there (the
+    """Healthy flights on which the adapter, unguarded, learns a change that is not there (the
     model's own error at some operating points looks like one): its prediction is then more than
-    5 % worse than the offline model's against the simulator's truth; guarded it is no worse."""
+    5 % worse than the offline model's against the simulator's truth on most of them; guarded it
+    is within the issue's 5 % on every one, no worse than offline in the median, and its worst
+    flight is better than the unguarded worst. The guard judges on the decoded speeds over its
+    memory, so a flight may end slightly above the offline model (not a per-flight guarantee)."""
     from bldc_propulsion.core import adaptation
 
-    res = simulate("random_steps", 30.0, 2203, params=draw_bench(BENCH), soc=0.8)
-    offline, guarded = (run_flight(model, res, adapt=x) for x in (False, True))
-    monkeypatch.setattr(adaptation.PhysicsAdapter, "_judge", lambda self, *args: None)
-    unguarded = run_flight(model, res, adapt=True)
+    flights = [simulate("random_steps", 30.0, seed, params=draw_bench(BENCH), soc=0.8) for seed in range(2210, 2220)]
     t0, t1 = 10.0, 30.0
-    assert rmse(unguarded, t0, t1) > 1.05 * rmse(offline, t0, t1), (rmse(unguarded, t0, t1), rmse(offline, t0, t1))
-    assert rmse(guarded, t0, t1) <= rmse(offline, t0, t1), (rmse(guarded, t0, t1), rmse(offline, t0, t1))
+    offline = [rmse(run_flight(model, res, adapt=False), t0, t1) for res in flights]
+    guarded = [rmse(run_flight(model, res, adapt=True), t0, t1) for res in flights]
+    monkeypatch.setattr(adaptation.PhysicsAdapter, "_judge", lambda self, *args: None)
+    unguarded = [rmse(run_flight(model, res, adapt=True), t0, t1) for res in flights]
+    g, u = np.divide(guarded, offline), np.divide(unguarded, offline)
+    assert np.sum(u > 1.05) >= 5, u  # the case the guard is for
+    assert g.max() <= 1.05 and np.median(g) <= 1.0 and g.max() < u.max(), (g, u)

@@ -146,7 +146,7 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
                "-o", str(out), "--json")
     assert proc.returncode == 0, proc.stderr
     data = json.loads(proc.stdout)
-    assert data["kind"] == "physics" and data["fit"].startswith("ESC braking actively")  # chosen by validation
+    assert data["kind"] == "physics"
     assert len(data["candidates"]) == 4  # braking / coasting, each with the map straight and bent
     # per ESC, the training RMSE of the map straight and bent: started from the straight fit, the
     # bent one fits its training data as well or better
@@ -160,12 +160,15 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
     # coasting one (a straight map's two fits can tie: the bent one starts at exponent 1, optimal)
     val = [d["validation_rmse_rad_s"] for d in data["candidates"]]
     assert val == sorted(val)
-    assert min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC braking")) < \
-        min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC letting"))
+    # a braking ESC is kept: the braking candidate, or a coasting one whose spin-down strength went to
+    # 0 (the braking ESC reached from the other start; the two then tie to a few per mille)
+    best_braking = min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC braking"))
+    assert all(d["effects"]["spin_down_asymmetry"] <= 1e-3 for d in data["candidates"]
+               if d["validation_rmse_rad_s"] < best_braking), data["candidates"]
     assert data["validation_rmse_rad_s"] < 12.0  # the tachometer's own error is ~8 rad/s RMS on steps
     assert abs(data["constants"]["motor_kv_rpm_per_v"] / 710.0 - 1.0) < 0.1
     m = load_model_kind(out)
-    assert m.effects["spin_down_asymmetry"] == 0.0
+    assert m.effects["spin_down_asymmetry"] <= 1e-3
     # on a recording of another kind and charge: the true speed within a few rad/s
     sig = load_signals(bench_bags["test"][0])
     err = predict_speed(m, sig) - truth_on(sig, bench_bags["test"][0])

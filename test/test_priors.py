@@ -213,16 +213,19 @@ def nominal_bags(tmp_path_factory) -> dict[str, list[str]]:
 
 
 def test_a_stated_kv_the_recordings_contradict_is_refused(nominal_bags, tmp_path):
-    """The nominal 710 kv bench trained as a 2000 kv motor: every fit ends on the stated range's
-    lower bound (1538 rpm/V), so the model is not written."""
+    """The nominal 710 kv bench trained as a 2000 kv motor: every fit either ends on the stated
+    range's lower bound (1538 rpm/V) or reaches its edge with an implausible CP (which then absorbs
+    the wrong Kv), so the model is not written."""
     out = tmp_path / "m.npz"
     proc = _train(nominal_bags, out, "--motor-kv", "2000")
     assert proc.returncode == 2 and not out.exists()
     assert proc.stderr.count("\n") == 1 + proc.stderr.count("start:") + proc.stderr.count("fitting") \
         + proc.stderr.count("  RMSE") + proc.stderr.count("recordings\n")  # progress, then one error line
     line = proc.stderr.splitlines()[-1]
-    assert "--motor-kv 2000" in line and "motor_kv_rpm_per_v fitted 1538" in line, line
-    assert f"range {2000 / KV_RANGE_FACTOR:.4g}-{2000 * KV_RANGE_FACTOR:.4g}" in line and "stated" in line
+    assert "--motor-kv 2000" in line and "all 4 fits contradict it" in line, line
+    kv_at_bound = "motor_kv_rpm_per_v fitted 1538" in line \
+        and f"range {2000 / KV_RANGE_FACTOR:.4g}-{2000 * KV_RANGE_FACTOR:.4g}" in line and "stated" in line
+    assert kv_at_bound or ("propeller_cp fitted" in line and "implausible" in line), line
 
 
 def test_physics_config_goes_with_the_physics(nominal_bags, tmp_path):

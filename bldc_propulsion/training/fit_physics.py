@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TypedDict, cast
 
@@ -57,13 +57,29 @@ HELD = ("battery_series_resistance_ohm",)
 #: ~0.5 s later and without the rotor's acceleration current), so its transients would say the rotor
 #: has no inertia (rotor_lag fitted 0 when every row counted).
 CURRENT_SETTLED_S = 1.0
-#: Held at strength 1 when the supply current is fitted and the voltage was recorded as the ESC's
-#: supply (no battery filter to undo, ``config.supply_tau_s`` 0): the ESC is fed the voltage measured,
-#: so nothing is left to fit. Fitted, the strength scales the supply's sag, which on a staircase
-#: follows the command, and so stands in for losses the physics lacks (F80 splits: 0, 0.54 and 1.31).
-#: Not held without the current: the strength is then what absorbs those losses, and held at 1 the
-#: F80 fits ended with Kv at a bound of its range on every split.
+#: Held at strength 1 wherever the recordings say what the ESC is fed (``supply_held``): the ESC runs
+#: on the voltage measured, so nothing is left to fit. Fitted, the strength scales the supply's
+#: variation, and stands in for what else moves slowly or with the command:
+#: - a voltage filtered from the battery ADC (``config.supply_tau_s`` > 0): on a 90 s flight the
+#:   pack's run-down and a winding warming both slow the rotor, so the two trade. Randomized bench
+#:   809 fitted the strength at 1.8e-6 (its bound) with motor_heating at 3.6x; the model then ignored
+#:   the voltage, and the health monitor alarmed six times in 3.7 h of healthy flight as the pack ran
+#:   down. Held at 1: on benches 808-811, 1 false alarm in 3.7 h instead of 7, none before a fault's
+#:   onset instead of 2 (on 800-803, 2 and none). The pack's series resistance (HELD) stays held:
+#:   fitted in its place, it traded with heating the same way (800-803: 5 false alarms, 4 before an
+#:   onset);
+#: - a recorded voltage with the supply current fitted: the strength scales the supply's sag, which on
+#:   a staircase follows the command, and so stands in for losses the physics lacks (F80 splits: 0,
+#:   0.54 and 1.31).
+#: Not held for a recorded voltage without the current: the strength is then what absorbs those losses,
+#: and held at 1 the F80 fits ended with Kv at a bound of its range on every split.
 SUPPLY_HELD = ("battery_voltage",)
+
+
+def supply_held(tau_s: float, with_current: bool) -> tuple[str, ...]:
+    """The effects held at strength 1 in a training fit (SUPPLY_HELD): with a voltage filtered from the
+    battery ADC (``tau_s`` > 0), or a recorded one with the supply current fitted; none otherwise."""
+    return SUPPLY_HELD if tau_s > 0.0 or with_current else ()
 #: The throttle map's origin below the ESC's start threshold (``plant.map_origin``), freed in one more
 #: fit, from the better straight one, where the data can identify it: the supply current is fitted (an
 #: ESC draws duty x the motor current, so the current at held levels shows the duty there, which the
@@ -280,9 +296,10 @@ def train_physics(
     choose; random steps do. The supply is the recordings' filtered battery voltage (the stiff
     supply of battery_voltage strength 0: their median). Training recordings that carry their
     motor's supply current add it to the least squares where the command has settled
-    (``SpeedAndCurrent``, CURRENT_SETTLED_S), with battery_voltage held at 1 on a recorded supply
-    (SUPPLY_HELD); with it, a fifth fit may free the throttle map's origin below the ESC's start
-    threshold (ORIGIN_FREE).
+    (``SpeedAndCurrent``, CURRENT_SETTLED_S); with it, a fifth fit may free the throttle map's
+    origin below the ESC's start threshold (ORIGIN_FREE). battery_voltage's strength is held at 1
+    wherever the recordings say what the ESC is fed (``supply_held``: a voltage filtered from the
+    battery ADC, or a recorded one with the current).
 
     The kept fit is checked (``physics.fit.fit_flags``): a fit whose Kv or CP ended at a bound of its
     range or implausibly far from a value the user stated (a prior, or the CONFIG) is no model of
@@ -302,7 +319,7 @@ def train_physics(
     for line in notes:
         say(f"start: {line}")
     current = SpeedAndCurrent.with_current(train)
-    held = SUPPLY_HELD if current is not None and tau == 0.0 else ()
+    held = supply_held(tau, current is not None)
     if current is not None:
         say(current.summary(held))
     t0 = time.perf_counter()
@@ -311,8 +328,9 @@ def train_physics(
     candidates.sort(key=lambda d: (bool(d["refused"]), d["validation_rmse_rad_s"]))
     best = candidates[0]
     if best["refused"]:
-        f = next(f for f in best["flags"] if refuses(f))
-        who = base.stated.get(f.quantity) or f"--physics-config {config}"
+        f = next(f for f in best["flags"] if refuses(f, base.stated))
+        who = (base.stated.get(f.quantity) or base.stated.get("motor_kv_rpm_per_v")
+               or f"--physics-config {config}")
         raise BadInputError(f"{who}: the training recordings do not support it, so no model is written: {f.text()}; "
                             f"all {len(candidates)} fits contradict it (a wrong rating or propeller, or an effect "
                             "the physics lacks)")
@@ -355,7 +373,7 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
         candidates.append({"fit": name, "constants": constants, "effects": dict(fit.model.effects),
                            "at_bound": [f.text() for f in flags if f.at_bound],
                            "fit_flags": [f.as_json() for f in flags],
-                           "refused": [f.text() for f in flags if refuses(f)],
+                           "refused": [f.text() for f in flags if refuses(f, start.stated)],
                            "train_rmse_rad_s": rmse(m, train),
                            "validation_rmse_rad_s": rmse(m, validation),
                            "train_current_rmse_a": (data.current_rmse(fit.model)
@@ -363,7 +381,7 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
                            "model": m, "flags": flags})
         say(f"  RMSE training {candidates[-1]['train_rmse_rad_s']:.2f} rad/s, "
             f"validation {candidates[-1]['validation_rmse_rad_s']:.2f} rad/s"
-            + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f)))
+            + "".join(f"; {f.quantity} {f.why}" for f in flags if refuses(f, start.stated)))
 
     for esc, braking_removed in (("ESC braking actively", 0.0), ("ESC letting the rotor coast", 1.0)):
         effects = {**{n: 1.0 for n in c.EFFECTS}, "spin_down_asymmetry": braking_removed}
@@ -415,10 +433,14 @@ def training_flags(fit: pf.Fit, start: PhysicsConfig) -> list[pf.FitFlag]:
                                                                      and f.value <= 1e-3)]
 
 
-def refuses(flag: pf.FitFlag) -> bool:
+def refuses(flag: pf.FitFlag, stated: Mapping[str, str]) -> bool:
     """The flag makes the fit no model of the stated motor: Kv or CP at a bound of its range or
-    implausibly far from a value the user stated (a prior or the CONFIG)."""
-    return flag.quantity in REFUSING and flag.stated
+    implausibly far from a value the user stated (a prior or the CONFIG, ``stated``: the
+    constants a prior option gave); or, with Kv stated, CP at a bound or implausible from any
+    start: CP is then what absorbs a wrong Kv (the 710 kv bench trained as a 2000 kv motor: Kv
+    1552 at the edge of the stated range with CP 22x its start)."""
+    kv_held = "motor_kv_rpm_per_v" in stated
+    return flag.quantity in REFUSING and (flag.stated or (kv_held and flag.quantity == "propeller_cp"))
 
 
 def residual_signals(model: PlantModel, signals: Sequence[Signals]) -> list[Signals]:
