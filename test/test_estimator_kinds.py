@@ -156,8 +156,8 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
         by_esc.setdefault(esc, {})[shape] = d["train_rmse_rad_s"]
     assert len(by_esc) == 2 and all(set(v) == {"straight", "bent"} for v in by_esc.values()), by_esc
     assert all(v["bent"] <= v["straight"] + 1e-6 for v in by_esc.values()), by_esc
-    # kept by validation: the list in its order, and the braking ESC (the bench's) ahead of the
-    # coasting one (a straight map's two fits can tie: the bent one starts at exponent 1, optimal)
+    # kept by validation: the list in its order (a straight map's two fits can tie: the bent one
+    # starts at exponent 1, optimal)
     val = [d["validation_rmse_rad_s"] for d in data["candidates"]]
     assert val == sorted(val)
     # a braking ESC is kept: the braking candidate, or a coasting one whose spin-down strength went to

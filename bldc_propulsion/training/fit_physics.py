@@ -80,6 +80,8 @@ def supply_held(tau_s: float, with_current: bool) -> tuple[str, ...]:
     """The effects held at strength 1 in a training fit (SUPPLY_HELD): with a voltage filtered from the
     battery ADC (``tau_s`` > 0), or a recorded one with the supply current fitted; none otherwise."""
     return SUPPLY_HELD if tau_s > 0.0 or with_current else ()
+
+
 #: The throttle map's origin below the ESC's start threshold (``plant.map_origin``), freed in one more
 #: fit, from the better straight one, where the data can identify it: the supply current is fitted (an
 #: ESC draws duty x the motor current, so the current at held levels shows the duty there, which the
@@ -329,8 +331,9 @@ def train_physics(
     best = candidates[0]
     if best["refused"]:
         f = next(f for f in best["flags"] if refuses(f, base.stated))
-        who = (base.stated.get(f.quantity) or base.stated.get("motor_kv_rpm_per_v")
-               or f"--physics-config {config}")
+        # a flag on what the user stated names it; an unstated CP refuses only beside a stated Kv
+        who = (base.stated.get(f.quantity) or (f"--physics-config {config}" if f.stated
+                                               else base.stated["motor_kv_rpm_per_v"]))
         raise BadInputError(f"{who}: the training recordings do not support it, so no model is written: {f.text()}; "
                             f"all {len(candidates)} fits contradict it (a wrong rating or propeller, or an effect "
                             "the physics lacks)")
