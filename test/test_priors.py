@@ -228,6 +228,26 @@ def test_a_stated_kv_the_recordings_contradict_is_refused(nominal_bags, tmp_path
     assert kv_at_bound or ("propeller_cp fitted" in line and "implausible" in line), line
 
 
+def test_the_held_pack_resistance_is_said_unless_a_config_states_it(nominal_bags, tmp_path):
+    """Training holds the pack's series resistance (it is not fitted): unless a CONFIG states it, the
+    model carries the simulator's bench's 0.035 ohm, and one warning line says so; a CONFIG that
+    states it sets it, and the line goes."""
+    proc = _train(nominal_bags, tmp_path / "a.npz")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["constants"]["battery_series_resistance_ohm"] == BenchParams().battery_series_resistance_ohm == 0.035
+    held = [w for w in data["warnings"] if w.startswith("battery_series_resistance_ohm held at 0.035 (the simulator's "
+                                                         "12 in bench's), not fitted")]
+    assert len(held) == 1 and f"warning: {held[0]}" in proc.stderr.splitlines(), data["warnings"]
+    cfg = tmp_path / "c.json"
+    cfg.write_text(json.dumps({"params": {"battery_series_resistance_ohm": 0.021}}))
+    proc = _train(nominal_bags, tmp_path / "b.npz", "--physics-config", str(cfg))
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["constants"]["battery_series_resistance_ohm"] == 0.021
+    assert not any("battery_series_resistance_ohm held" in w for w in data["warnings"]), data["warnings"]
+
+
 def test_physics_config_goes_with_the_physics(nominal_bags, tmp_path):
     cfg = tmp_path / "c.json"
     cfg.write_text(json.dumps({"params": {"motor_kv_rpm_per_v": 700.0}}))

@@ -236,7 +236,7 @@ def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float
         return model, [], ([] if config else [NOMINAL_START_WARNING])
     model = load_config(config, base=start.params, option=option)
     warnings = list(start.warnings)
-    listed = set(_config_file(config, option).get("params", {})) if config else set()
+    listed = config_lists(config, option)
     stated = {}
     for name, how in start.stated.items():
         if name in listed:
@@ -246,6 +246,11 @@ def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float
             stated[name] = how
     ranges = {n: r for n, r in start.ranges.items() if n in stated}
     return dataclasses.replace(model, stated=stated, ranges=ranges), list(start.notes), warnings
+
+
+def config_lists(config: str | None, option: str = "--physics") -> set[str]:
+    """The constants (PlantParams names) a CONFIG file states in its 'params'; none without a file."""
+    return set(_config_file(config, option).get("params", {})) if config else set()
 
 
 def save_config(model: PhysicsConfig, path: str, force: bool, provenance: Mapping[str, object]) -> None:
