@@ -347,9 +347,7 @@ def train_physics(
                             f"all {len(candidates)} fits contradict it (a wrong rating or propeller, or an effect "
                             "the physics lacks)")
     warnings += [f.text() for f in best["flags"]]
-    if tau > 0.0:
-        sized = priors is not None and physics_start(priors) is not None
-        warnings += held_unstated(best["model"], config_lists(config, "--physics-config"), sized)
+    warnings += held_unstated(best["model"], tau, config, priors)
     thrust = fit_thrust_coefficient(train, thrust_coefficient)
     band = band_metadata([predict_speed(best["model"], s) for s in validation], validation)
     model = dataclasses.replace(best["model"], thrust_coefficient=thrust.coefficient, metadata={
@@ -434,14 +432,18 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
     return candidates
 
 
-def held_unstated(model: PlantModel, listed: set[str], sized: bool) -> list[str]:
-    """A warning line per HELD constant no CONFIG stated (``listed``): its value is then the
-    simulator's bench's (``sized``: resized to the stated motor), not the user's. Only where it
-    acts: with a voltage filtered from the battery ADC it sets the sag the filter has not yet
-    passed after a current step (the model undoes the filter with it). Randomized benches 300-303:
-    true 0.019-0.041 ohm against the 0.035 held; with the pack's resistance doubled in flight, the
-    model holding 2x 0.035 came back to the healthy flight's RMSE on two of them (2.09 -> 0.63
-    rad/s against 0.63; 5.32 -> 2.06 against 1.79)."""
+def held_unstated(model: PlantModel, tau_s: float, config: str | None, priors: MotorPriors | None) -> list[str]:
+    """A warning line per HELD constant the CONFIG does not state: its value is then the
+    simulator's bench's (resized to the stated motor when ``priors`` size one), not the user's.
+    Only where it acts (``tau_s`` > 0): with a voltage filtered from the battery ADC it sets the
+    sag the filter has not yet passed after a current step (the model undoes the filter with it).
+    Randomized benches 300-303: true 0.019-0.041 ohm against the 0.035 held; with the pack's
+    resistance doubled in flight, the model holding 2x 0.035 came back to the healthy flight's
+    RMSE on two of them (2.09 -> 0.63 rad/s against 0.63; 5.32 -> 2.06 against 1.79)."""
+    if tau_s <= 0.0:
+        return []
+    listed = config_lists(config, "--physics-config")
+    sized = priors is not None and physics_start(priors) is not None
     whose = "the simulator's 12 in bench's, resized to the stated motor" if sized else "the simulator's 12 in bench's"
     return [f"{name} held at {getattr(model.params, name):.4g} ({whose}), not fitted: it trades with the supply's "
             "strength and the winding's heating; it sets the sag the battery filter has not yet passed after a "
