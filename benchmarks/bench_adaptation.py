@@ -129,8 +129,7 @@ def recovery_s(run: dict[str, Any], onset: float, level: Callable[[float, float]
     return None
 
 
-def judge(model: Any, res: Any, fault: Fault, config: AdaptationConfig | None = None,
-          twin: Any = None) -> dict[str, Any]:
+def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfig | None = None) -> dict[str, Any]:
     """One faulted flight: RMSE after the change over the twin's (``twin``: the same flight
     without the fault) and over the seconds before the onset, adapted and offline, with their
     recovery times; the adapted parameters at the end."""
@@ -142,12 +141,11 @@ def judge(model: Any, res: Any, fault: Fault, config: AdaptationConfig | None = 
         post = rmse(run, o + POST_S[0], o + POST_S[1])
         out[label] = {"pre_rad_s": pre, "post_rad_s": post, "ratio": post / pre,
                       "recovery_s": recovery_s(run, o, lambda t0, t1, pre=pre: pre)}
-        if twin is not None:
-            tw = run_flight(model, twin, config, adapt)
-            twin_post = rmse(tw, o + POST_S[0], o + POST_S[1])
-            out[label] |= {"twin_post_rad_s": twin_post, "vs_twin": post / twin_post,
-                           "twin_ratio": twin_post / rmse(tw, o - PRE_S, o),
-                           "recovery_vs_twin_s": recovery_s(run, o, lambda t0, t1, tw=tw: rmse(tw, t0, t1))}
+        tw = run_flight(model, twin, config, adapt)
+        twin_post = rmse(tw, o + POST_S[0], o + POST_S[1])
+        out[label] |= {"twin_post_rad_s": twin_post, "vs_twin": post / twin_post,
+                       "twin_ratio": twin_post / rmse(tw, o - PRE_S, o),
+                       "recovery_vs_twin_s": recovery_s(run, o, lambda t0, t1, tw=tw: rmse(tw, t0, t1))}
         if adapt:
             out["final"] = {"propeller_damage": float(run["theta"][-1, 0]),
                             "bearing_friction": float(run["theta"][-1, 1])}
@@ -189,7 +187,7 @@ def main() -> None:
                     res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=soc, faults=[fault])
                     twin = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=soc)
                     r = {"bench": bench_seed, "seed": seed, "onset_s": fault.onset_s,
-                         **judge(model, res, fault, twin=twin)}
+                         **judge(model, res, fault, twin)}
                     runs[name].append(r)
                     print(f"  {fault.spec}: {json.dumps(r, default=float)}", file=sys.stderr)
                 seed = 10_000 * bench_seed + 5000 + k

@@ -111,6 +111,8 @@ class PhysicsConfig:
     #: ``fit.LOG_RANGE_BASE`` around the start (``sizing.physics_start``: a stated Kv +-30 %, a stated
     #: propeller's CP x3), whatever a fit starts from
     ranges: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
+    #: the constants (BenchParams names) ``source`` states in its 'params'; the rest are ``base``'s
+    listed: frozenset[str] = frozenset()
 
     def predict(self, s: Recorded) -> np.ndarray:
         """Speed (rad/s) on the recording's grid; the rotor starts at the recording's measured
@@ -193,7 +195,8 @@ def load_config(path: str | None, base: BenchParams | None = None, option: str =
     if supply is not None and (isinstance(supply, bool) or not isinstance(supply, (int, float))
                                or not math.isfinite(supply) or supply <= 0):
         raise BadInputError(f"{option} {path}: supply_v {supply!r} must be a voltage > 0 (or null)")
-    return PhysicsConfig(p, eff, None if supply is None else float(supply), str(path))
+    return PhysicsConfig(p, eff, None if supply is None else float(supply), str(path),
+                         listed=frozenset(cfg.get("params", {})))
 
 
 def _config_file(path: str, option: str) -> dict[str, Any]:
@@ -236,7 +239,7 @@ def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float
         return model, [], ([] if config else [NOMINAL_START_WARNING])
     model = load_config(config, base=start.params, option=option)
     warnings = list(start.warnings)
-    listed = config_lists(config, option)
+    listed = model.listed
     stated = {}
     for name, how in start.stated.items():
         if name in listed:
@@ -246,11 +249,6 @@ def start_model(config: str | None, priors: MotorPriors | None, voltage_v: float
             stated[name] = how
     ranges = {n: r for n, r in start.ranges.items() if n in stated}
     return dataclasses.replace(model, stated=stated, ranges=ranges), list(start.notes), warnings
-
-
-def config_lists(config: str | None, option: str = "--physics") -> set[str]:
-    """The constants (PlantParams names) a CONFIG file states in its 'params'; none without a file."""
-    return set(_config_file(config, option).get("params", {})) if config else set()
 
 
 def save_config(model: PhysicsConfig, path: str, force: bool, provenance: Mapping[str, object]) -> None:

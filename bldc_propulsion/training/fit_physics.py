@@ -29,7 +29,6 @@ from ..physics.config import (
     CALIBRATED,
     PhysicsConfig,
     Recorded,
-    config_lists,
     median_voltage,
     start_model,
     supply_tau_s,
@@ -347,7 +346,7 @@ def train_physics(
                             f"all {len(candidates)} fits contradict it (a wrong rating or propeller, or an effect "
                             "the physics lacks)")
     warnings += [f.text() for f in best["flags"]]
-    warnings += held_unstated(best["model"], tau, config, priors)
+    warnings += held_unstated(best["model"], base, tau, priors)
     thrust = fit_thrust_coefficient(train, thrust_coefficient)
     band = band_metadata([predict_speed(best["model"], s) for s in validation], validation)
     model = dataclasses.replace(best["model"], thrust_coefficient=thrust.coefficient, metadata={
@@ -432,23 +431,23 @@ def _candidate_fits(base: PhysicsConfig, data: pf.Data, train: Sequence[Signals]
     return candidates
 
 
-def held_unstated(model: PlantModel, tau_s: float, config: str | None, priors: MotorPriors | None) -> list[str]:
-    """A warning line per HELD constant the CONFIG does not state: its value is then the
-    simulator's bench's (resized to the stated motor when ``priors`` size one), not the user's.
+def held_unstated(model: PlantModel, start: PhysicsConfig, tau_s: float, priors: MotorPriors | None) -> list[str]:
+    """A warning line when the pack's series resistance, HELD in every fit, is not one the
+    ``start``'s CONFIG states: its value is then the simulator's bench's (resized to the stated
+    motor when ``priors`` size one), not the user's.
     Only where it acts (``tau_s`` > 0): with a voltage filtered from the battery ADC it sets the
     sag the filter has not yet passed after a current step (the model undoes the filter with it).
     Randomized benches 300-303: true 0.019-0.041 ohm against the 0.035 held; with the pack's
     resistance doubled in flight, the model holding 2x 0.035 came back to the healthy flight's
     RMSE on two of them (2.09 -> 0.63 rad/s against 0.63; 5.32 -> 2.06 against 1.79)."""
-    if tau_s <= 0.0:
+    name = "battery_series_resistance_ohm"
+    if tau_s <= 0.0 or name not in HELD or name in start.listed:
         return []
-    listed = config_lists(config, "--physics-config")
     sized = priors is not None and physics_start(priors) is not None
     whose = "the simulator's 12 in bench's, resized to the stated motor" if sized else "the simulator's 12 in bench's"
     return [f"{name} held at {getattr(model.params, name):.4g} ({whose}), not fitted: it trades with the supply's "
             "strength and the winding's heating; it sets the sag the battery filter has not yet passed after a "
-            "current step; state your pack's in a --physics-config CONFIG"
-            for name in HELD if name not in listed]
+            "current step; state your pack's in a --physics-config CONFIG"]
 
 
 #: The constants whose flag against a stated value refuses a training fit: what the priors state.
