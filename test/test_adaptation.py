@@ -80,6 +80,42 @@ def test_a_network_has_nothing_to_adapt_and_bad_settings_are_one_line():
         AdaptationConfig(memory_s=-1.0)
 
 
+def test_rebuilds_after_the_first_lift_the_lanes_without_a_jump():
+    """At a rebuild the lanes' states move along their sensitivities to the new constants, so the
+    prediction does not jump: right after each rebuild the correction is where the rebuilt lanes
+    settle, to the linearisation's second order. A lift that divides by the lane units instead of
+    multiplying lands a third of the propeller's step short and overshoots the friction's; the
+    first rebuild, from the offline constants, cannot tell: the units are 1 there."""
+    from bldc_propulsion.contract import EFFECTS
+    from bldc_propulsion.physics.params import PlantParams
+    from bldc_propulsion.physics.plant_model import PlantModel
+
+    ad = PhysicsAdapter(PlantModel(PlantParams(sim_step_s=0.005), dict.fromkeys(EFFECTS, 1.0), 12.0))
+    ad.update_pwm(0.0, 0.07)
+    ad.update_voltage(0.0, 11.5)
+    t = 0.0
+
+    def settle() -> float:
+        nonlocal t
+        for _ in range(400):
+            t += 0.01
+            row = ad._sample(t)
+        assert row is not None
+        return row[0]
+
+    ad.theta = [0.2, 0.5]
+    ad._rebase()
+    before = settle()
+    for theta in ([0.4, 0.5], [0.4, 1.5]):  # the propeller's lane, then the friction's
+        ad.theta = theta
+        ad._rebase()
+        lifted = ad._sample(t + 1e-3)
+        after = settle()
+        assert lifted is not None and abs(after - before) > 5.0  # a step large enough to tell
+        assert lifted[0] == pytest.approx(after, abs=0.1 * abs(after - before)), theta
+        before = after
+
+
 # --- simulated flights ---------------------------------------------------------------------------------
 PRE, POST = (ONSET_S - 20.0, ONSET_S), (ONSET_S + 10.0, ONSET_S + 30.0)
 

@@ -230,8 +230,9 @@ class PhysicsAdapter:
         self.note = "frozen: no measured speed yet"
 
     def _lane_units(self) -> list[float]:
-        """Per lane: units of theta (relative to the offline model) per unit of the lane's own
-        (relative to the constants it was built at)."""
+        """Per lane: d lane / d theta, units of the lane's own (relative to the constants it was
+        built at) per unit of theta (relative to the offline model); a rebuild moves the lanes'
+        states by theta's move times these, the rows' sensitivities are the lanes' times these."""
         return [1.0 / (1.0 - self._lin[0]), self._friction_ref / self._lanes.friction_reference_a]
 
     # --- inputs -------------------------------------------------------------------------------
@@ -436,7 +437,7 @@ class PhysicsAdapter:
         """The lanes rebuilt at theta (their states kept); the history moved to the new point
         (lazily: ``_now``)."""
         new = list(self.theta)
-        moves = [(a - b) / u for a, b, u in zip(new, self._lin, self._units, strict=True)]
+        moves = [(a - b) * u for a, b, u in zip(new, self._lin, self._units, strict=True)]
         if not self._ref_live and self._hist_t:
             self._ref.sample(self._hist_t[-1])  # the reference goes live: at the lanes' time
         self._ref_live = True
