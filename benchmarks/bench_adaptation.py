@@ -73,9 +73,9 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
                keep: bool = False) -> dict[str, Any]:
     """A simulated flight's streams through the estimator (adapting or not), merged in time
     order as a node receives them, predicting on a GRID_HZ grid: the grid times, the predicted
-    and true speeds there, and the adapted parameters' values after each prediction (with
-    ``states``, the adaptation's state too; with ``keep``, the estimator). ``speed``: what the
-    tachometer says, given the time and the decoded speed (None: no sample)."""
+    and true speeds and thrusts there (NaN: no thrust), and the adapted parameters' values after
+    each prediction (with ``states``, the adaptation's state too; with ``keep``, the estimator).
+    ``speed``: what the tachometer says, given the time and the decoded speed (None: no sample)."""
     pwm, volt, measured = streams(res)
     if speed is not None:
         pairs = [(t, speed(t, w)) for t, w in zip(measured[0].tolist(), measured[1].tolist(), strict=True)]
@@ -88,7 +88,7 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
     k_all = np.concatenate([np.zeros(len(pwm[0])), np.ones(len(volt[0])), np.full(len(measured[0]), 2.0),
                             np.full(len(grid), 3.0)])
     order = np.lexsort((k_all, t_all))
-    out_t, out_w, theta, state = [], [], [], []
+    out_t, out_w, out_f, theta, state = [], [], [], [], []
     feed = (est.update_pwm, est.update_voltage, est.update_speed)
     for t, kind, x in zip(t_all[order].tolist(), k_all[order].tolist(), x_all[order].tolist(), strict=True):
         if kind < 3.0:
@@ -98,12 +98,14 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
         if p.ready:
             out_t.append(t)
             out_w.append(p.speed_rad_s)
+            out_f.append(math.nan if p.thrust_n is None else p.thrust_n)
             theta.append([v for v, _ in est.adapter.values().values()] if est.adapter is not None else [0.0, 1.0])
             if states:
                 state.append(est.adaptation_state())
     tt = np.asarray(out_t)
     out: dict[str, Any] = {"t": tt, "predicted": np.asarray(out_w), "theta": np.asarray(theta),
-                           "truth": np.interp(tt, res.truth_t, res.truth_speed)}
+                           "truth": np.interp(tt, res.truth_t, res.truth_speed), "thrust": np.asarray(out_f),
+                           "truth_thrust": np.interp(tt, res.truth_t, res.truth_thrust)}
     if states:
         out["states"] = state
     if keep:
@@ -115,6 +117,12 @@ def rmse(run: dict[str, Any], t0: float, t1: float) -> float:
     """RMSE (rad/s) of the prediction against the truth over [t0, t1)."""
     sel = (run["t"] >= t0) & (run["t"] < t1)
     return float(np.sqrt(np.mean((run["predicted"][sel] - run["truth"][sel]) ** 2))) if sel.any() else math.nan
+
+
+def thrust_rmse(run: dict[str, Any], t0: float, t1: float) -> float:
+    """RMSE (N) of the predicted thrust against the simulator's over [t0, t1); NaN without a thrust."""
+    sel = (run["t"] >= t0) & (run["t"] < t1)
+    return float(np.sqrt(np.mean((run["thrust"][sel] - run["truth_thrust"][sel]) ** 2))) if sel.any() else math.nan
 
 
 def recovery_s(run: dict[str, Any], onset: float, level: Callable[[float, float], float]) -> float | None:
@@ -132,7 +140,7 @@ def recovery_s(run: dict[str, Any], onset: float, level: Callable[[float, float]
 def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfig | None = None) -> dict[str, Any]:
     """One faulted flight: RMSE after the change over the twin's (``twin``: the same flight
     without the fault) and over the seconds before the onset, adapted and offline, with their
-    recovery times; the adapted parameters at the end."""
+    recovery times; the thrust's RMSE after the change; the adapted parameters at the end."""
     out: dict[str, Any] = {}
     o = fault.onset_s
     for label, adapt in (("adapted", True), ("offline", False)):
@@ -140,7 +148,8 @@ def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfi
         pre = rmse(run, o - PRE_S, o)
         post = rmse(run, o + POST_S[0], o + POST_S[1])
         out[label] = {"pre_rad_s": pre, "post_rad_s": post, "ratio": post / pre,
-                      "recovery_s": recovery_s(run, o, lambda t0, t1, pre=pre: pre)}
+                      "recovery_s": recovery_s(run, o, lambda t0, t1, pre=pre: pre),
+                      "thrust_post_n": thrust_rmse(run, o + POST_S[0], o + POST_S[1])}
         tw = run_flight(model, twin, config, adapt)
         twin_post = rmse(tw, o + POST_S[0], o + POST_S[1])
         out[label] |= {"twin_post_rad_s": twin_post, "vs_twin": post / twin_post,
@@ -218,8 +227,9 @@ def print_table(s: dict[str, Any]) -> None:
     print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
     print("| fault (size) | runs | after / twin, adapted: median / worst | offline | recovery to 1.2x twin (s) | "
           "within 1.2x from 10 s on | post/pre adapted | offline | recovery to 1.2x pre (s) | "
-          "within 1.2x from 10 s on | twin's own post/pre | adapted values at the end (median) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "within 1.2x from 10 s on | twin's own post/pre | thrust RMSE after, adapted / offline (N, median) | "
+          "adapted values at the end (median) |")
+    print("|---" * 13 + "|")
     for name, rows in s["runs"].items():
         ok_twin = sum(r["adapted"]["vs_twin"] <= GOAL_RATIO for r in rows)
         ok = sum(r["adapted"]["ratio"] <= GOAL_RATIO for r in rows)
@@ -230,6 +240,8 @@ def print_table(s: dict[str, Any]) -> None:
               f"{_spread([r['adapted']['ratio'] for r in rows])} | {_spread([r['offline']['ratio'] for r in rows])} | "
               f"{_spread([r['adapted']['recovery_s'] for r in rows])} | {ok}/{len(rows)} | "
               f"{_range([r['adapted']['twin_ratio'] for r in rows])} | "
+              f"{np.median([r['adapted']['thrust_post_n'] for r in rows]):.3f} / "
+              f"{np.median([r['offline']['thrust_post_n'] for r in rows]):.3f} | "
               f"propeller {finals['propeller_damage']:.3f}, friction x{finals['bearing_friction']:.2f} |")
     h = s["healthy"]
     ok = sum(r["ratio"] <= GOAL_HEALTHY for r in h)

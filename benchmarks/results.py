@@ -675,15 +675,15 @@ def _median_worst(xs: list[float | None]) -> str:
     return f"{statistics.median(vals):.2f} / {max(vals):.2f}"
 
 
-def _median(xs: list[float]) -> str:
-    """The median of a list, 2 decimals; "-" for none."""
-    return f"{statistics.median(xs):.2f}" if xs else "-"
+def _median(xs: list[float], decimals: int = 2) -> str:
+    """The median of a list; "-" for none."""
+    return f"{statistics.median(xs):.{decimals}f}" if xs else "-"
 
 
 def render_adaptation(f: dict[str, Any]) -> list[str]:
     """bench_adaptation.py: per fault the RMSE after the change over the same flight's without it
     (its twin) and over the seconds before the onset (adapted and offline), the recovery times, the
-    adapted values; healthy flights: adapted over offline RMSE."""
+    thrust's RMSE after the change, the adapted values; healthy flights: adapted over offline RMSE."""
     goal, goal_healthy = 1.2, 1.05
     lines = [f"Benches {', '.join(map(str, f['benches']))} (`sim.random_bench`), never tuned on (the adapter's "
              f"settings, `core.adaptation.AdaptationConfig`, were tuned on benches "
@@ -696,7 +696,8 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
              "| fault (size) | runs | after / twin, adapted: median / worst | offline | recovery to 1.2x the "
              "twin (s) | within 1.2x of the twin from 10 s on | post/pre, adapted | recovery to 1.2x pre (s) "
              "| within 1.2x of pre from 10 s on | RMSE after the change, adapted / offline (rad/s, median) "
-             "| adapted at the end (median) | the twin's own post/pre |", "|---" * 12 + "|"]
+             "| thrust RMSE after the change, adapted / offline (N, median) "
+             "| adapted at the end (median) | the twin's own post/pre |", "|---" * 13 + "|"]
     for name, rows in f["runs"].items():
         ok_twin = sum(r["adapted"]["vs_twin"] <= goal for r in rows)
         ok = sum(r["adapted"]["ratio"] <= goal for r in rows)
@@ -711,6 +712,8 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
                      f"{_median_worst([r['adapted']['recovery_s'] for r in rows])} | {ok}/{len(rows)} | "
                      f"{_median([r['adapted']['post_rad_s'] for r in rows])} / "
                      f"{_median([r['offline']['post_rad_s'] for r in rows])} | "
+                     f"{_median([r['adapted']['thrust_post_n'] for r in rows], 3)} / "
+                     f"{_median([r['offline']['thrust_post_n'] for r in rows], 3)} | "
                      f"propeller loss {prop:.3f}, friction x{fric:.2f} | "
                      f"{min(twin):.2f} - {max(twin):.2f} |")
     h = f["healthy"]

@@ -109,8 +109,9 @@ def test_save_adapted_scales_the_propeller_by_the_adapted_loss(flight, replayed)
     offline, adapted = load_model(flight / "physics.npz"), load_model(flight / "adapted.npz")
     assert adapted.kind == c.PHYSICS
     assert adapted.params.propeller_cp == pytest.approx(offline.params.propeller_cp * (1.0 - loss), rel=1e-12)
-    assert adapted.params.propeller_ct == pytest.approx(offline.params.propeller_ct * (1.0 - loss), rel=1e-12)
-    assert adapted.thrust_coefficient == pytest.approx(offline.thrust_coefficient * (1.0 - loss), rel=1e-12)
+    ct_loss = max(loss, 0.0)  # CT and b follow a loss only
+    assert adapted.params.propeller_ct == pytest.approx(offline.params.propeller_ct * (1.0 - ct_loss), rel=1e-12)
+    assert adapted.thrust_coefficient == pytest.approx(offline.thrust_coefficient * (1.0 - ct_loss), rel=1e-12)
     friction = ad["parameters"]["bearing_friction"]["value"]
     assert (adapted.params.motor_no_load_current_a > offline.params.motor_no_load_current_a) == (friction > 1.0)
     assert adapted.metadata["adapted"]["propeller_damage"]["value"] == loss
