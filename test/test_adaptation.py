@@ -20,7 +20,7 @@ from bldc_propulsion.sim.faults import Fault
 from bldc_propulsion.sim.random_bench import draw_bench
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-from bench_adaptation import rmse, run_flight  # noqa: E402
+from bench_adaptation import rmse, run_flight, thrust_rmse  # noqa: E402
 from bench_health import fit_model  # noqa: E402
 
 BENCH = 2  #: a randomized bench (one of the adapter's tuning benches; the benchmark reports others)
@@ -145,11 +145,6 @@ def heated():
     is unchanged, the rotor slower."""
     return simulate("random_steps", 60.0, 2203, params=draw_bench(BENCH), soc=0.8,
                     faults=[Fault("motor_heating", 30.0, ONSET_S)])
-
-
-def thrust_rmse(run: dict, start: float, end: float) -> float:
-    w = (run["t"] >= start) & (run["t"] <= end)
-    return float(np.sqrt(np.mean((run["thrust"][w] - run["truth_thrust"][w]) ** 2)))
 
 
 def test_the_thrust_follows_a_propeller_loss_and_not_a_hot_winding(model, followed, heated):

@@ -128,11 +128,19 @@ class AdaptationConfig:
             raise BadInputError(f"adaptation min_speed_fraction: {self.min_speed_fraction!r} must be in [0, 1)")
 
 
+def ct_factor(loss: float) -> float:
+    """CT adapted / CT offline (and so b's) for the propeller's adapted ``loss``: it follows a loss
+    only. A damaged propeller loses CT and CP; none gains them. A negative loss is theta[0]
+    standing in for what it cannot name (a winding running hot moves it to about -0.09, the more
+    drag the same slower rotor a hotter winding gives), where the propeller's CT has not changed:
+    scaling b up with it doubled the thrust's error after a 30 K rise on randomized benches."""
+    return 1.0 - max(loss, 0.0)
+
+
 def adapted_params(params: PlantParams, theta: Sequence[float], friction_reference_a: float) -> PlantParams:
-    """``params`` with the propeller's CP reduced by theta[0], its CT by a loss only (as b:
-    ``PhysicsAdapter.thrust_factor``), and friction_reference_a * theta[1] amperes of no-load
-    current (friction) added (at least 0)."""
-    return dataclasses.replace(params, propeller_ct=params.propeller_ct * (1.0 - max(theta[0], 0.0)),
+    """``params`` with the propeller's CP reduced by theta[0], its CT by ``ct_factor``, and
+    friction_reference_a * theta[1] amperes of no-load current (friction) added (at least 0)."""
+    return dataclasses.replace(params, propeller_ct=params.propeller_ct * ct_factor(theta[0]),
                                propeller_cp=params.propeller_cp * (1.0 - theta[0]),
                                motor_no_load_current_a=max(params.motor_no_load_current_a
                                                            + friction_reference_a * theta[1], 0.0))
@@ -321,12 +329,8 @@ class PhysicsAdapter:
 
     @property
     def thrust_factor(self) -> float:
-        """b adapted / b offline: CT scales with the propeller's loss, and only with a loss. A
-        damaged propeller loses CT and CP; none gains them. A negative loss is theta[0] standing
-        in for what it cannot name (a winding running hot moves it to about -0.09, the more drag
-        the same slower rotor a hotter winding gives), where the propeller's CT has not changed:
-        scaling b up with it doubled the thrust's error after a 30 K rise on randomized benches."""
-        return 1.0 - max(self.theta[0], 0.0)
+        """b adapted / b offline: CT's, ``ct_factor`` of the propeller's adapted loss."""
+        return ct_factor(self.theta[0])
 
     @property
     def applied_thrust_factor(self) -> float:
