@@ -56,6 +56,30 @@ def test_a_propeller_change_is_named_with_its_onset_and_size():
     assert e.size == pytest.approx(0.1, rel=0.2)
 
 
+def _stopped_before(onset_s: float, seed: int) -> list[HealthSample]:
+    """Holds at any speed, then 20 s with the rotor nearly stopped (below min_speed_fraction: no
+    speed test), then high speeds from 3 s before a 10 % propeller loss at ``onset_s``."""
+    def speeds(t: float) -> tuple[float, float]:
+        return (150.0, 600.0) if t < onset_s - 23.0 else (20.0, 60.0) if t < onset_s - 3.0 else (300.0, 600.0)
+
+    return synthetic_flight(onset_s + 30.0, seed, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, onset_s), speeds=speeds)
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_the_reference_reaches_back_past_a_stop_to_the_last_steady_holds(seed):
+    """The speed channel tests only against a reference that holds steady blocks of a turning
+    rotor. With the 20 s before the onset spent nearly stopped, a 20 s reference holds none and
+    the loss (a 3-5 rad/s rise on 1 rad/s noise per sample) goes unfound for the whole 5 s; the
+    default reference reaches back up to 40 s, to the holds before the stop, and finds it within
+    5 s, named, at its onset."""
+    samples = _stopped_before(90.0, seed)
+    events = monitor_events(samples)
+    assert events and events[0].name == "propeller_damage", [e.as_dict() for e in events]
+    assert abs(events[0].onset_s - 90.0) <= 0.5 and 90.0 <= events[0].detected_s <= 95.0, events[0].as_dict()
+    short = monitor_over(samples, HealthConfig(reference_s=20.0)).events
+    assert not [e for e in short if e.detected_s <= 95.0], [e.as_dict() for e in short]
+
+
 def test_a_change_below_the_smallest_worth_an_alarm_is_kept_as_minor_never_an_alarm():
     """The same 10 % propeller loss with the smallest worth an alarm set at 20 %: seen, named
     and sized as before, but kept in ``minor`` (no event); with the default 3 % it is an alarm

@@ -41,8 +41,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                         "(default 0.01; the threshold is its chi-square tail, Bonferroni "
                                         "over every test of an hour)")
     p.add_argument("--reference", type=number(float, 5.0, 600.0), default=None, metavar="S",
-                   help="seconds of data before a candidate onset that the model's own error and the "
-                        "drift are fitted on (default 20)")
+                   help="most seconds of data before a candidate onset that the model's own error, the "
+                        "drift and the noise are fitted on (default 40; the monitor arms once it has 20, "
+                        "or S if less)")
     add_namespace_argument(p)
 
 
