@@ -582,7 +582,8 @@ def _health_goals(f: dict[str, Any]) -> list[str]:
         x = f["faults"][name]
         k, n = x["counts"]["detected_and_named_right"], x["runs"]
         if not n or k / n < goal:
-            short.append(f"{name} {_share(k, n)}, {100.0 * (goal - (k / n if n else 0.0)):.0f} points short")
+            gap = round(100.0 * (goal - (k / n if n else 0.0)))
+            short.append(f"{name} {_share(k, n)}, {gap} point{'' if gap == 1 else 's'} short")
     alarms, hours = h["false_alarms"], h["hours_monitored"]
     if alarms:
         fa = (f"{alarms} false alarm{'s' if alarms != 1 else ''} in {hours:.2f} h of healthy flight "
