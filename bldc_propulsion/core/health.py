@@ -286,8 +286,8 @@ class HealthConfig:
     #: min_reference_s (the monitor arms once it has that, window_s and learn_s). Why up to 40 s:
     #: the speed channel tests only where its reference holds steady blocks of a turning rotor
     #: (_MIN_REFERENCE_BLOCKS in _MIN_REFERENCE_STRETCHES stretches), and 20 s of random steps
-    #: often hold fewer, leaving the voltage channel alone: on tuning benches 1-3 a 40 s reference
-    #: found 75-92 % of the faults within 5 s against 58-83 % with 20 s
+    #: often hold fewer, leaving the voltage channel alone (on tuning benches 1-9, 73 % of the
+    #: faults found within 5 s and named right against 62 % with 20 s; docs/results.md has fresh ones)
     reference_s: float = 40.0
     min_reference_s: float = 20.0
     #: false alarms per hour the threshold allows (Bonferroni over every test run in an hour)
@@ -332,6 +332,11 @@ class HealthConfig:
             neutral = 1.0 if FAULT_UNITS[name] == "factor" else 0.0
             if not (math.isfinite(v) and v >= neutral):
                 raise ValueError(f"health min_size {name}: {v!r} must be a finite size >= {neutral:g}")
+
+    @property
+    def arming_reference_s(self) -> float:
+        """The reference the monitor arms with (s): min_reference_s, or reference_s if less."""
+        return min(self.min_reference_s, self.reference_s)
 
     def threshold(self, n_faults: int) -> float:
         """The alarm level h: chi-square(1) exceeded with probability false_alarms_per_hour / M,
@@ -545,7 +550,7 @@ class HealthMonitor:
         #: blocks in a detection window: the reference and window_s
         self._max_ref_blocks = int(round(cfg.reference_s / cfg.block_s))
         #: the reference of the evaluation under way (blocks): what the window holds, up to the most
-        self._ref_blocks = min(int(round(cfg.min_reference_s / cfg.block_s)), self._max_ref_blocks)
+        self._ref_blocks = int(round(cfg.arming_reference_s / cfg.block_s))
         self._detect_blocks = self._ref_blocks + int(self._detect_post[-1])
         self.window_blocks = self._max_ref_blocks + self._name_blocks
         self._cols = _S0 + 2 * self.n_faults
@@ -1258,7 +1263,7 @@ class HealthStream:
         """What was found so far, as :func:`run_health` returns it."""
         duration = self.last_s - self.first_s if self.last_s == self.last_s else 0.0
         cfg = self.monitor.config
-        armed = max(0.0, duration - min(cfg.min_reference_s, cfg.reference_s) - cfg.window_s)
+        armed = max(0.0, duration - cfg.arming_reference_s - cfg.window_s)
         return HealthRun(list(self.monitor.events), duration, armed, self.monitor.threshold, dict(self.monitor.noise),
                          list(self.monitor.minor))
 
