@@ -44,13 +44,19 @@ PATHS = ("physics", "network")
 COMPARABLE = ("input_delay", "esc_deadband", "spin_down_asymmetry", "motor_heating", "battery_voltage")
 
 
-def one_run(path: str, case: str, seed: int) -> dict:
-    """One case on the bench of ``seed`` through one path; what the table needs."""
+def one_run(path: str, case: str, seed: int, trace: bool = False) -> dict:
+    """One case on the bench of ``seed`` through one path; what the table needs. ``trace``: the
+    workflow's own progress lines (scores, identification, each trial's holdout test) on stdout."""
     from bldc_propulsion.discrepancy.workflow import Options, run_physics_workflow, run_workflow
     from bldc_propulsion.physics import config as pc
     from bldc_propulsion.recordings import load_signals
 
     bench = draw_bench(seed)
+
+    def progress(line: str) -> None:
+        if trace:
+            print(f"    [{path} {case} {seed}] {line}", flush=True)
+
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         bags = write_case(case, seed, Path(d), bench)
@@ -59,7 +65,7 @@ def one_run(path: str, case: str, seed: int) -> dict:
         if path == "physics":
             model = pc.load_config(None)
             data = run_physics_workflow(model, sig["measured"], sig["reference"], sig["holdout"],
-                                        Options(max_effects=2), lambda m: None).data
+                                        Options(max_effects=2), progress).data
         else:
             from bldc_propulsion.training.train import train_model
 
@@ -68,7 +74,7 @@ def one_run(path: str, case: str, seed: int) -> dict:
             out = train_model(sig["reference"], sig["validation"], inputs=inputs, hidden=T.HIDDEN, seed=seed,
                               max_epochs=T.EPOCHS)
             data = run_workflow(out.model, sig["measured"], sig["reference"], sig["holdout"],
-                                Options(max_effects=2, max_epochs=T.EPOCHS, seed=seed), lambda m: None).data
+                                Options(max_effects=2, max_epochs=T.EPOCHS, seed=seed), progress).data
     fitted = truth = math.nan
     unit = ""
     if path == "physics" and case in COMPARABLE and case in data["named"]:
@@ -142,6 +148,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--path", choices=[*PATHS, "both"], default="both")
     ap.add_argument("--effects", default=",".join(CASES), help=f"cases, comma-separated (of {', '.join(CASES)})")
     ap.add_argument("--json", metavar="PATH", help="also write every run to PATH (benchmarks/results.py renders them)")
+    ap.add_argument("--trace", action="store_true",
+                    help="print each run's workflow lines (why a name was or was not given); runs one at a time")
     args = ap.parse_args(argv)
     check_record_path(args.json)
     cases = [e for e in args.effects.split(",") if e]
@@ -157,8 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     jobs = [(p, e, s) for s in seeds for e in cases for p in paths]
     rows: list[dict] = []
     t0 = time.perf_counter()
-    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futs = [pool.submit(one_run, *j) for j in jobs]
+    # a trace's lines come from the worker processes: one worker keeps each run's lines together
+    with ProcessPoolExecutor(max_workers=1 if args.trace else args.jobs) as pool:
+        futs = [pool.submit(one_run, *j, args.trace) for j in jobs]
         for f in as_completed(futs):
             r = f.result()
             rows.append(r)
