@@ -346,6 +346,7 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
     (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4}), (ef.THERMAL_LOAD, {"tau_s": 30.0}),
     (ef.PWM_DELAYED_FILTERED, {"delay_s": 0.04, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25}),
+    (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "coast_tau_s": 1.2}),
 ])
 def test_effect_features_stream_as_they_batch(name, params):
     rng = np.random.default_rng(3)
@@ -373,6 +374,43 @@ def test_effect_features_stream_as_they_batch(name, params):
         stream[k] = f.value(t)
     ok = grid >= pwm_t[0]
     np.testing.assert_allclose(stream[ok], batch[ok], atol=1e-10)
+
+
+def test_the_start_levels_lagged_input_coasts_with_no_drive():
+    """Below the start level (no drive) the lagged input decays with coast_tau_s, above it with
+    tau_s: by hand, a hold at 0.08 then a drop below the threshold at t = 10 s."""
+    pwm_t = np.array([0.0, 10.0])
+    pwm = np.array([0.08, 0.05])
+    grid = np.array([10.0, 11.2, 12.4])
+    params = {"threshold": 0.055, "tau_s": 0.25, "coast_tau_s": 1.2}
+    y = ef.compute(ef.PWM_ABOVE_START_FILTERED, grid, pwm_t, pwm, np.array([]), np.array([]), params)
+    np.testing.assert_allclose(y, 0.025 * np.exp(-np.array([0.0, 1.0, 2.0])), rtol=1e-12)
+    # without coast_tau_s (a model saved before it), the low-pass's own time constant
+    y = ef.compute(ef.PWM_ABOVE_START_FILTERED, grid, pwm_t, pwm, np.array([]), np.array([]),
+                   {"threshold": 0.055, "tau_s": 0.25})
+    np.testing.assert_allclose(y, 0.025 * np.exp(-np.array([0.0, 1.2, 2.4]) / 0.25), rtol=1e-12)
+
+
+def test_when_the_identification_names_the_start_level_a_slower_spin_down_is_not_new():
+    """A rotor left to coast to rest below a raised start level fits spin-down's feature too; once
+    the identified response says the start level changed, the scores' "new" spin-down may still be
+    added where the model lacks it, but as structural, never named."""
+    from bldc_propulsion.discrepancy.identify.refinement import _others_not_new
+    from bldc_propulsion.discrepancy.results import Evidence
+    from bldc_propulsion.discrepancy.workflow import added_as
+
+    def score(fraction: float) -> sc.Score:
+        return sc.Score(fraction, fraction, 0.0, 1e-4, 30, 25, {})
+
+    ev = {k: Evidence(k, v, score(f), score(f), score(0.05), "", f"{k} sentence")
+          for k, v, f in (("esc_deadband", "new", 0.01), ("spin_down_asymmetry", "new", 0.55),
+                          ("input_delay", "structural", 0.05), ("motor_heating", "new", 0.2))}
+    _others_not_new(ev, "esc_deadband", "the rotor stops at 2 held levels", {"changed": "esc_deadband"})
+    assert ev["spin_down_asymmetry"].verdict == "not new (identified: esc_deadband changed)"
+    assert "the rotor stops at 2 held levels" in ev["spin_down_asymmetry"].sentence
+    assert added_as(ev["spin_down_asymmetry"]) == "structural"
+    # the chosen one, a structural one and an effect the identification of the response does not judge
+    assert [ev[k].verdict for k in ("esc_deadband", "input_delay", "motor_heating")] == ["new", "structural", "new"]
 
 
 def test_reference_keeps_its_own_timing_when_the_dead_time_is_added():

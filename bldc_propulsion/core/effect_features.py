@@ -37,7 +37,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from .. import contract as c
-from ..physics.lag import asymmetric_lag_on_times, lag_gain, lag_on_times, lag_step
+from ..physics.lag import asymmetric_lag_on_times, lag_gain, lag_on_times, lag_step, switched_lag_on_times
 from ..physics.plant import throttle
 
 PWM_LAG = "pwm_lag"
@@ -66,6 +66,11 @@ DEFAULT_PARAMS: dict[str, dict[str, float]] = {
     PWM_DELAYED_FILTERED: {"delay_s": 0.04, "tau_s": c.PAPER_PWM_TAU_S},
     PWM_ABOVE_START_FILTERED: {"threshold": 0.055, "tau_s": c.PAPER_PWM_TAU_S},
 }
+
+#: Parameters an input may carry beyond DEFAULT_PARAMS' (a model saved without them reads as
+#: before): the start level's low-pass time constant while there is no drive.
+OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_ABOVE_START_FILTERED: ("coast_tau_s",)}
+
 
 #: Which recorded streams each input needs ("pwm", "voltage").
 NEEDS: dict[str, tuple[str, ...]] = {
@@ -162,11 +167,23 @@ def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: n
     return y
 
 
-def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | None, float]:
-    """(dead time s, start level or None, low-pass time constant s) of a MAPPED_LAGS input."""
+def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | None, float, float]:
+    """(dead time s, start level or None, low-pass time constant s, its time constant while the
+    mapped command is 0, s) of a MAPPED_LAGS input. With no drive (below the start level) an ESC
+    that does not brake leaves the rotor to coast down for seconds: ``coast_tau_s`` (optional;
+    the low-pass's own when not given) lets the input say so."""
     if name == PWM_DELAYED_FILTERED:
-        return _param(params, name, "delay_s"), None, _param(params, name, "tau_s")
-    return 0.0, _param(params, name, "threshold"), _param(params, name, "tau_s")
+        tau = _param(params, name, "tau_s")
+        return _param(params, name, "delay_s"), None, tau, tau
+    tau = _param(params, name, "tau_s")
+    coast = _optional(params, name, "coast_tau_s", tau)
+    return 0.0, _param(params, name, "threshold"), tau, coast
+
+
+def _optional(params: Mapping[str, float], name: str, key: str, default: float) -> float:
+    if key not in params:
+        return default
+    return _param(params, name, key)
 
 
 def _map_level(level: np.ndarray | float, threshold: float | None) -> np.ndarray | float:
@@ -177,11 +194,15 @@ def _mapped_lag(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
                 params: Mapping[str, float] | None) -> np.ndarray:
     """The command delayed and/or deadband-mapped, through a first-order low-pass; the low-pass
     starts in steady state at the first mapped command (as the model's ``pwm_filtered``)."""
-    d, thr, tau = _mapping(name, params or {})
+    d, thr, tau, coast = _mapping(name, params or {})
     et = pwm_t + d  # when each command reaches the ESC
     times, pos = _merged(grid, et)
     u = np.asarray(_map_level(_held(et, pwm, times), thr), dtype=float)
-    y: np.ndarray = lag_on_times(times, u, tau, float(u[0]) if len(u) else 0.0)[pos]
+    y0 = float(u[0]) if len(u) else 0.0
+    if coast == tau:
+        y: np.ndarray = lag_on_times(times, u, tau, y0)[pos]
+    else:
+        y = switched_lag_on_times(times, u, tau, coast, y0)[pos]
     return y
 
 
@@ -261,7 +282,7 @@ class StreamingFeature:
                 self.y = REST_PWM
 
     def _update_mapped(self, t: float, pwm: float) -> None:
-        d, thr, _ = _mapping(self.name, self.params)
+        d, thr, _, _ = _mapping(self.name, self.params)
         level = float(_map_level(float(pwm), thr))
         if self.pwm is None:  # steady state at the first mapped command
             self.y = level
@@ -271,17 +292,19 @@ class StreamingFeature:
         self._pending.append((t + d, level))
 
     def _mapped_value(self, t: float) -> float:
-        tau = _mapping(self.name, self.params)[2]
+        _, _, tau, coast = _mapping(self.name, self.params)
         while self._pending and self._pending[0][0] <= t:
             te, level = self._pending.popleft()
             if te > self._ts:
                 if math.isfinite(self._ts):
-                    self.y = lag_step(self.y, self._u_mapped, lag_gain(te - self._ts, tau))
+                    g = lag_gain(te - self._ts, coast if self._u_mapped <= 0.0 else tau)
+                    self.y = lag_step(self.y, self._u_mapped, g)
                 self._ts = te
             self._u_mapped = level
         if t <= self._ts or not math.isfinite(self._ts):
             return float(self.y)
-        return float(lag_step(self.y, self._u_mapped, lag_gain(t - self._ts, tau)))
+        g = lag_gain(t - self._ts, coast if self._u_mapped <= 0.0 else tau)
+        return float(lag_step(self.y, self._u_mapped, g))
 
     def update_pwm(self, t: float, pwm: float) -> None:
         if self.t is not None and t < self.t:

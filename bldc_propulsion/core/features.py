@@ -74,12 +74,14 @@ class Feature:
     name: ClassVar[str] = ""
     signals: ClassVar[tuple[str, ...]] = ("pwm",)  #: raw signals it needs: "pwm", "voltage"
     defaults: ClassVar[dict[str, float]] = {}
+    optional: ClassVar[tuple[str, ...]] = ()  #: parameters with no default (absent: as before them)
 
     def __init__(self, **params: float) -> None:
-        unknown = sorted(set(params) - set(self.defaults))
+        known = {*self.defaults, *self.optional}
+        unknown = sorted(set(params) - known)
         if unknown:
             raise ModelError(f"model input '{self.name}': unknown parameter(s) {', '.join(unknown)} "
-                             f"(known: {', '.join(sorted(self.defaults)) or 'none'})")
+                             f"(known: {', '.join(sorted(known)) or 'none'})")
         self.params = {k: float(v) for k, v in {**self.defaults, **params}.items()}
         for k, v in self.params.items():
             if not math.isfinite(v):
@@ -330,6 +332,7 @@ def _register_effect_features() -> None:
         class EffectFeature(Feature):
             __doc__ = f"Discrepancy-workflow input '{name}' (see core/effect_features.py)."
             defaults = dict(ef.DEFAULT_PARAMS.get(name, {}))
+            optional = ef.OPTIONAL_PARAMS.get(name, ())
             signals = needs
 
             def check_params(self) -> None:

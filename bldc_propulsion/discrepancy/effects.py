@@ -186,10 +186,13 @@ CANDIDATES: dict[str, Candidate] = {
         "esc_deadband", ef.PWM_ABOVE_START,
         [{"threshold": x} for x in (0.052, 0.053, 0.054, 0.055, 0.056, 0.057, 0.058, 0.06)],
         _deadband_columns,
-        lambda p: f"no drive below an ESC start level of PWM {p['threshold']:.3f}",
+        lambda p: f"no drive below an ESC start level of PWM {p['threshold']:.3f}" + (
+            f" (the rotor slowing there with a time constant of {p['coast_tau_s']:.2f} s)"
+            if "coast_tau_s" in p else ""),
         replaces={c.INPUT_PWM: ef.PWM_ABOVE_START, c.INPUT_PWM_FILTERED: ef.PWM_ABOVE_START_FILTERED},
         carried_as=lambda p: _scaled_from_level(float(p["threshold"])),  # above the start level
         on_reference=_reference_at_own_start_level,
+        model_params=lambda p: {"threshold": float(p["threshold"])},  # the coast is the lag's
     ),
     "spin_down_asymmetry": Candidate(
         "spin_down_asymmetry", ef.PWM_ASYMMETRIC_LAG,

@@ -178,7 +178,8 @@ def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], r
     if rename:
         inputs = [rename.get(x, x) for x in inputs]
         for new in rename.values():
-            p = {k: v for k, v in (params or {}).items() if k in ef.DEFAULT_PARAMS.get(new, {})}
+            own = (*ef.DEFAULT_PARAMS.get(new, {}), *ef.OPTIONAL_PARAMS.get(new, ()))
+            p = {k: v for k, v in (params or {}).items() if k in own}
             if "tau_s" in ef.DEFAULT_PARAMS.get(new, {}):
                 p["tau_s"] = float(model.pwm_tau_s)  # the model's own low-pass, on the mapped command
             feature_params[new] = p

@@ -106,3 +106,25 @@ def asymmetric_lag_on_times(times: np.ndarray, u: np.ndarray, tau_up: float, tau
         out.append(yk)
     y[:] = out
     return y
+
+
+def switched_lag_on_times(times: np.ndarray, u: np.ndarray, tau_s: float, tau_zero_s: float,
+                          y0: float) -> np.ndarray:
+    """Like ``lag_on_times`` with ``tau_zero_s`` while the held input is 0 (no drive: a rotor the
+    ESC does not brake coasts) and ``tau_s`` otherwise (exact per interval of a held input)."""
+    n = len(times)
+    y = np.empty(n)
+    if n == 0:
+        return y
+    h = np.diff(times)
+    g = lag_gain(h, tau_s).tolist()
+    g0 = lag_gain(h, tau_zero_s).tolist()
+    yk = float(y0)
+    ul = u.tolist()
+    out = [yk]
+    for k in range(n - 1):
+        uk = ul[k]
+        yk = lag_step(yk, uk, g0[k] if uk <= 0.0 else g[k])
+        out.append(yk)
+    y[:] = out
+    return y

@@ -48,6 +48,9 @@ class Identification:
     alpha: float
     min_effect: float
     response: Response | None = None
+    #: the latest round's verdict on the response (which changed or None, why, the figures): a
+    #: later round that does not identify again keeps it
+    verdict: tuple[str | None, str, dict[str, object]] | None = None
 
 
 def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], progress: Progress) -> Refined:
@@ -73,9 +76,10 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     if "motor_heating" in ev and (out.best is None or out.best in RESPONSE_EFFECTS) \
             and _heating_changed(ev["motor_heating"], run, progress):
         out.best, out.params = "motor_heating", {"tau_s": HEATING_TAU_S}
-    if out.best is not None and out.best not in RESPONSE_EFFECTS:
-        return out
-    if not _response_in_question(ev, out.best, run, rmse):
+    if (out.best is not None and out.best not in RESPONSE_EFFECTS) \
+            or not _response_in_question(ev, out.best, run, rmse):
+        if run.verdict is not None:  # identified in an earlier round: that verdict still holds
+            _others_not_new(ev, *run.verdict)
         return out
     # (judged on the measured data alone: which dynamic effect changed is decided by identifying
     # the response directly, not by the pooled residual correction) the measured residual has
@@ -95,12 +99,14 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     info: dict[str, object] = {"measured": resp.measured.as_dict(), "reference": resp.reference.as_dict(),
             "step_responses": resp.steps.as_dict(), "changed": choice, "because": why}
     progress(f"  identified dynamics: {why}")
+    run.verdict = (choice, why, info)
     if choice is None:
         out.best = _none_changed(ev, info)
     elif choice not in proposal.added and choice in ev:
         ev[choice].override("new", f"{choice}: {why}; the model's residual on the measured data "
                                    f"follows the command {gap_txt}")
         out.best = choice
+    _others_not_new(ev, choice, why, info)
     if out.best is not None and choice == out.best:
         out.params, out.reference_params = _identified_params(choice, resp)
     if out.best is not None:
@@ -150,6 +156,20 @@ def _response(run: Identification, start_level: bool, progress: Progress) -> Res
     return run.response
 
 
+def _others_not_new(ev: dict[str, Evidence], choice: str | None, why: str, info: dict[str, object]) -> None:
+    """The identified response decides which of RESPONSE_EFFECTS changed (``choice``; None: none
+    did): every other one the scores did not find structural is not new, whatever its scores
+    (their features fit what did change: a rotor left to coast to rest below a raised start level
+    is a slower spin-down to them). It may still be added where the model lacks it, as structural
+    (``workflow.added_as``)."""
+    verdict = f"not new (identified: {choice} changed)" if choice else "not new (identified dynamics unchanged)"
+    for k in RESPONSE_EFFECTS:
+        if k != choice and k in ev and ev[k].verdict in ("new", "not significant"):
+            ev[k].override(verdict, f"{k}: not new: the identified response says {why}, which {k}'s "
+                                    "feature also fits")
+            ev[k].dynamics = info
+
+
 def _none_changed(ev: dict[str, Evidence], info: dict[str, object]) -> str | None:
     """The response to the command did not change: the residual's dynamic structure is the model's
     own (it is there on the reference too), so none of RESPONSE_EFFECTS is new. The proposal is
@@ -182,9 +202,13 @@ def _identified_params(choice: str, resp: Response) -> tuple[dict[str, float] | 
         # and the fitted 0.052 left the network an input that could not say so)
         bounds = steps.start_level_bounds
         shift = steps.start_level_shift
+        # below the start level the rotor gets no drive: it slows as the measured data's falls do
+        # (an ESC that does not brake leaves it to coast to rest for seconds)
+        coast = {"coast_tau_s": m.tau_down_s}
         if shift is not None and shift.changed:
             # the settled holds' levels: read on a finer grid reaching further than the
             # whole-recording fit's, and not moved by the dynamics
-            return {"threshold": start_level_within(shift.measured, bounds)}, {"threshold": shift.reference}
-        return {"threshold": start_level_within(m.start_level, bounds)}, {"threshold": r.start_level}
+            return ({"threshold": start_level_within(shift.measured, bounds), **coast},
+                    {"threshold": shift.reference})
+        return {"threshold": start_level_within(m.start_level, bounds), **coast}, {"threshold": r.start_level}
     return None, None
