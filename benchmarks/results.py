@@ -768,9 +768,9 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
           "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (20-40 minutes)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
-          "python benchmarks/bench_foreign.py --first-seed 48 --seeds 4 --jobs 1 --path network "
+          "python benchmarks/bench_foreign.py --first-seed 52 --seeds 4 --jobs 2 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
-          "`benchmarks/foreign_bench/`'s randomized benches (about 8 minutes); `--trace` prints each run's "
+          "`benchmarks/foreign_bench/`'s randomized benches (about 15 minutes); `--trace` prints each run's "
           "workflow lines (scores, identification, each trial's holdout test)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 804 --seeds 4 --flights 4 --hours 4 "
