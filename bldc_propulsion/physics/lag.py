@@ -17,6 +17,7 @@ battery filter has already passed (``plant.Supply``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TypeVar, overload
 
 import numpy as np
@@ -90,41 +91,34 @@ def asymmetric_lag_on_times(times: np.ndarray, u: np.ndarray, tau_up: float, tau
                             y0: float) -> np.ndarray:
     """Like ``lag_on_times`` with tau_up while u > y and tau_down while u < y (exact per interval:
     with a held input the state moves monotonically towards it, so the direction is fixed)."""
-    n = len(times)
-    y = np.empty(n)
-    if n == 0:
-        return y
-    h = np.diff(times)
-    g_up = lag_gain(h, tau_up).tolist()
-    g_dn = lag_gain(h, tau_down).tolist()
-    yk = float(y0)
-    ul = u.tolist()
-    out = [yk]
-    for k in range(n - 1):
-        uk = ul[k]
-        yk = lag_step(yk, uk, g_up[k] if uk > yk else g_dn[k])
-        out.append(yk)
-    y[:] = out
-    return y
+    return _two_rate_lag(times, u, tau_up, tau_down, y0, lambda uk, yk: uk <= yk)
 
 
 def switched_lag_on_times(times: np.ndarray, u: np.ndarray, tau_s: float, tau_zero_s: float,
                           y0: float) -> np.ndarray:
     """Like ``lag_on_times`` with ``tau_zero_s`` while the held input is 0 (no drive: a rotor the
     ESC does not brake coasts) and ``tau_s`` otherwise (exact per interval of a held input)."""
+    return _two_rate_lag(times, u, tau_s, tau_zero_s, y0, lambda uk, _yk: uk <= 0.0)
+
+
+def _two_rate_lag(times: np.ndarray, u: np.ndarray, tau_a: float, tau_b: float, y0: float,
+                  use_b: Callable[[float, float], bool]) -> np.ndarray:
+    """A first-order lag on held inputs whose time constant is ``tau_b`` over an interval where
+    ``use_b(u, y)`` at its start, else ``tau_a``. A loop: the choice depends on the state, which
+    no vectorised recurrence (``lag_on_times``, scipy.signal.lfilter) can follow."""
     n = len(times)
     y = np.empty(n)
     if n == 0:
         return y
     h = np.diff(times)
-    g = lag_gain(h, tau_s).tolist()
-    g0 = lag_gain(h, tau_zero_s).tolist()
+    g_a = lag_gain(h, tau_a).tolist()
+    g_b = lag_gain(h, tau_b).tolist()
     yk = float(y0)
     ul = u.tolist()
     out = [yk]
     for k in range(n - 1):
         uk = ul[k]
-        yk = lag_step(yk, uk, g0[k] if uk <= 0.0 else g[k])
+        yk = lag_step(yk, uk, g_b[k] if use_b(uk, yk) else g_a[k])
         out.append(yk)
     y[:] = out
     return y
