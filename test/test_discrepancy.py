@@ -402,15 +402,28 @@ def test_when_the_identification_names_the_start_level_a_slower_spin_down_is_not
     def score(fraction: float) -> sc.Score:
         return sc.Score(fraction, fraction, 0.0, 1e-4, 30, 25, {})
 
-    ev = {k: Evidence(k, v, score(f), score(f), score(0.05), "", f"{k} sentence")
-          for k, v, f in (("esc_deadband", "new", 0.01), ("spin_down_asymmetry", "new", 0.55),
-                          ("input_delay", "structural", 0.05), ("motor_heating", "new", 0.2))}
-    _others_not_new(ev, "esc_deadband", "the rotor stops at 2 held levels", {"changed": "esc_deadband"})
+    def fresh() -> dict[str, Evidence]:
+        return {k: Evidence(k, v, score(f), score(f), score(0.05), "", f"{k} sentence")
+                for k, v, f in (("esc_deadband", "new", 0.01), ("spin_down_asymmetry", "new", 0.55),
+                                ("input_delay", "structural", 0.05), ("motor_heating", "new", 0.2),
+                                ("rotor_lag", "not significant", 0.1))}
+
+    ev = fresh()
+    _others_not_new(ev, "esc_deadband", "the rotor stops at 2 held levels", {"changed": "esc_deadband"}, frozenset())
     assert ev["spin_down_asymmetry"].verdict == "not new (identified: esc_deadband changed)"
+    assert ev["rotor_lag"].verdict == "not new (identified: esc_deadband changed)"
     assert "the rotor stops at 2 held levels" in ev["spin_down_asymmetry"].sentence
     assert added_as(ev["spin_down_asymmetry"]) == "structural"
     # the chosen one, a structural one and an effect the identification of the response does not judge
     assert [ev[k].verdict for k in ("esc_deadband", "input_delay", "motor_heating")] == ["new", "structural", "new"]
+
+    # none changed: only what the steps could judge is not new; of a member with too few steps
+    # nothing is known, and the holdout may still find it new
+    ev = fresh()
+    ev["spin_down_asymmetry"].verdict = "not significant"
+    _others_not_new(ev, None, "nothing changed", {"changed": None}, frozenset({"rotor_lag"}))
+    assert ev["rotor_lag"].verdict == "not new (identified dynamics unchanged)"
+    assert ev["spin_down_asymmetry"].verdict == "not significant"
 
 
 def test_reference_keeps_its_own_timing_when_the_dead_time_is_added():

@@ -149,6 +149,25 @@ def test_a_fitted_start_level_rise_yields_to_a_lag_the_steps_show():
     assert idf.which_dynamic(ref, ref, steps=lag)[0] == "rotor_lag"
 
 
+def test_what_the_steps_could_judge():
+    """Where the identification finds none of the family changed, only the members whose quantity
+    the steps or holds could judge are shown unchanged (``refinement._others_not_new``): a
+    quantity with too few steps (None), and the spin-down after a slower spin-up, are not."""
+    from bldc_propulsion.discrepancy.identify.dynamics import judged
+
+    def change(ratio: float) -> idf.StepChange:
+        return idf.StepChange(ratio, 1.0, ratio, 1e-5 if ratio > idf.TAU_MIN_RATIO else 0.5, 12, 12,
+                              idf.TAU_MIN_RATIO)
+
+    assert judged(idf.StepDynamics(change(0.0), change(1.0), None)) == {"input_delay", "rotor_lag"}
+    assert judged(idf.StepDynamics(None, change(1.0), change(1.0))) == {"rotor_lag", "spin_down_asymmetry"}
+    assert judged(idf.StepDynamics(change(0.0), change(3.0), change(3.0))) == {"input_delay", "rotor_lag"}
+    held = idf.StepDynamics(None, None, None, start_level_shift=idf.StartLevelShift(0.054, 0.054, 0.0, 1.0, 12, 12))
+    assert judged(held) == {"esc_deadband"}
+    assert judged(idf.StepDynamics(None, None, None, (True, "no drive at 0.057"))) == {"esc_deadband"}
+    assert judged(idf.StepDynamics(None, None, None)) == frozenset()
+
+
 def _holds(start: float, seed: int, n: int = 30, heating: float = 0.0) -> idf.Holds:
     """Settled holds of a known static map: speed = (V / 11.5) (900 d - 150 d^2) - heating theta d
     rad/s with d = throttle(level, start) (0 below the start level: the rotor at rest), 1 rad/s

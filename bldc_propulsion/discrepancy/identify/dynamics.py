@@ -205,6 +205,19 @@ def _step_changes(steps: StepDynamics) -> dict[str, Change]:
     return out
 
 
+def judged(steps: StepDynamics) -> frozenset[str]:
+    """The members of the family whose quantity the step responses and holds could judge (enough
+    steps or settled holds on both sets): where none changed, only these are shown unchanged; of
+    the others nothing is known (``_step_changes`` does not ask the whole recordings' fit)."""
+    out = {name for name, chg in (("rotor_lag", steps.spin_up), ("input_delay", steps.dead_time),
+                                  ("spin_down_asymmetry", steps.spin_down)) if chg is not None}
+    if steps.spin_up is not None and steps.spin_up.changed:
+        out.discard("spin_down_asymmetry")  # not judged after a lag (``_step_changes``)
+    if _held_start_level(steps) is not None:
+        out.add("esc_deadband")
+    return frozenset(out)
+
+
 def _held_start_level(steps: StepDynamics) -> Change | None:
     """The start level as the holds show it, None when a set has too few settled holds to say."""
     if steps.start_level[0]:

@@ -17,7 +17,7 @@ from ... import contract as c
 from ...recordings import Signals
 from ..base import Progress, Proposal, Refined
 from ..results import Evidence
-from .dynamics import DYNAMIC_EFFECTS, RESPONSE_EFFECTS, StepDynamics, step_dynamics, which_dynamic
+from .dynamics import DYNAMIC_EFFECTS, RESPONSE_EFFECTS, StepDynamics, judged, step_dynamics, which_dynamic
 from .heating import HEATING_TAU_S, identify_heating
 from .recording_fit import Dynamics, identify_dynamics, identify_start_level
 from .static_shape import start_level_within
@@ -48,9 +48,9 @@ class Identification:
     alpha: float
     min_effect: float
     response: Response | None = None
-    #: the latest round's verdict on the response (which changed or None, why, the figures): a
-    #: later round that does not identify again keeps it
-    verdict: tuple[str | None, str, dict[str, object]] | None = None
+    #: the latest round's verdict on the response (which changed or None, why, the figures, the
+    #: members it could judge): a later round that does not identify again keeps it
+    verdict: tuple[str | None, str, dict[str, object], frozenset[str]] | None = None
 
 
 def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], progress: Progress) -> Refined:
@@ -99,14 +99,14 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     info: dict[str, object] = {"measured": resp.measured.as_dict(), "reference": resp.reference.as_dict(),
             "step_responses": resp.steps.as_dict(), "changed": choice, "because": why}
     progress(f"  identified dynamics: {why}")
-    run.verdict = (choice, why, info)
+    run.verdict = (choice, why, info, judged(resp.steps))
     if choice is None:
         out.best = _none_changed(ev, info)
     elif choice not in proposal.added and choice in ev:
         ev[choice].override("new", f"{choice}: {why}; the model's residual on the measured data "
                                    f"follows the command {gap_txt}")
         out.best = choice
-    _others_not_new(ev, choice, why, info)
+    _others_not_new(ev, *run.verdict)
     if out.best is not None and choice == out.best:
         out.params, out.reference_params = _identified_params(choice, resp)
     if out.best is not None:
@@ -156,15 +156,20 @@ def _response(run: Identification, start_level: bool, progress: Progress) -> Res
     return run.response
 
 
-def _others_not_new(ev: dict[str, Evidence], choice: str | None, why: str, info: dict[str, object]) -> None:
-    """The identified response decides which of RESPONSE_EFFECTS changed (``choice``; None: none
-    did): every other one the scores did not find structural is not new, whatever its scores
-    (their features fit what did change: a rotor left to coast to rest below a raised start level
-    is a slower spin-down to them). It may still be added where the model lacks it, as structural
-    (``workflow.added_as``)."""
+def _others_not_new(ev: dict[str, Evidence], choice: str | None, why: str, info: dict[str, object],
+                    shown: frozenset[str]) -> None:
+    """The identified response decides which of RESPONSE_EFFECTS changed (``choice``): every other
+    one the scores did not find structural is not new, whatever its scores (their features fit
+    what did change: a rotor left to coast to rest below a raised start level is a slower
+    spin-down to them). It may still be added where the model lacks it, as structural
+    (``workflow.added_as``). Where none changed (``choice`` None), only the members whose
+    quantity the steps or holds could judge (``shown``) are not new: of a member with too few
+    steps nothing is known (a non-braking ESC's spin-down, with few falling steps), so the
+    holdout may still find it new."""
     verdict = f"not new (identified: {choice} changed)" if choice else "not new (identified dynamics unchanged)"
     for k in RESPONSE_EFFECTS:
-        if k != choice and k in ev and ev[k].verdict in ("new", "not significant"):
+        if k != choice and k in ev and ev[k].verdict in ("new", "not significant") \
+                and (choice is not None or k in shown):
             ev[k].override(verdict, f"{k}: not new: the identified response says {why}, which {k}'s "
                                     "feature also fits")
             ev[k].dynamics = info
