@@ -258,6 +258,33 @@ def test_onset_errs_early_for_any_rotor_shape_and_moves_with_a_dead_time(tau):
         assert idf.steps._onset(t, y_later) - onset == pytest.approx(0.02, abs=0.001)
 
 
+def _coasting_fall(w0: float, w1: float, k: float) -> idf.steps.StepResponse:
+    """A falling step of a rotor with quadratic drag and no braking, by hand: d omega/dt =
+    k (w1^2 - omega^2), so omega = w1 coth(k w1 t + atanh(w1/w0)); its two-point time constant on
+    a 1 ms grid."""
+    t = np.arange(0.0, 5.0, 0.001)
+    frac = (w1 / np.tanh(k * w1 * t + np.arctanh(w1 / w0)) - w0) / (w1 - w0)
+    tau = 1.5 * (idf.steps._crossing(t, frac, 0.632) - idf.steps._crossing(t, frac, 0.283))
+    return idf.steps.StepResponse(False, w0 / 1000.0, w1 / 1000.0, w0, w1, 0.0, tau)
+
+
+def test_a_deep_fall_is_compared_with_the_reference_at_its_depth():
+    """A coasting rotor's fall is slower the deeper it goes (here 0.30 s from 300 to 120 rad/s,
+    0.20 s from 300 to 240): measured falls that all go deep, against a reference of shallow and
+    deep ones, read the same rotor (time-constant ratio within 7 % of 1; the reference's median
+    at the same middle speed reads 1.13) and a rotor coasting twice as long as twice (1.8-2.2x,
+    changed)."""
+    k = 0.01
+    ref = [_coasting_fall(w0, f * w0, k) for w0 in (300, 450, 600, 750, 900) for f in (0.4, 0.6, 0.8)]
+    same = [_coasting_fall(w0, 0.3 * w0, k) for w0 in (500, 650, 800, 950)]
+    rel = idf.steps.relative_tau(same, ref)
+    assert len(rel) == 4 and abs(float(np.median(rel)) - 1.0) < 0.07, rel
+    down = idf.compare_steps(same, ref).spin_down
+    assert down is not None and not down.changed
+    slower = idf.compare_steps([_coasting_fall(w0, 0.3 * w0, k / 2) for w0 in (500, 650, 800, 950)], ref).spin_down
+    assert slower is not None and slower.changed and 1.8 < slower.change < 2.2, slower
+
+
 def _evidence(effect: str, verdict: str, fraction: float, p_value: float) -> Evidence:
     s = sc.Score(fraction, fraction, 0.0, p_value, 30, 20, {})
     return Evidence(effect, verdict, s, s, s, "feature", f"{effect} from the residual scores")

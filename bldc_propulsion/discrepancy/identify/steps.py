@@ -139,32 +139,48 @@ def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
     return out
 
 
-#: Reference steps a step's time constant is compared with: the STEP_NEIGHBOURS nearest in
-#: ``speed_mid``, within STEP_NEAR of the reference's speed range. The time constant depends on
-#: the operating point (drag grows with speed; the tachometer averages over a revolution, long
-#: at low speed), so only steps at similar speeds are compared.
+#: A step's time constant is compared only where the reference has steps: at least
+#: STEP_NEIGHBOURS within STEP_NEAR of the reference's speed range in ``speed_mid``. The time
+#: constant depends on the operating point (drag grows with speed; the tachometer averages over a
+#: revolution, long at low speed), so only steps at similar speeds are compared.
 STEP_NEIGHBOURS = 3
 STEP_NEAR = 0.15
+#: Least reference steps the plane of ``relative_tau`` is fitted to (three coefficients and
+#: some to spare); with fewer, the median of the STEP_NEIGHBOURS nearest stands in for it.
+STEP_PLANE_MIN = 6
 
 
 def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse],
                  leave_one_out: bool = False) -> np.ndarray:
-    """Each step's time constant / the median of its nearest reference steps' (same direction;
-    steps with no reference step near are left out)."""
+    """Each step's time constant / the reference's at the same step (same direction; steps with
+    no reference step near are left out).
+
+    The reference's time constant at a step is a plane in log tau over the speeds it starts and
+    ends at, fitted to the reference steps (leave-one-out for the reference's own): a falling
+    step's two-point time constant depends on how deep it falls as much as on where, so a
+    deep fall compared with shallow falls at the same middle speed reads as a slower rotor."""
     if len(reference) < STEP_NEIGHBOURS + int(leave_one_out):
         return np.zeros(0)
     ref_w = np.array([x.speed_mid for x in reference])
-    ref_tau = np.array([x.tau_s for x in reference])
     scale = max(float(np.max([max(abs(x.speed_from), abs(x.speed_to)) for x in reference])), 1.0)
+    ref_x = np.array([[1.0, x.speed_from / scale, x.speed_to / scale] for x in reference])
+    ref_y = np.log(np.maximum([x.tau_s for x in reference], 1e-3))
     out = []
     for i, x in enumerate(steps):
         dist = np.abs(ref_w - x.speed_mid) / scale
+        keep = np.ones(len(reference), bool)
         if leave_one_out:
             dist[i] = np.inf
+            keep[i] = False
         near = np.argsort(dist)[:STEP_NEIGHBOURS]
         if dist[near[-1]] > STEP_NEAR:
             continue
-        out.append(x.tau_s / max(float(np.median(ref_tau[near])), 1e-3))
+        if keep.sum() >= STEP_PLANE_MIN:
+            coef = np.linalg.lstsq(ref_x[keep], ref_y[keep], rcond=None)[0]
+            ref_tau = float(np.exp(np.array([1.0, x.speed_from / scale, x.speed_to / scale]) @ coef))
+        else:
+            ref_tau = float(np.exp(np.median(ref_y[near])))
+        out.append(x.tau_s / max(ref_tau, 1e-3))
     return np.array(out)
 
 
