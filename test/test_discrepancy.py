@@ -347,6 +347,8 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
     (ef.PWM_DELAYED_FILTERED, {"delay_s": 0.04, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "coast_tau_s": 1.2}),
+    (ef.PWM_ABOVE_START, {"threshold": 0.056, "map_level": 0.052}),
+    (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "coast_tau_s": 1.2, "map_level": 0.052}),
 ])
 def test_effect_features_stream_as_they_batch(name, params):
     rng = np.random.default_rng(3)
@@ -389,6 +391,22 @@ def test_the_start_levels_lagged_input_coasts_with_no_drive():
     y = ef.compute(ef.PWM_ABOVE_START_FILTERED, grid, pwm_t, pwm, np.array([]), np.array([]),
                    {"threshold": 0.055, "tau_s": 0.25})
     np.testing.assert_allclose(y, 0.025 * np.exp(-np.array([0.0, 1.2, 2.4]) / 0.25), rtol=1e-12)
+
+
+def test_a_gated_start_level_keeps_the_map_below_it():
+    """An ESC that gates its map (no drive below 0.056, the map from 0.052 above it), by hand: 0
+    at 0.055, 0.004 at 0.056 (a jump), 0.028 at 0.08; without map_level the map starts at the
+    threshold (0 at 0.056, 0.024 at 0.08); a map starting above its threshold is refused."""
+    pwm_t = np.array([0.0, 1.0, 2.0])
+    pwm = np.array([0.055, 0.056, 0.08])
+    grid = np.array([0.5, 1.5, 2.5])
+    gated = ef.compute(ef.PWM_ABOVE_START, grid, pwm_t, pwm, np.array([]), np.array([]),
+                       {"threshold": 0.056, "map_level": 0.052})
+    np.testing.assert_allclose(gated, [0.0, 0.004, 0.028], atol=1e-15)
+    moved = ef.compute(ef.PWM_ABOVE_START, grid, pwm_t, pwm, np.array([]), np.array([]), {"threshold": 0.056})
+    np.testing.assert_allclose(moved, [0.0, 0.0, 0.024], atol=1e-15)
+    with pytest.raises(ValueError, match="map_level"):
+        ef.StreamingFeature(ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "map_level": 0.06})
 
 
 def test_when_the_identification_names_the_start_level_a_slower_spin_down_is_not_new():

@@ -10,7 +10,7 @@ recording predicts on replay what it predicted in training.
 |---|---|---|---|
 | ``pwm_lag`` | rotor_lag | ``tau_s`` | command through a first-order lag (from rest) |
 | ``pwm_delayed`` | input_delay | ``delay_s`` | command as it was ``delay_s`` ago (dead time) |
-| ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level) |
+| ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level; see ``map_level``) |
 | ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag: one time constant up, one down |
 | ``thermal_load`` | motor_heating | ``tau_s`` | first-order thermal state driven by an I^2 R proxy |
 | ``pwm_delayed_filtered`` | input_delay | ``delay_s``, ``tau_s`` | delayed command, the model's low-pass |
@@ -21,6 +21,12 @@ before everything the model derives from it: the model's ``pwm_filtered`` input 
 low-pass that stands for the rotor's inertia) must see the delayed / deadband-mapped command too,
 or the network has to rebuild that lag from the undelayed one. Like ``pwm_filtered`` they start in
 steady state at the first (mapped) command.
+
+An ESC's start level takes one of two shapes. Some move the whole throttle map up to start there
+(the drive grows from 0 at the start level: ``max(pwm - threshold, 0)``); others gate it: no drive
+below the start level, and above it the map they would have had without one, which starts lower.
+The optional ``map_level`` (at or below ``threshold``) is where that map starts: 0 below the
+threshold, ``pwm - map_level`` from it. Without it the map starts at the threshold.
 
 The I^2 R proxy of ``thermal_load`` is ``(duty * V / 12 V)^4`` with ``duty = (pwm - 0.05) / 0.05``
 clipped to [0, 1]: with a propeller load the motor current grows as the square of the speed and
@@ -69,7 +75,8 @@ DEFAULT_PARAMS: dict[str, dict[str, float]] = {
 
 #: Parameters an input may carry beyond DEFAULT_PARAMS' (a model saved without them reads as
 #: before): the start level's low-pass time constant while there is no drive.
-OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_ABOVE_START_FILTERED: ("coast_tau_s",)}
+OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_ABOVE_START: ("map_level",),
+                                                PWM_ABOVE_START_FILTERED: ("coast_tau_s", "map_level")}
 
 
 #: Which recorded streams each input needs ("pwm", "voltage").
@@ -137,9 +144,9 @@ def pwm_delayed(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np
 
 def pwm_above_start(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
                     volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
-    """max(pwm - threshold, 0): the part of the command above the ESC's start level."""
-    thr = _param(params, PWM_ABOVE_START, "threshold")
-    return np.maximum(_held(pwm_t, pwm, grid) - thr, 0.0)
+    """The part of the command above the ESC's start level: max(pwm - threshold, 0), or with
+    ``map_level`` pwm - map_level from the threshold up (a gated map)."""
+    return np.asarray(_map_level(_held(pwm_t, pwm, grid), _start_level(params or {}, PWM_ABOVE_START)), dtype=float)
 
 
 def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
@@ -167,7 +174,22 @@ def thermal_load(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: n
     return y
 
 
-def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | None, float, float]:
+#: An ESC start level: (threshold, map_level), the drive 0 below the first and pwm - map_level from it.
+Start = tuple[float, float]
+
+
+def _start_level(params: Mapping[str, float], name: str) -> Start:
+    """(threshold, map_level) of a start-level input; the map starts at the threshold unless
+    ``map_level`` says it starts lower (a gated map)."""
+    thr = _param(params, name, "threshold")
+    level = _optional(params, name, "map_level", thr)
+    if level > thr:
+        raise ValueError(f"{name}.map_level = {level!r}: must be at or below its threshold {thr!r} "
+                         "(the map starts at the start level or below it)")
+    return thr, level
+
+
+def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, Start | None, float, float]:
     """(dead time s, start level or None, low-pass time constant s, its time constant while the
     mapped command is 0, s) of a MAPPED_LAGS input. With no drive (below the start level) an ESC
     that does not brake leaves the rotor to coast down for seconds: ``coast_tau_s`` (optional;
@@ -177,7 +199,7 @@ def _mapping(name: str, params: Mapping[str, float]) -> tuple[float, float | Non
         return _param(params, name, "delay_s"), None, tau, tau
     tau = _param(params, name, "tau_s")
     coast = _optional(params, name, "coast_tau_s", tau)
-    return 0.0, _param(params, name, "threshold"), tau, coast
+    return 0.0, _start_level(params, name), tau, coast
 
 
 def _optional(params: Mapping[str, float], name: str, key: str, default: float) -> float:
@@ -186,8 +208,12 @@ def _optional(params: Mapping[str, float], name: str, key: str, default: float) 
     return _param(params, name, key)
 
 
-def _map_level(level: np.ndarray | float, threshold: float | None) -> np.ndarray | float:
-    return level if threshold is None else np.maximum(level - threshold, 0.0)
+def _map_level(level: np.ndarray | float, start: Start | None) -> np.ndarray | float:
+    """The drive a command level gets past a start level (the level itself with none)."""
+    if start is None:
+        return level
+    thr, from_level = start
+    return np.where(np.asarray(level) >= thr, np.maximum(np.asarray(level) - from_level, 0.0), 0.0)
 
 
 def _mapped_lag(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
@@ -214,7 +240,7 @@ def pwm_delayed_filtered(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, v
 
 def pwm_above_start_filtered(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
                              volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
-    """max(pwm - threshold, 0) through a low-pass of ``tau_s`` (the drive the ESC gives, lagged)."""
+    """``pwm_above_start`` through a low-pass of ``tau_s`` (the drive the ESC gives, lagged)."""
     return _mapped_lag(PWM_ABOVE_START_FILTERED, grid, pwm_t, pwm, params)
 
 
@@ -244,6 +270,8 @@ class StreamingFeature:
         self.params = {**DEFAULT_PARAMS[name], **(params or {})}
         for key in self.params:
             _param(self.params, name, key)
+        if name in (PWM_ABOVE_START, PWM_ABOVE_START_FILTERED):
+            _start_level(self.params, name)
         self.t: float | None = None  # time the state refers to
         self.y = 0.0
         self.pwm: float | None = None
@@ -350,7 +378,7 @@ class StreamingFeature:
         if self.name in MAPPED_LAGS:
             return self._mapped_value(t)
         if self.name == PWM_ABOVE_START:
-            return max(float(self.pwm) - self.params["threshold"], 0.0)
+            return float(_map_level(float(self.pwm), _start_level(self.params, self.name)))
         if self.name == PWM_DELAYED:
             target = t - self.params["delay_s"]
             out = self._history[0][1]

@@ -121,17 +121,25 @@ def _deadband_columns(ctx: Context, params: Params) -> np.ndarray:
 
 
 def _reference_at_own_start_level(sig: Signals, meas: Params, ref: Params) -> Signals:
-    """The reference's command re-expressed so that max(pwm - measured start level, 0) is the
-    drive its own (identified) start level gives: the same duty, on the measured data's scale."""
-    thr_m, thr_r = float(meas["threshold"]), float(ref["threshold"])
-    gain = (c.PWM_FULL - thr_m) / (c.PWM_FULL - thr_r)
+    """The reference's command re-expressed so that the measured start level's input is the drive
+    its own (identified) start level gives: the same duty, on the measured data's scale. With a
+    gated map (``map_level`` below the measured threshold) the reference's map is moved onto the
+    measured one's start, not its gate: the lowest reference levels then read as no drive (one
+    input for both sets cannot say both), the rest of the map as it is."""
+    from_m, thr_r = _map_start(meas), float(ref["threshold"])
+    gain = (c.PWM_FULL - from_m) / (c.PWM_FULL - thr_r)
 
     def remap(x: np.ndarray) -> np.ndarray:
-        return thr_m + (np.asarray(x, dtype=float) - thr_r) * gain
+        return from_m + (np.asarray(x, dtype=float) - thr_r) * gain
 
     pt, pv = sig.pwm_events
     return dataclasses.replace(sig, path=f"{sig.path}#start{thr_r:.3f}", sha256=f"{sig.sha256}#start{thr_r:.3f}",
                                pwm=remap(sig.pwm), pwm_events=(pt, remap(pv)))
+
+
+def _map_start(p: Params) -> float:
+    """Where a start level's throttle map starts: its ``map_level`` when gated, else its threshold."""
+    return float(p.get("map_level", p["threshold"]))
 
 
 def _reference_at_own_dead_time(sig: Signals, meas: Params, ref: Params) -> Signals:
@@ -187,12 +195,14 @@ CANDIDATES: dict[str, Candidate] = {
         [{"threshold": x} for x in (0.052, 0.053, 0.054, 0.055, 0.056, 0.057, 0.058, 0.06)],
         _deadband_columns,
         lambda p: f"no drive below an ESC start level of PWM {p['threshold']:.3f}" + (
+            f", its throttle map starting from PWM {p['map_level']:.4f} above it" if "map_level" in p else "") + (
             f" (the rotor slowing there with a time constant of {p['coast_tau_s']:.2f} s)"
             if "coast_tau_s" in p else ""),
         replaces={c.INPUT_PWM: ef.PWM_ABOVE_START, c.INPUT_PWM_FILTERED: ef.PWM_ABOVE_START_FILTERED},
-        carried_as=lambda p: _scaled_from_level(float(p["threshold"])),  # above the start level
+        carried_as=lambda p: _scaled_from_level(_map_start(p)),  # above where the map starts
         on_reference=_reference_at_own_start_level,
-        model_params=lambda p: {"threshold": float(p["threshold"])},  # the coast is the lag's
+        # the coast is the lag's
+        model_params=lambda p: {k: float(v) for k, v in p.items() if k in ("threshold", "map_level")},
     ),
     "spin_down_asymmetry": Candidate(
         "spin_down_asymmetry", ef.PWM_ASYMMETRIC_LAG,

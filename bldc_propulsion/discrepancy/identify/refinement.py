@@ -20,7 +20,7 @@ from ..results import Evidence
 from .dynamics import DYNAMIC_EFFECTS, RESPONSE_EFFECTS, StepDynamics, judged, step_dynamics, which_dynamic
 from .heating import HEATING_TAU_S, identify_heating
 from .recording_fit import Dynamics, identify_dynamics, identify_start_level
-from .static_shape import start_level_within
+from .static_shape import SHIFT_MIN_RISE, start_level_within
 
 #: Measured residual RMSE >= this x the reference's, with no residual feature significant: the
 #: response (dynamics, start level) is identified directly all the same.
@@ -213,7 +213,19 @@ def _identified_params(choice: str, resp: Response) -> tuple[dict[str, float] | 
         if shift is not None and shift.changed:
             # the settled holds' levels: read on a finer grid reaching further than the
             # whole-recording fit's, and not moved by the dynamics
-            return ({"threshold": start_level_within(shift.measured, bounds), **coast},
-                    {"threshold": shift.reference})
-        return {"threshold": start_level_within(m.start_level, bounds), **coast}, {"threshold": r.start_level}
+            start, ref_level = shift.measured, shift.reference
+        elif shift is not None:
+            # the settled map did not move (the holds show no drive below a level all the same):
+            # the measured map starts where the reference's does
+            start, ref_level = shift.reference, shift.reference
+        else:
+            start, ref_level = m.start_level, r.start_level
+        threshold = start_level_within(start, bounds)
+        meas: dict[str, float] = {"threshold": threshold, **coast}
+        if threshold > start + SHIFT_MIN_RISE:
+            # no drive where the settled map says the ESC would drive: it gates a map that starts
+            # lower (``effect_features``: a map moved to start at the gate would read every
+            # level above it as less drive than the rotor got)
+            meas["map_level"] = start
+        return meas, {"threshold": ref_level}
     return None, None
