@@ -409,6 +409,35 @@ def test_a_gated_start_level_keeps_the_map_below_it():
         ef.StreamingFeature(ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "map_level": 0.06})
 
 
+def test_the_reference_reads_its_own_start_level_on_the_measured_inputs_scale():
+    """The reference (its map from 0.0515) re-expressed for the measured start level's input, by
+    hand: for a map moved to start at 0.056 its whole range from 0.0515 lands on the measured
+    one's (full command stays full); for a gated map (no drive below 0.05585, its map from 0.0525)
+    the reference's map lands on the measured map's start, so its levels give the drive they gave
+    (x - 0.0515, times (0.1 - 0.0525) / (0.1 - 0.0515)), but those within 0.00335 of its start
+    read as no drive."""
+    from bldc_propulsion.discrepancy.effects import _reference_at_own_start_level
+    from bldc_propulsion.recordings import Signals
+
+    x = np.array([0.0515, 0.053, 0.0545, 0.06, 0.08, 0.1])
+    sig = Signals("ref.mcap", "0" * 64, np.arange(6.0), x, np.full(6, 12.0), np.zeros(6), None,
+                  pwm_events=(np.arange(6.0), x))
+    ref = {"threshold": 0.0515}
+
+    def drive(meas: dict[str, float]) -> np.ndarray:
+        out = _reference_at_own_start_level(sig, meas, ref)
+        np.testing.assert_array_equal(out.pwm, out.pwm_events[1])
+        return ef.compute(ef.PWM_ABOVE_START, out.t, *out.pwm_events, np.array([]), np.array([]), meas)
+
+    moved = drive({"threshold": 0.056})
+    np.testing.assert_allclose(moved, (x - 0.0515) * (0.1 - 0.056) / (0.1 - 0.0515), atol=1e-15)
+    gated = drive({"threshold": 0.05585, "map_level": 0.0525})
+    gain = (0.1 - 0.0525) / (0.1 - 0.0515)
+    expect = np.where((x - 0.0515) * gain >= 0.05585 - 0.0525, (x - 0.0515) * gain, 0.0)
+    np.testing.assert_allclose(gated, expect, atol=1e-15)
+    assert (gated[:3] == 0.0).all() and (gated[3:] > 0.0).all()
+
+
 def test_when_the_identification_names_the_start_level_a_slower_spin_down_is_not_new():
     """A rotor left to coast to rest below a raised start level fits spin-down's feature too; once
     the identified response says the start level changed, the scores' "new" spin-down may still be

@@ -221,6 +221,32 @@ def test_a_start_level_is_never_placed_at_a_level_where_the_rotor_got_no_drive()
     assert idf.start_level_within(0.052, (0.0544, math.inf)) == pytest.approx(0.0549)
 
 
+def test_a_start_level_above_where_the_settled_map_starts_gates_the_map():
+    """Hand-made identifications of esc_deadband's parameters. The project's ESC moves its map:
+    the settled holds start it at 0.060, the holds' gap agrees, the input starts the map at the
+    threshold. A foreign ESC gates it: the settled map starts at 0.0525 (0.0515 on the reference)
+    but the holds show no drive up to 0.0553: threshold in the gap, the map kept from 0.0525.
+    With the settled map unchanged, the measured map starts where the reference's does."""
+    from bldc_propulsion.discrepancy.identify.refinement import Response, _identified_params
+    from bldc_propulsion.discrepancy.identify.static_shape import StartLevelShift
+
+    def params(shift: StartLevelShift, bounds: tuple[float, float]) -> tuple[dict, dict]:
+        steps = idf.StepDynamics(None, None, None, start_level_shift=shift, start_level_bounds=bounds)
+        m, r = idf.Dynamics(0.02, 0.1, 0.4, 1.0, 0.05), idf.Dynamics(0.02, 0.1, 0.2, 1.0, 0.05)
+        meas, ref = _identified_params("esc_deadband", Response(m, r, steps))
+        assert meas is not None and ref is not None and meas["coast_tau_s"] == 0.4
+        return meas, ref
+
+    meas, ref = params(StartLevelShift(0.060, 0.050, 40.0, 1e-6, 20, 20), (0.0595, 0.0605))
+    assert meas["threshold"] == 0.060 and "map_level" not in meas and ref == {"threshold": 0.050}
+    meas, ref = params(StartLevelShift(0.0525, 0.0515, 12.0, 1e-4, 20, 40), (0.0553, 0.0564))
+    assert meas["threshold"] == pytest.approx(0.05585) and meas["map_level"] == 0.0525
+    assert ref == {"threshold": 0.0515}
+    meas, ref = params(StartLevelShift(0.0505, 0.0505, 0.0, 1.0, 20, 40), (0.0544, math.inf))
+    assert meas["threshold"] == pytest.approx(0.0549) and meas["map_level"] == 0.0505
+    assert ref == {"threshold": 0.0505}
+
+
 def test_clustered_standard_error_of_a_mean_by_hand():
     """The heating test's standard error (holds as the units) against the hand formula for a
     mean: var = g/(g-1) * sum over clusters of (sum of residuals)^2 / n^2, and it grows when the
