@@ -303,7 +303,7 @@ def test_a_deep_fall_is_compared_with_the_reference_at_its_depth():
     k = 0.01
     ref = [_coasting_fall(w0, f * w0, k) for w0 in (300, 450, 600, 750, 900) for f in (0.4, 0.6, 0.8)]
     same = [_coasting_fall(w0, 0.3 * w0, k) for w0 in (500, 650, 800, 950)]
-    rel = idf.steps.relative_tau(same, ref)
+    rel = idf.steps.relative_tau(same, ref, by_depth=True)
     assert len(rel) == 4 and abs(float(np.median(rel)) - 1.0) < 0.07, rel
     down = idf.compare_steps(same, ref).spin_down
     assert down is not None and not down.changed

@@ -81,12 +81,12 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
     dead = step_change(np.array([x.dead_time_s for x in mu]), np.array([x.dead_time_s for x in ru]), False,
                        resolution_s)
     up = step_change(relative_tau(mu, ru), relative_tau(ru, ru, True), True, TAU_MIN_RATIO)
-    ref_down = relative_tau(rd, rd, True)
-    down = step_change(relative_tau(md, rd), ref_down, True, TAU_MIN_RATIO)
+    ref_down = relative_tau(rd, rd, True, by_depth=True)
+    down = step_change(relative_tau(md, rd, by_depth=True), ref_down, True, TAU_MIN_RATIO)
     driven = None
     if driven_above is not None:
-        driven = step_change(relative_tau([x for x in md if x.pwm_to >= driven_above], rd), ref_down, True,
-                             TAU_MIN_RATIO)
+        md_driven = [x for x in md if x.pwm_to >= driven_above]
+        driven = step_change(relative_tau(md_driven, rd, by_depth=True), ref_down, True, TAU_MIN_RATIO)
     return StepDynamics(dead, up, down, spin_down_driven=driven)
 
 

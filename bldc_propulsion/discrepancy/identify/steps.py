@@ -145,20 +145,23 @@ def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
 #: revolution, long at low speed), so only steps at similar speeds are compared.
 STEP_NEIGHBOURS = 3
 STEP_NEAR = 0.15
-#: Least reference steps the plane of ``relative_tau`` is fitted to (three coefficients and
+#: Least reference steps the plane of ``relative_tau`` (falls) is fitted to (three coefficients and
 #: some to spare); with fewer, the median of the STEP_NEIGHBOURS nearest stands in for it.
 STEP_PLANE_MIN = 6
 
 
 def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse],
-                 leave_one_out: bool = False) -> np.ndarray:
-    """Each step's time constant / the reference's at the same step (same direction; steps with
-    no reference step near are left out).
+                 leave_one_out: bool = False, by_depth: bool = False) -> np.ndarray:
+    """Each step's time constant / the reference's at a similar step (same direction; steps with
+    no reference step near are left out): the median of the STEP_NEIGHBOURS reference steps
+    nearest in middle speed.
 
-    The reference's time constant at a step is a plane in log tau over the speeds it starts and
-    ends at, fitted to the reference steps (leave-one-out for the reference's own): a falling
-    step's two-point time constant depends on how deep it falls as much as on where, so a
-    deep fall compared with shallow falls at the same middle speed reads as a slower rotor."""
+    ``by_depth`` (falling steps): the reference's time constant at the step is a plane in log tau
+    over the speeds it starts and ends at, fitted to the reference steps (leave-one-out for the
+    reference's own). A coasting rotor's fall is slower the deeper it goes, so a deep fall
+    compared with shallow falls at the same middle speed reads as a slower rotor. Not for rises:
+    across rises from rest and from speed the plane extrapolates, and the README walkthrough's 9
+    reference rises then read an unchanged rotor as 1.10x slower (p = 0.0002)."""
     if len(reference) < STEP_NEIGHBOURS + int(leave_one_out):
         return np.zeros(0)
     ref_w = np.array([x.speed_mid for x in reference])
@@ -175,7 +178,7 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
         near = np.argsort(dist)[:STEP_NEIGHBOURS]
         if dist[near[-1]] > STEP_NEAR:
             continue
-        if keep.sum() >= STEP_PLANE_MIN:
+        if by_depth and keep.sum() >= STEP_PLANE_MIN:
             coef = np.linalg.lstsq(ref_x[keep], ref_y[keep], rcond=None)[0]
             ref_tau = float(np.exp(np.array([1.0, x.speed_from / scale, x.speed_to / scale]) @ coef))
         else:
