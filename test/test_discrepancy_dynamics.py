@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import identify as idf
 from bldc_propulsion.discrepancy import scoring as sc
 from bldc_propulsion.discrepancy.base import Proposal
@@ -309,6 +310,56 @@ def test_a_deep_fall_is_compared_with_the_reference_at_its_depth():
     assert down is not None and not down.changed
     slower = idf.compare_steps([_coasting_fall(w0, 0.3 * w0, k / 2) for w0 in (500, 650, 800, 950)], ref).spin_down
     assert slower is not None and slower.changed and 1.8 < slower.change < 2.2, slower
+
+
+def _fall_to_stop(w0: float, k: float, hold_s: float = 0.3, pwm_to: float = c.PWM_STOP) -> idf.steps.StepResponse:
+    """A falling step to a level with no drive, by hand: quadratic drag alone, d omega/dt =
+    -k omega^2, so omega = w0 / (1 + k w0 t), still coasting when the hold ends after ``hold_s``
+    (the step's end speed is the hold's last); its two-point time constant on a 1 ms grid."""
+    t = np.arange(0.0, hold_s, 0.001)
+    w = w0 / (1.0 + k * w0 * t)
+    frac = (w - w0) / (w[-1] - w0)
+    tau = 1.5 * (idf.steps._crossing(t, frac, 0.632) - idf.steps._crossing(t, frac, 0.283))
+    return idf.steps.StepResponse(False, w0 / 1000.0, pwm_to, w0, float(w[-1]), 0.0, tau)
+
+
+def _falls_of_both_kinds(k: float) -> list[idf.steps.StepResponse]:
+    """A reference's falls: to held speeds (the drive meets the rotor) and to the stop level."""
+    return ([_coasting_fall(w0, f * w0, k) for w0 in (300, 450, 600, 750, 900) for f in (0.4, 0.6, 0.8)]
+            + [_fall_to_stop(w0, k) for w0 in (300, 450, 600, 750, 900)])
+
+
+def test_a_fall_to_stop_is_compared_with_the_reference_falls_to_stop():
+    """With no drive at all a fall is shaped otherwise than one the drive meets part way: the
+    same rotor's falls to the stop level, against a reference of both kinds, read 1 (median
+    within 7 %; the plane over start and end speeds alone reads them 0.83x), and half the drag
+    reads about 1.5x (the span ends where the hold does, so not 2x) and changed."""
+    k = 0.01
+    ref = _falls_of_both_kinds(k)
+    same = [_fall_to_stop(w0, k) for w0 in (400, 550, 700, 850)]
+    rel = idf.steps.relative_tau(same, ref, by_depth=True)
+    assert len(rel) == 4 and abs(float(np.median(rel)) - 1.0) < 0.07, rel
+    assert not idf.compare_steps(same, ref).spin_down.changed
+    slower = idf.compare_steps([_fall_to_stop(w0, k / 2) for w0 in (400, 550, 700, 850)], ref).spin_down
+    assert slower is not None and slower.changed and 1.3 < slower.change < 1.8, slower
+
+
+def test_falls_that_may_end_without_drive_are_no_evidence_of_coasting():
+    """Falls ending between the stop level and the lowest level the rotor is held spinning at may
+    end where a start level that rose gives no drive, and the rotor coasts on there whatever the
+    ESC does after a fall: they are left out of the spin-down (``spinning_from``), whatever they
+    read. Here they are slower (half the drag, a longer hold: 1.7x) and counted make a spin-down; left out, the same
+    rotor's falls to the stop level decide, and show none."""
+    k = 0.01
+    ref = _falls_of_both_kinds(k)
+    to_stop = [_fall_to_stop(w0, k) for w0 in (400, 550, 700, 850)]
+    band = [_fall_to_stop(w0, k / 2, 1.0, c.PWM_STOP + 0.002) for w0 in (350, 500, 650, 800, 950)]
+    counted = idf.compare_steps(to_stop + band, ref).spin_down
+    assert counted is not None and counted.changed, counted
+    left_out = idf.compare_steps(to_stop + band, ref, spinning_from=c.PWM_STOP + 0.004).spin_down
+    assert left_out is not None and left_out.n_measured == 4 and not left_out.changed, left_out
+    held = idf.compare_steps(to_stop + band, ref, spinning_from=c.PWM_STOP + 0.002).spin_down
+    assert held is not None and held.n_measured == 9, held  # ending where it is held spinning: counted
 
 
 def _evidence(effect: str, verdict: str, fraction: float, p_value: float) -> Evidence:

@@ -20,8 +20,15 @@ import numpy as np
 
 from ...recordings import Signals
 from .recording_fit import START_LEVEL_MARGIN, Dynamics
-from .static_shape import StartLevelShift, holds, no_drive_bounds, start_level_rose, start_level_shift
-from .steps import TAU_MIN_RATIO, StepChange, StepResponse, relative_tau, step_change, step_responses
+from .static_shape import (
+    StartLevelShift,
+    holds,
+    lowest_spinning_level,
+    no_drive_bounds,
+    start_level_rose,
+    start_level_shift,
+)
+from .steps import TAU_MIN_RATIO, StepChange, StepResponse, ends_at_stop, relative_tau, step_change, step_responses
 
 #: The dynamic family: effects on the path from a command change to the speed.
 DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
@@ -61,7 +68,8 @@ class StepDynamics:
 
 
 def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResponse],
-                  resolution_s: float = 0.01, driven_above: float | None = None) -> StepDynamics:
+                  resolution_s: float = 0.01, driven_above: float | None = None,
+                  spinning_from: float | None = None) -> StepDynamics:
     """The step responses of the two sets compared quantity by quantity:
 
     - dead time: the rising steps' onsets (a falling step's onset depends on braking), a change
@@ -73,16 +81,23 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
       not brake only the falling ones (``which_dynamic`` takes a lag first);
     - with ``driven_above`` (a PWM level), the spin-down again from the measured falling steps
       that end above it: an ESC that does not brake coasts there too, a raised start level only
-      below it."""
+      below it.
+
+    With ``spinning_from`` (the lowest level the measured rotor is held spinning at), the
+    measured falls that end above the stop level and below it are left out of the spin-down: they
+    may end where the ESC gives no drive (a start level that rose), and the rotor then coasts
+    whether the ESC brakes or not. Falls to the stop level (no drive on either set) and to levels
+    where the rotor is held spinning (drive on both) tell braking from coasting."""
     mu = [x for x in measured if x.rising]
     md = [x for x in measured if not x.rising]
+    md_judged = [x for x in md if spinning_from is None or ends_at_stop(x) or x.pwm_to >= spinning_from]
     ru = [x for x in reference if x.rising]
     rd = [x for x in reference if not x.rising]
     dead = step_change(np.array([x.dead_time_s for x in mu]), np.array([x.dead_time_s for x in ru]), False,
                        resolution_s)
     up = step_change(relative_tau(mu, ru), relative_tau(ru, ru, True), True, TAU_MIN_RATIO)
     ref_down = relative_tau(rd, rd, True, by_depth=True)
-    down = step_change(relative_tau(md, rd, by_depth=True), ref_down, True, TAU_MIN_RATIO)
+    down = step_change(relative_tau(md_judged, rd, by_depth=True), ref_down, True, TAU_MIN_RATIO)
     driven = None
     if driven_above is not None:
         md_driven = [x for x in md if x.pwm_to >= driven_above]
@@ -96,13 +111,14 @@ def step_dynamics(measured: Sequence[Signals], reference: Sequence[Signals],
     and holds (``compare_steps`` at the recordings' grid step, ``start_level_rose``,
     ``start_level_shift``). With the measured data's fitted ``start_level``, the spin-down is
     compared again on the falling steps that end where the ESC still drives: START_LEVEL_MARGIN
-    above it."""
+    above it. The spin-down leaves out the falls that end below the lowest level the measured
+    rotor is held spinning at (``lowest_spinning_level``), other than those to the stop level."""
     dts = [np.diff(s.t) for s in measured if len(s.t) > 1]
     grid = float(np.median(np.concatenate(dts))) if dts else 0.01
     driven = start_level + START_LEVEL_MARGIN if start_level is not None else None
-    out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid,
-                        driven_above=driven)
     hm, hr = holds(measured), holds(reference)
+    out = compare_steps(step_responses(measured), step_responses(reference), resolution_s=grid,
+                        driven_above=driven, spinning_from=lowest_spinning_level(hm))
     out.start_level = start_level_rose(hm, hr)
     out.start_level_bounds = no_drive_bounds(hm, hr)
     out.start_level_shift = start_level_shift(hm, hr)

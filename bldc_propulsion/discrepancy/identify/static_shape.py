@@ -86,6 +86,15 @@ def holds(signals: Sequence[Signals]) -> Holds:
     return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
 
 
+def lowest_spinning_level(h: Holds) -> float | None:
+    """The lowest held level at which the rotor settles spinning (not rising, above
+    SPINNING_MIN_SHARE of the fastest settled hold): from there up the ESC drives it. None when
+    no hold settles spinning."""
+    top = float(np.max(h.speed[h.settled], initial=0.0))
+    spin = h.settled & ~h.rising & (h.speed > SPINNING_MIN_SHARE * top)
+    return float(np.min(h.levels[spin])) if spin.any() else None
+
+
 def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     """Whether the measured rotor gets no drive at a level where the reference's has it, and why.
 

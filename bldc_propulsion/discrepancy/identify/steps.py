@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from ... import contract as c
 from ...recordings import Signals
 from ..residuals import robust_sigma
 
@@ -145,9 +146,11 @@ def step_responses(signals: Sequence[Signals]) -> list[StepResponse]:
 #: revolution, long at low speed), so only steps at similar speeds are compared.
 STEP_NEIGHBOURS = 3
 STEP_NEAR = 0.15
-#: Least reference steps the plane of ``relative_tau`` (falls) is fitted to (three coefficients and
-#: some to spare); with fewer, the median of the STEP_NEIGHBOURS nearest stands in for it.
+#: Least reference steps the plane of ``relative_tau`` (falls) is fitted to (three or four
+#: coefficients and some to spare); with fewer, the median of the STEP_NEIGHBOURS nearest stands in for it.
 STEP_PLANE_MIN = 6
+#: A held level this close above PWM_STOP is the stop level (the commands' grid is 0.001)
+STOP_TOLERANCE = 1e-4
 
 
 def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse],
@@ -158,15 +161,17 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
 
     ``by_depth`` (falling steps): the reference's time constant at the step is a plane in log tau
     over the speeds it starts and ends at, fitted to the reference steps (leave-one-out for the
-    reference's own). A coasting rotor's fall is slower the deeper it goes, so a deep fall
-    compared with shallow falls at the same middle speed reads as a slower rotor. Not for rises:
+    reference's own), with a term for the falls that end at the stop level (``ends_at_stop``;
+    left out where all or none of the reference's do). A coasting rotor's fall is slower the
+    deeper it goes, so a deep fall compared with shallow falls at the same middle speed reads as a
+    slower rotor. Not for rises:
     across rises from rest and from speed the plane extrapolates, and the README walkthrough's 9
     reference rises then read an unchanged rotor as 1.10x slower (p = 0.0002)."""
     if len(reference) < STEP_NEIGHBOURS + int(leave_one_out):
         return np.zeros(0)
     ref_w = np.array([x.speed_mid for x in reference])
     scale = max(float(np.max([max(abs(x.speed_from), abs(x.speed_to)) for x in reference])), 1.0)
-    ref_x = np.array([[1.0, x.speed_from / scale, x.speed_to / scale] for x in reference])
+    ref_x = np.array([_depth_row(x, scale) for x in reference]).reshape(-1, 4)
     ref_y = np.log(np.maximum([x.tau_s for x in reference], 1e-3))
     out = []
     for i, x in enumerate(steps):
@@ -179,12 +184,26 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
         if dist[near[-1]] > STEP_NEAR:
             continue
         if by_depth and keep.sum() >= STEP_PLANE_MIN:
-            coef = np.linalg.lstsq(ref_x[keep], ref_y[keep], rcond=None)[0]
-            ref_tau = float(np.exp(np.array([1.0, x.speed_from / scale, x.speed_to / scale]) @ coef))
+            # the stop term only where the reference has falls of both kinds: a constant column
+            # would share the intercept and move the falls of the other kind
+            cols = 4 if np.ptp(ref_x[keep, 3]) > 0 else 3
+            coef = np.linalg.lstsq(ref_x[keep, :cols], ref_y[keep], rcond=None)[0]
+            ref_tau = float(np.exp(_depth_row(x, scale)[:cols] @ coef))
         else:
             ref_tau = float(np.exp(np.median(ref_y[near])))
         out.append(x.tau_s / max(ref_tau, 1e-3))
     return np.array(out)
+
+
+def ends_at_stop(x: StepResponse) -> bool:
+    """Whether the step ends at the stop level, where no ESC drives: the rotor brakes or coasts
+    all the way (above it the drive meets the rotor part way), whatever its start level."""
+    return x.pwm_to <= c.PWM_STOP + STOP_TOLERANCE
+
+
+def _depth_row(x: StepResponse, scale: float) -> np.ndarray:
+    """The regressors of the falls' plane: 1, start and end speeds (/ ``scale``), ends at stop."""
+    return np.array([1.0, x.speed_from / scale, x.speed_to / scale, float(ends_at_stop(x))])
 
 
 @dataclass
