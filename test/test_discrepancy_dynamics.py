@@ -423,3 +423,26 @@ def test_heating_threshold_is_a_share_of_the_fitted_full_drive_speed(tmp_path):
     same_loss = dict(measured=-10.0, reference=0.0, hottest=0.6, se=1.0)  # 6 rad/s, 10 standard errors
     assert idf.Heating(**same_loss, full_speed_rad_s=600.0).changed
     assert not idf.Heating(**same_loss, full_speed_rad_s=1000.0).changed
+
+
+def test_heating_is_not_new_where_the_measured_data_never_warm_the_winding(monkeypatch):
+    """The scores' slow thermal feature can help any slow residual (a rotor coasting below a
+    start level): where the measured data stay below HEATING_MIN_STATE the identification cannot
+    show heating, so motor_heating is not new and, if the holdout keeps it, added as structural.
+    Warm enough, the identified drop decides as before (new), and where it is warm but the
+    response is unchanged the scores' verdict stands."""
+    from bldc_propulsion.discrepancy.identify import refinement
+    from bldc_propulsion.discrepancy.identify.heating import HEATING_MIN_STATE, Heating
+    from bldc_propulsion.discrepancy.workflow import added_as
+
+    run = idf.Identification([], [], 0.01, 0.10)
+
+    def verdict(heat: Heating) -> tuple[bool, str, str]:
+        monkeypatch.setattr(refinement, "identify_heating", lambda m, r: heat)
+        e = _evidence("motor_heating", "not significant", 0.11, 5e-5)
+        return refinement._heating_changed(e, run, lambda m: None), e.verdict, added_as(e)
+
+    cool = verdict(Heating(-50.0, 0.0, 0.5 * HEATING_MIN_STATE, 1.0, 1000.0))  # 50 z, but barely warm
+    assert cool == (False, "not new (the measured data do not warm the winding)", "structural"), cool
+    assert verdict(Heating(-50.0, 0.0, 0.5, 1.0, 1000.0))[:2] == (True, "new")
+    assert verdict(Heating(0.0, 0.0, 0.5, 1.0, 1000.0))[:2] == (False, "not significant")

@@ -51,7 +51,7 @@ class Evidence:
     held-out figure that kept or rejected it."""
 
     effect: str
-    verdict: str  #: new, structural, not significant, not new (identified: ... changed / dynamics unchanged)
+    verdict: str  #: new, structural, not significant, not new (identified: ... changed / dynamics unchanged / ...)
     measured: sc.Score
     measured_alone: sc.Score
     reference: sc.Score | None

@@ -62,8 +62,13 @@ class Heating:
         return (self.reference - self.measured) / self.se if self.se > 0 else 0.0
 
     @property
+    def too_cool(self) -> bool:
+        """The measured data never reach HEATING_MIN_STATE: they cannot show a winding's heating."""
+        return self.hottest < HEATING_MIN_STATE
+
+    @property
     def changed(self) -> bool:
-        return (self.hottest >= HEATING_MIN_STATE and self.drop_rad_s >= HEATING_MIN_DROP * self.full_speed_rad_s
+        return (not self.too_cool and self.drop_rad_s >= HEATING_MIN_DROP * self.full_speed_rad_s
                 and self.z >= HEATING_MIN_Z)
 
     def describe(self) -> str:

@@ -59,7 +59,8 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     reference recordings (else nothing changes):
 
     - motor_heating, when nothing or one of RESPONSE_EFFECTS is proposed: named when
-      ``identify_heating`` says its response to the thermal state changed;
+      ``identify_heating`` says its response to the thermal state changed, not new when the
+      measured data stay below HEATING_MIN_STATE (they cannot show heating);
     - the dynamic family and the start level, when the scores propose one of them
       (RESPONSE_EFFECTS), a dynamic candidate is significant on the measured data alone or the
       measured residual RMSE is GAP_RATIO x the reference's with nothing new: the one
@@ -124,6 +125,12 @@ def _heating_changed(e: Evidence, run: Identification, progress: Progress) -> bo
     progress(f"  identified heating: {heat.describe()}")
     if heat.changed:
         e.override("new", f"motor_heating: {heat.describe()}")
+    elif heat.too_cool:
+        # the measured data never warm the winding enough for its heating to move the speed: a
+        # thermal state's slow feature that helps them helps as any slow input would (a rotor
+        # coasting below a start level, a sagging pack), so the scores do not make it new
+        e.override("not new (the measured data do not warm the winding)",
+                   f"motor_heating: not new: {heat.describe()}")
     return heat.changed
 
 
