@@ -86,12 +86,17 @@ def holds(signals: Sequence[Signals]) -> Holds:
     return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
 
 
-def lowest_spinning_level(h: Holds) -> float | None:
-    """The lowest held level at which the rotor settles spinning (not rising, above
-    SPINNING_MIN_SHARE of the fastest settled hold): from there up the ESC drives it. None when
-    no hold settles spinning."""
+def _spinning(h: Holds) -> np.ndarray:
+    """The holds at which the rotor settles spinning: settled, not rising, above
+    SPINNING_MIN_SHARE of the fastest settled hold."""
     top = float(np.max(h.speed[h.settled], initial=0.0))
-    spin = h.settled & ~h.rising & (h.speed > SPINNING_MIN_SHARE * top)
+    return h.settled & ~h.rising & (h.speed > SPINNING_MIN_SHARE * top)
+
+
+def lowest_spinning_level(h: Holds) -> float | None:
+    """The lowest held level at which the rotor settles spinning (``_spinning``): from there up
+    the ESC drives it. None when no hold settles spinning."""
+    spin = _spinning(h)
     return float(np.min(h.levels[spin])) if spin.any() else None
 
 
@@ -125,8 +130,7 @@ def _no_drive(measured: Holds, reference: Holds
     within the levels where the reference's rotor settles spinning; the speed the reference's
     gives at each measured level, and those reference levels (sorted). None when the reference
     holds too few such levels."""
-    top = float(np.max(reference.speed[reference.settled], initial=0.0))
-    spin = reference.settled & (reference.speed > SPINNING_MIN_SHARE * top) & ~reference.rising
+    spin = _spinning(reference)
     if spin.sum() < 2:
         return None
     order = np.argsort(reference.levels[spin])

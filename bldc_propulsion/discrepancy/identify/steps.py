@@ -173,6 +173,16 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
     scale = max(float(np.max([max(abs(x.speed_from), abs(x.speed_to)) for x in reference])), 1.0)
     ref_x = np.array([_depth_row(x, scale) for x in reference]).reshape(-1, 4)
     ref_y = np.log(np.maximum([x.tau_s for x in reference], 1e-3))
+
+    def plane(keep: np.ndarray) -> tuple[np.ndarray, int]:
+        # the stop term only where the reference has falls of both kinds: a constant column
+        # would share the intercept and move the falls of the other kind
+        cols = 4 if np.ptp(ref_x[keep, 3]) > 0 else 3
+        return np.linalg.lstsq(ref_x[keep, :cols], ref_y[keep], rcond=None)[0], cols
+
+    # without leave-one-out every step is compared with the same plane: fitted once
+    whole = plane(np.ones(len(reference), bool)) if by_depth and not leave_one_out \
+        and len(reference) >= STEP_PLANE_MIN else None
     out = []
     for i, x in enumerate(steps):
         dist = np.abs(ref_w - x.speed_mid) / scale
@@ -184,10 +194,7 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
         if dist[near[-1]] > STEP_NEAR:
             continue
         if by_depth and keep.sum() >= STEP_PLANE_MIN:
-            # the stop term only where the reference has falls of both kinds: a constant column
-            # would share the intercept and move the falls of the other kind
-            cols = 4 if np.ptp(ref_x[keep, 3]) > 0 else 3
-            coef = np.linalg.lstsq(ref_x[keep, :cols], ref_y[keep], rcond=None)[0]
+            coef, cols = whole if whole is not None else plane(keep)
             ref_tau = float(np.exp(_depth_row(x, scale)[:cols] @ coef))
         else:
             ref_tau = float(np.exp(np.median(ref_y[near])))
