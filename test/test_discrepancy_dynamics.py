@@ -446,3 +446,42 @@ def test_heating_is_not_new_where_the_measured_data_never_warm_the_winding(monke
     assert cool == (False, "not new (the measured data do not warm the winding)", "structural"), cool
     assert verdict(Heating(-50.0, 0.0, 0.5, 1.0, 1000.0))[:2] == (True, "new")
     assert verdict(Heating(0.0, 0.0, 0.5, 1.0, 1000.0))[:2] == (False, "not significant")
+
+
+def test_a_response_effect_tried_from_the_scores_is_identified_first():
+    """A member of the response family that the workflow will try on its scores alone (it removes
+    ``min_effect`` of the measured residual, though not significantly) is identified on the
+    response first: otherwise it is fitted at the scores' parameters (a foreign bench's 27 ms dead
+    time was tried at 120 ms, which the holdout rejected). Candidates below ``min_effect``, or
+    outside the family, leave the response alone."""
+    from bldc_propulsion.discrepancy.identify import refinement
+
+    run = idf.Identification([], [], 0.01, 0.10)
+    gap = (13.4, 9.0)  # below GAP_RATIO: the gap alone does not ask
+    assert gap[0] < refinement.GAP_RATIO * gap[1]
+    tried = {"input_delay": _evidence("input_delay", "not significant", 0.14, 0.14),
+             "motor_heating": _evidence("motor_heating", "not significant", 0.02, 0.5)}
+    assert refinement._response_in_question(tried, None, run, gap)
+    small = {"input_delay": _evidence("input_delay", "not significant", 0.05, 0.3),
+             "battery_voltage": _evidence("battery_voltage", "not significant", 0.3, 0.02)}
+    assert not refinement._response_in_question(small, None, run, gap)
+    structural = {"rotor_lag": _evidence("rotor_lag", "structural", 0.04, 0.005)}
+    assert refinement._response_in_question(structural, None, run, gap)
+
+
+def test_a_dead_time_below_the_grid_step_is_read_from_the_onsets():
+    """The onset is a line through the rise, finer than the grid: 12 rising steps per set whose
+    onsets scatter by 1 ms, the measured ones 8 ms later on a 10 ms grid (a foreign bench's 5.6 ms
+    dead time read so), is a dead time; 5 ms later (a lag in series with the rotor moves the
+    apparent onset so much) is not."""
+    rng = np.random.default_rng(5)
+
+    def rises(onset_s: float) -> list[idf.StepResponse]:
+        return [idf.StepResponse(True, 0.06, 0.07, w0, w0 + 150.0, onset_s + rng.normal(0.0, 0.001), 0.12)
+                for w0 in np.linspace(200.0, 800.0, 12)]
+
+    ref = rises(-0.008)
+    later = idf.compare_steps(rises(0.0), ref, resolution_s=0.01).dead_time
+    assert later is not None and later.changed and later.change == pytest.approx(0.008, abs=0.0015), later
+    lag_like = idf.compare_steps(rises(-0.003), ref, resolution_s=0.01).dead_time
+    assert lag_like is not None and lag_like.p_value < 0.01 and not lag_like.changed, lag_like

@@ -136,10 +136,14 @@ def _heating_changed(e: Evidence, run: Identification, progress: Progress) -> bo
 
 def _response_in_question(ev: dict[str, Evidence], best: str | None, run: Identification,
                           rmse: tuple[float, float]) -> bool:
-    """The scores propose one of RESPONSE_EFFECTS, a dynamic candidate is significant on the
-    measured data alone, or nothing is proposed and the measured residual is GAP_RATIO x the
-    reference's."""
+    """The scores propose one of RESPONSE_EFFECTS, one of them will be tried all the same (new or
+    structural on the measured data, or removing ``min_effect`` of their residual: the workflow's
+    ``proposals``; its scores' parameters are a residual correction's, not the response's), a
+    dynamic candidate is significant on the measured data alone, or nothing is proposed and the
+    measured residual is GAP_RATIO x the reference's."""
     return (best in RESPONSE_EFFECTS
+            or any(ev[k].verdict in ("new", "structural") or ev[k].measured.fraction >= run.min_effect
+                   for k in ev if k in RESPONSE_EFFECTS)
             or any(ev[k].measured_alone.p_value < run.alpha and ev[k].measured_alone.fraction >= run.min_effect
                    for k in ev if k in DYNAMIC_EFFECTS)
             or (best is None and rmse[0] >= GAP_RATIO * rmse[1]))
