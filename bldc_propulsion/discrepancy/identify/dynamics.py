@@ -28,7 +28,16 @@ from .static_shape import (
     start_level_rose,
     start_level_shift,
 )
-from .steps import TAU_MIN_RATIO, StepChange, StepResponse, ends_at_stop, relative_tau, step_change, step_responses
+from .steps import (
+    TAU_MIN_RATIO,
+    StepChange,
+    StepResponse,
+    ends_at_stop,
+    from_rest,
+    relative_tau,
+    step_change,
+    step_responses,
+)
 
 #: The dynamic family: effects on the path from a command change to the speed.
 DYNAMIC_EFFECTS = ("rotor_lag", "input_delay", "spin_down_asymmetry")
@@ -79,7 +88,8 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
                   spinning_from: float | None = None) -> StepDynamics:
     """The step responses of the two sets compared quantity by quantity:
 
-    - dead time: the rising steps' onsets (a falling step's onset depends on braking), a change
+    - dead time: the onsets of the rising steps that start spinning (a falling step's onset
+      depends on braking, a start from rest's on the ESC's start-up: ``from_rest``), a change
       of at least DEAD_TIME_MIN_STEPS x ``resolution_s`` (the recordings' grid step);
     - spin-up: the rising steps' time constants relative to the reference's rising steps
       at similar speeds (1 = unchanged; the reference's own: leave-one-out), up by
@@ -100,7 +110,8 @@ def compare_steps(measured: Sequence[StepResponse], reference: Sequence[StepResp
     md_judged = [x for x in md if spinning_from is None or ends_at_stop(x) or x.pwm_to >= spinning_from]
     ru = [x for x in reference if x.rising]
     rd = [x for x in reference if not x.rising]
-    dead = step_change(np.array([x.dead_time_s for x in mu]), np.array([x.dead_time_s for x in ru]), False,
+    dead = step_change(np.array([x.dead_time_s for x in mu if not from_rest(x)]),
+                       np.array([x.dead_time_s for x in ru if not from_rest(x)]), False,
                        DEAD_TIME_MIN_STEPS * resolution_s)
     up = step_change(relative_tau(mu, ru), relative_tau(ru, ru, True), True, TAU_MIN_RATIO)
     ref_down = relative_tau(rd, rd, True, by_depth=True)
