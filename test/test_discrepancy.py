@@ -342,7 +342,8 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
 
 # --- pieces ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name, params", [
-    (ef.PWM_LAG, {"tau_s": 0.1}), (ef.PWM_DELAYED, {"delay_s": 0.04}), (ef.PWM_ABOVE_START, {}),
+    (ef.PWM_LAG, {"tau_s": 0.1}), (ef.PWM_LAG, {"tau_s": 0.1, "delay_s": 0.027}),
+    (ef.PWM_DELAYED, {"delay_s": 0.04}), (ef.PWM_ABOVE_START, {}),
     (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4}), (ef.THERMAL_LOAD, {"tau_s": 30.0}),
     (ef.PWM_DELAYED_FILTERED, {"delay_s": 0.04, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25}),
@@ -549,3 +550,25 @@ def test_blocked_scoring_finds_a_real_feature_and_not_noise():
     noise = sc.score_candidate(rng.standard_normal(n), labels, null, [rng.standard_normal((n, 1))], [{}])
     assert real.p_value < 0.001 and real.fraction > 0.5
     assert noise.p_value > 0.01 or noise.fraction < 0.05
+
+
+def test_a_lag_acts_on_the_delayed_command_where_the_model_has_both():
+    """A lag and a dead time in one model: the lag gets the dead time (``pwm_lag``'s
+    ``delay_s``), whichever was added first, and is then the lag of the command shifted by it
+    (hand check: the undelayed lag of the same commands 27 ms later). Either alone is left as it was."""
+    from bldc_propulsion.discrepancy import network as net
+
+    both = {ef.PWM_LAG: {"tau_s": 0.07}, ef.PWM_DELAYED: {"delay_s": 0.027}}
+    assert net._lag_on_the_delayed_command([c.INPUT_BATTERY_VOLTAGE, ef.PWM_DELAYED, ef.PWM_LAG], both)
+    assert both[ef.PWM_LAG] == {"tau_s": 0.07, "delay_s": 0.027}
+    lag_only = {ef.PWM_LAG: {"tau_s": 0.07}}
+    assert not net._lag_on_the_delayed_command([c.INPUT_PWM, ef.PWM_LAG], lag_only)
+    assert lag_only == {ef.PWM_LAG: {"tau_s": 0.07}}
+    pwm_t = np.array([0.0, 1.0, 2.0, 3.5])
+    pwm = np.array([0.05, 0.08, 0.06, 0.09])
+    grid = np.arange(0.0, 5.0, 0.01)
+    none = np.zeros(0)
+    delayed = ef.compute(ef.PWM_LAG, grid, pwm_t, pwm, none, none, both[ef.PWM_LAG])
+    shifted = ef.compute(ef.PWM_LAG, grid, pwm_t + 0.027, pwm, none, none, {"tau_s": 0.07})
+    np.testing.assert_allclose(delayed, shifted, atol=1e-12)
+    assert not np.allclose(delayed, ef.compute(ef.PWM_LAG, grid, pwm_t, pwm, none, none, {"tau_s": 0.07}))

@@ -75,7 +75,7 @@ DEFAULT_PARAMS: dict[str, dict[str, float]] = {
 
 #: Parameters an input may carry beyond DEFAULT_PARAMS' (a model saved without them reads as
 #: before): the start level's low-pass time constant while there is no drive.
-OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_ABOVE_START: ("map_level",),
+OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_LAG: ("delay_s",), PWM_ABOVE_START: ("map_level",),
                                                 PWM_ABOVE_START_FILTERED: ("coast_tau_s", "map_level")}
 
 
@@ -127,10 +127,13 @@ def _start(grid: np.ndarray, pwm_t: np.ndarray) -> float:
 # --- batch (offline) -------------------------------------------------------------------------------
 def pwm_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray, volt: np.ndarray,
             params: Mapping[str, float] | None = None) -> np.ndarray:
-    """Command through a first-order lag of time constant ``tau_s`` (state starts at the first command)."""
+    """Command through a first-order lag of time constant ``tau_s``, at rest before the first
+    command; with ``delay_s`` (optional) the command as it reaches the ESC after that dead time,
+    so that a lag and a dead time in one model both act on the command the ESC acts on."""
     tau = _param(params, PWM_LAG, "tau_s")
-    times, pos = _merged(grid, pwm_t)
-    u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))  # at rest before the first command
+    et = pwm_t + _optional(params or {}, PWM_LAG, "delay_s", 0.0)  # when each command reaches the ESC
+    times, pos = _merged(grid, et)
+    u = np.where(times < et[0], REST_PWM, _held(et, pwm, times))  # at rest before the first command
     y: np.ndarray = lag_on_times(times, u, tau, REST_PWM)[pos]
     return y
 
@@ -334,11 +337,37 @@ class StreamingFeature:
         g = lag_gain(t - self._ts, coast if self._u_mapped <= 0.0 else tau)
         return float(lag_step(self.y, self._u_mapped, g))
 
+    def _delayed_lag(self) -> bool:
+        return self.name == PWM_LAG and self.params.get("delay_s", 0.0) > 0.0
+
+    def _update_delayed_lag(self, t: float, pwm: float) -> None:
+        if self.pwm is None:  # at rest until the first command reaches the ESC
+            self.y = REST_PWM
+            self._u_mapped = REST_PWM
+        self.pwm = float(pwm)
+        self.t = t
+        self._pending.append((t + self.params["delay_s"], float(pwm)))
+
+    def _delayed_lag_value(self, t: float) -> float:
+        tau = self.params["tau_s"]
+        while self._pending and self._pending[0][0] <= t:
+            te, level = self._pending.popleft()
+            if math.isfinite(self._ts) and te > self._ts:
+                self.y = lag_step(self.y, self._u_mapped, lag_gain(te - self._ts, tau))
+            self._ts = max(self._ts, te)
+            self._u_mapped = level
+        if t <= self._ts or not math.isfinite(self._ts):
+            return float(self.y)
+        return float(lag_step(self.y, self._u_mapped, lag_gain(t - self._ts, tau)))
+
     def update_pwm(self, t: float, pwm: float) -> None:
         if self.t is not None and t < self.t:
             return
         if self.name in MAPPED_LAGS:
             self._update_mapped(t, pwm)
+            return
+        if self._delayed_lag():
+            self._update_delayed_lag(t, pwm)
             return
         if self.t is None:
             self.pwm = float(pwm)
@@ -377,6 +406,8 @@ class StreamingFeature:
             return float("nan")
         if self.name in MAPPED_LAGS:
             return self._mapped_value(t)
+        if self._delayed_lag():
+            return self._delayed_lag_value(t)
         if self.name == PWM_ABOVE_START:
             return float(_map_level(float(self.pwm), _start_level(self.params, self.name)))
         if self.name == PWM_DELAYED:

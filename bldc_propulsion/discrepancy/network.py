@@ -187,8 +187,10 @@ def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], r
         inputs.append(cand.input_name)
     if params:
         feature_params[cand.input_name] = cand.model_params(params)
+    lag_delayed = _lag_on_the_delayed_command(inputs, feature_params)
     train, val = list(reference), []
-    pwm_free = set(inputs) <= {c.INPUT_BATTERY_VOLTAGE, *rename.values(), cand.input_name}
+    pwm_free = set(inputs) <= {c.INPUT_BATTERY_VOLTAGE, *rename.values(), cand.input_name,
+                               *([ef.PWM_LAG] if lag_delayed else [])}
     if cand.on_reference is not None and reference_params and params and pwm_free:
         # only when every command-derived input is the effect's own: the mapping would distort others
         train = [cand.on_reference(s, params, reference_params) for s in reference]
@@ -218,6 +220,18 @@ def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], r
     phi0 = warm_start_weights(model, inputs, train, {c.INPUT_PWM_FILTERED: {"tau_s": float(model.pwm_tau_s)},
                                                      **feature_params}, rename, units)
     return cast("NetworkModel", train_model(train, val, phi0=phi0, **kw).model)
+
+
+def _lag_on_the_delayed_command(inputs: Sequence[str], feature_params: dict[str, dict[str, float]]) -> bool:
+    """Where the model has both a lag and a dead time, the lag acts on the command as the ESC
+    gets it (``pwm_lag``'s ``delay_s``, set in place): a lag on the undelayed command would carry
+    the timing the dead time removes, and a dead time added after a lag could not show. True
+    when it did."""
+    if ef.PWM_LAG not in inputs or ef.PWM_DELAYED not in inputs:
+        return False
+    delay = dict(ef.DEFAULT_PARAMS[ef.PWM_DELAYED], **feature_params.get(ef.PWM_DELAYED, {}))["delay_s"]
+    feature_params[ef.PWM_LAG] = {**feature_params.get(ef.PWM_LAG, {}), "delay_s": float(delay)}
+    return True
 
 
 def warm_start_weights(model: NetworkModel, inputs: Sequence[str], train: Sequence[Signals],
