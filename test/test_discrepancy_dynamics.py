@@ -23,7 +23,7 @@ import pytest
 from bldc_propulsion import contract as c
 from bldc_propulsion.discrepancy import identify as idf
 from bldc_propulsion.discrepancy import scoring as sc
-from bldc_propulsion.discrepancy.base import Proposal
+from bldc_propulsion.discrepancy.base import Proposal, Refined
 from bldc_propulsion.discrepancy.results import Evidence
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import random_bench as rb
@@ -467,6 +467,32 @@ def test_a_response_effect_tried_from_the_scores_is_identified_first():
     assert not refinement._response_in_question(small, None, run, gap)
     structural = {"rotor_lag": _evidence("rotor_lag", "structural", 0.04, 0.005)}
     assert refinement._response_in_question(structural, None, run, gap)
+
+
+def test_the_identified_change_is_tried_again_once_the_model_has_what_was_added():
+    """The response identified a dead time; the held-out test rejected it while the model lacked
+    the lag the same round added. When the next round's scores propose nothing, the dead time is
+    tried again at its identified parameters (not the scores'); not once it is in the model, and
+    not where the identification found nothing changed."""
+    dead = idf.StepChange(0.035, 0.010, 0.025, 1e-4, 12, 14, 0.0075)
+    dyn = idf.Dynamics(0.03, 0.1, 0.3, 5.0)
+    # a reference is there (the rule does nothing without one); these rounds never read it
+    run = idf.Identification([], ["the reference"], 0.01, 0.10,
+                             idf.Response(dyn, dyn, idf.StepDynamics(dead, None, None)),
+                             ("input_delay", "the onsets are later", {}, frozenset({"input_delay"})))
+
+    def round_(added: list[str]) -> tuple[Refined, dict[str, Evidence]]:
+        ev = {"input_delay": _evidence("input_delay", "not significant", 0.01, 0.6),
+              "spin_down_asymmetry": _evidence("spin_down_asymmetry", "not significant", 0.03, 0.4)}
+        return idf.refine(Proposal(ev, None, added), run, (10.0, 9.0), lambda _: None), ev
+
+    out, ev = round_(["rotor_lag"])
+    assert out.best == "input_delay" and ev["input_delay"].verdict == "new", out
+    assert out.params == {"delay_s": pytest.approx(0.025)} and out.reference_params == {"delay_s": 0.0}
+    assert ev["spin_down_asymmetry"].verdict.startswith("not new")
+    assert round_(["rotor_lag", "input_delay"])[0].best is None
+    run.verdict = (None, "nothing changed", {}, frozenset({"input_delay"}))
+    assert round_(["rotor_lag"])[0].best is None
 
 
 def test_a_dead_time_below_the_grid_step_is_read_from_the_onsets():

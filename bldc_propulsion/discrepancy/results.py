@@ -67,6 +67,12 @@ class Evidence:
     named: bool = False  #: added to the model (new or structural: ``added_as``)
     added_as: str | None = None  #: 'new' or 'structural' once added
 
+    def proposed(self, min_effect: float) -> bool:
+        """Whether step 4 fits it: new or structural on the measured data, or removing
+        ``min_effect`` of their residual whatever its p (a large share that is not significant
+        may still hold on the held-out data, which decide)."""
+        return self.verdict in ("new", "structural") or self.measured.fraction >= min_effect
+
     def override(self, verdict: str, text: str) -> None:
         """The identification's verdict replaces the scores' (kept in ``verdict_residual``)."""
         self.verdict_residual, self.verdict, self.sentence = self.verdict, verdict, text

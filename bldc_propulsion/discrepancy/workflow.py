@@ -127,8 +127,7 @@ def proposals(ev: dict[str, Evidence], first: str | None, min_effect: float) -> 
     (new or structural there, or removing >= ``min_effect`` of the residual whatever its p), by
     the share it removes; those the identification found unchanged from the reference ("not
     new") after the others, since it proposes and ranks like the scores and decides nothing."""
-    rest = [k for k, e in ev.items() if k != first
-            and (e.verdict in ("new", "structural") or e.measured.fraction >= min_effect)]
+    rest = [k for k, e in ev.items() if k != first and e.proposed(min_effect)]
     rest.sort(key=lambda k: (ev[k].verdict.startswith("not new"), -ev[k].measured.fraction))
     return ([first] if first is not None else []) + rest[:MAX_TRIALS - (first is not None)]
 

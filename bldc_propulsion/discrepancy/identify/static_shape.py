@@ -23,7 +23,7 @@ from ...physics.scales import centred_voltage
 from ...recordings import Signals
 from ..residuals import robust_sigma
 from .heating import HEATING_TAU_S
-from .steps import STEP_ALPHA, STEP_HOLD_S, held_levels
+from .steps import STEP_ALPHA, STEP_HOLD_S, at_stop, held_levels
 
 #: A measured hold "gets no drive" when the rotor ends it (not rising) below NO_DRIVE_FRACTION of
 #: the speed the reference's rotor settles at for that level: a lower supply or a hotter winding
@@ -46,7 +46,7 @@ SETTLED_S = 0.3
 
 @dataclass
 class Holds:
-    """Held command levels (each at least STEP_HOLD_S, above PWM_STOP) and the rotor at their end."""
+    """Held command levels (each at least STEP_HOLD_S, above the stop level: ``at_stop``) and the rotor at their end."""
 
     levels: np.ndarray  #: PWM level
     speed: np.ndarray  #: speed at the end of the hold (rad/s)
@@ -57,7 +57,7 @@ class Holds:
 
 
 def holds(signals: Sequence[Signals]) -> Holds:
-    """Every hold of at least STEP_HOLD_S above PWM_STOP with the rotor's state at its end."""
+    """Every hold of at least STEP_HOLD_S above the stop level (``at_stop``) with the rotor's state at its end."""
     rows = []
     for s in signals:
         ok = np.isfinite(s.speed)
@@ -68,7 +68,7 @@ def holds(signals: Sequence[Signals]) -> Holds:
         th = ef.compute(ef.THERMAL_LOAD, s.t, pwm_t, pwm, vt, vv, {"tau_s": HEATING_TAU_S})
         tc, lv, ends = held_levels(s)
         for k in range(len(tc)):
-            if ends[k] - tc[k] < STEP_HOLD_S or lv[k] <= c.PWM_STOP:
+            if ends[k] - tc[k] < STEP_HOLD_S or at_stop(float(lv[k])):
                 continue
             last = (s.t >= ends[k] - SETTLED_S) & (s.t < ends[k]) & ok
             if last.sum() < 5:

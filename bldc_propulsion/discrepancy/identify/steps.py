@@ -149,8 +149,13 @@ STEP_NEAR = 0.15
 #: Least reference steps the plane of ``relative_tau`` (falls) is fitted to (three or four
 #: coefficients and some to spare); with fewer, the median of the STEP_NEIGHBOURS nearest stands in for it.
 STEP_PLANE_MIN = 6
-#: A held level this close above PWM_STOP is the stop level (the commands' grid is 0.001)
+#: A held level this close above PWM_STOP is the stop level (2 us of pulse: no ESC drives there)
 STOP_TOLERANCE = 1e-4
+
+
+def at_stop(level: float) -> bool:
+    """Whether a held command level is the stop level, where no ESC drives the rotor."""
+    return level <= c.PWM_STOP + STOP_TOLERANCE
 
 
 def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse],
@@ -171,7 +176,7 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
         return np.zeros(0)
     ref_w = np.array([x.speed_mid for x in reference])
     scale = max(float(np.max([max(abs(x.speed_from), abs(x.speed_to)) for x in reference])), 1.0)
-    ref_x = np.array([_depth_row(x, scale) for x in reference]).reshape(-1, 4)
+    ref_x = np.array([_depth_row(x, scale) for x in reference])
     ref_y = np.log(np.maximum([x.tau_s for x in reference], 1e-3))
 
     def plane(keep: np.ndarray) -> tuple[np.ndarray, int]:
@@ -205,7 +210,7 @@ def relative_tau(steps: Sequence[StepResponse], reference: Sequence[StepResponse
 def ends_at_stop(x: StepResponse) -> bool:
     """Whether the step ends at the stop level, where no ESC drives: the rotor brakes or coasts
     all the way (above it the drive meets the rotor part way), whatever its start level."""
-    return x.pwm_to <= c.PWM_STOP + STOP_TOLERANCE
+    return at_stop(x.pwm_to)
 
 
 #: A rising step whose rotor turned slower than this share of its end speed started from rest.
