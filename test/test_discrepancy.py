@@ -344,7 +344,8 @@ def test_model_input_not_computable_from_the_recordings(bags_dir):
 @pytest.mark.parametrize("name, params", [
     (ef.PWM_LAG, {"tau_s": 0.1}), (ef.PWM_LAG, {"tau_s": 0.1, "delay_s": 0.027}),
     (ef.PWM_DELAYED, {"delay_s": 0.04}), (ef.PWM_ABOVE_START, {}),
-    (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4}), (ef.THERMAL_LOAD, {"tau_s": 30.0}),
+    (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4}),
+    (ef.PWM_ASYMMETRIC_LAG, {"tau_up_s": 0.1, "tau_down_s": 0.4, "delay_s": 0.027}), (ef.THERMAL_LOAD, {"tau_s": 30.0}),
     (ef.PWM_DELAYED_FILTERED, {"delay_s": 0.04, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25}),
     (ef.PWM_ABOVE_START_FILTERED, {"threshold": 0.056, "tau_s": 0.25, "coast_tau_s": 1.2}),
@@ -559,11 +560,15 @@ def test_a_lag_acts_on_the_delayed_command_where_the_model_has_both():
     from bldc_propulsion.discrepancy import network as net
 
     both = {ef.PWM_LAG: {"tau_s": 0.07}, ef.PWM_DELAYED: {"delay_s": 0.027}}
-    assert net._lag_on_the_delayed_command([c.INPUT_BATTERY_VOLTAGE, ef.PWM_DELAYED, ef.PWM_LAG], both)
+    assert net._lag_on_the_delayed_command([c.INPUT_BATTERY_VOLTAGE, ef.PWM_DELAYED, ef.PWM_LAG], both) == [ef.PWM_LAG]
     assert both[ef.PWM_LAG] == {"tau_s": 0.07, "delay_s": 0.027}
     lag_only = {ef.PWM_LAG: {"tau_s": 0.07}}
     assert not net._lag_on_the_delayed_command([c.INPUT_PWM, ef.PWM_LAG], lag_only)
     assert lag_only == {ef.PWM_LAG: {"tau_s": 0.07}}
+    # the spin-down's lag too (a coasting ESC's rotor answers the command it got as late)
+    spin = {ef.PWM_ASYMMETRIC_LAG: {"tau_up_s": 0.18, "tau_down_s": 0.45}, ef.PWM_DELAYED: {"delay_s": 0.026}}
+    assert net._lag_on_the_delayed_command([ef.PWM_DELAYED, ef.PWM_ASYMMETRIC_LAG], spin) == [ef.PWM_ASYMMETRIC_LAG]
+    assert spin[ef.PWM_ASYMMETRIC_LAG]["delay_s"] == 0.026
     pwm_t = np.array([0.0, 1.0, 2.0, 3.5])
     pwm = np.array([0.05, 0.08, 0.06, 0.09])
     grid = np.arange(0.0, 5.0, 0.01)

@@ -8,10 +8,10 @@ recording predicts on replay what it predicted in training.
 
 | input name | effect | parameters | meaning |
 |---|---|---|---|
-| ``pwm_lag`` | rotor_lag | ``tau_s`` | command through a first-order lag (from rest) |
+| ``pwm_lag`` | rotor_lag | ``tau_s`` (``delay_s``) | command through a first-order lag (from rest) |
 | ``pwm_delayed`` | input_delay | ``delay_s`` | command as it was ``delay_s`` ago (dead time) |
 | ``pwm_above_start`` | esc_deadband | ``threshold`` | max(pwm - threshold, 0) (ESC start level; see ``map_level``) |
-| ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` | lag: one time constant up, one down |
+| ``pwm_asymmetric_lag`` | spin_down_asymmetry | ``tau_up_s``, ``tau_down_s`` (``delay_s``) | lag: up, down |
 | ``thermal_load`` | motor_heating | ``tau_s`` | first-order thermal state driven by an I^2 R proxy |
 | ``pwm_delayed_filtered`` | input_delay | ``delay_s``, ``tau_s`` | delayed command, the model's low-pass |
 | ``pwm_above_start_filtered`` | esc_deadband | ``threshold``, ``tau_s`` | the above, the model's low-pass |
@@ -27,6 +27,9 @@ An ESC's start level takes one of two shapes. Some move the whole throttle map u
 below the start level, and above it the map they would have had without one, which starts lower.
 The optional ``map_level`` (at or below ``threshold``) is where that map starts: 0 below the
 threshold, ``pwm - map_level`` from it. Without it the map starts at the threshold.
+
+The two lags take an optional ``delay_s``: the command as it reaches the ESC after that dead
+time, set where the model also has ``pwm_delayed`` (a rotor answers the command the ESC got).
 
 The I^2 R proxy of ``thermal_load`` is ``(duty * V / 12 V)^4`` with ``duty = (pwm - 0.05) / 0.05``
 clipped to [0, 1]: with a propeller load the motor current grows as the square of the speed and
@@ -55,6 +58,9 @@ PWM_DELAYED_FILTERED = "pwm_delayed_filtered"
 PWM_ABOVE_START_FILTERED = "pwm_above_start_filtered"
 #: Inputs that are the command mapped (dead time, start level) and then low-passed.
 MAPPED_LAGS = (PWM_DELAYED_FILTERED, PWM_ABOVE_START_FILTERED)
+#: The lags that may act on the command after a dead time (their optional ``delay_s``): in a
+#: model with a dead time, a lag acts on the command as the ESC gets it.
+DELAYABLE_LAGS = (PWM_LAG, PWM_ASYMMETRIC_LAG)
 
 #: State of the command lags when a recording starts: the rotor at rest (PWM_STOP), as a bench
 #: run starts; after a start mid-run the lag's state converges within a few time constants.
@@ -75,7 +81,8 @@ DEFAULT_PARAMS: dict[str, dict[str, float]] = {
 
 #: Parameters an input may carry beyond DEFAULT_PARAMS' (a model saved without them reads as
 #: before): the start level's low-pass time constant while there is no drive.
-OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_LAG: ("delay_s",), PWM_ABOVE_START: ("map_level",),
+OPTIONAL_PARAMS: dict[str, tuple[str, ...]] = {PWM_LAG: ("delay_s",), PWM_ASYMMETRIC_LAG: ("delay_s",),
+                                                PWM_ABOVE_START: ("map_level",),
                                                 PWM_ABOVE_START_FILTERED: ("coast_tau_s", "map_level")}
 
 
@@ -154,11 +161,13 @@ def pwm_above_start(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t
 
 def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray,
                        volt: np.ndarray, params: Mapping[str, float] | None = None) -> np.ndarray:
-    """Command through a lag with ``tau_up_s`` when it rises and ``tau_down_s`` when it falls."""
+    """Command through a lag with ``tau_up_s`` when it rises and ``tau_down_s`` when it falls;
+    with ``delay_s`` (optional) after that dead time, as ``pwm_lag``."""
     up = _param(params, PWM_ASYMMETRIC_LAG, "tau_up_s")
     down = _param(params, PWM_ASYMMETRIC_LAG, "tau_down_s")
-    times, pos = _merged(grid, pwm_t)
-    u = np.where(times < pwm_t[0], REST_PWM, _held(pwm_t, pwm, times))
+    et = pwm_t + _optional(params or {}, PWM_ASYMMETRIC_LAG, "delay_s", 0.0)  # when each command reaches the ESC
+    times, pos = _merged(grid, et)
+    u = np.where(times < et[0], REST_PWM, _held(et, pwm, times))
     y: np.ndarray = asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
     return y
 
@@ -338,7 +347,13 @@ class StreamingFeature:
         return float(lag_step(self.y, self._u_mapped, g))
 
     def _delayed_lag(self) -> bool:
-        return self.name == PWM_LAG and self.params.get("delay_s", 0.0) > 0.0
+        return self.name in DELAYABLE_LAGS and self.params.get("delay_s", 0.0) > 0.0
+
+    def _lag_tau(self, u: float, y: float) -> float:
+        """The time constant towards ``u`` from ``y`` (the asymmetric lag's by direction)."""
+        if self.name == PWM_ASYMMETRIC_LAG:
+            return self.params["tau_up_s"] if u > y else self.params["tau_down_s"]
+        return self.params["tau_s"]
 
     def _update_delayed_lag(self, t: float, pwm: float) -> None:
         if self.pwm is None:  # at rest until the first command reaches the ESC
@@ -349,15 +364,16 @@ class StreamingFeature:
         self._pending.append((t + self.params["delay_s"], float(pwm)))
 
     def _delayed_lag_value(self, t: float) -> float:
-        tau = self.params["tau_s"]
         while self._pending and self._pending[0][0] <= t:
             te, level = self._pending.popleft()
             if math.isfinite(self._ts) and te > self._ts:
+                tau = self._lag_tau(self._u_mapped, self.y)
                 self.y = lag_step(self.y, self._u_mapped, lag_gain(te - self._ts, tau))
             self._ts = max(self._ts, te)
             self._u_mapped = level
         if t <= self._ts or not math.isfinite(self._ts):
             return float(self.y)
+        tau = self._lag_tau(self._u_mapped, self.y)
         return float(lag_step(self.y, self._u_mapped, lag_gain(t - self._ts, tau)))
 
     def update_pwm(self, t: float, pwm: float) -> None:

@@ -189,8 +189,7 @@ def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], r
         feature_params[cand.input_name] = cand.model_params(params)
     lag_delayed = _lag_on_the_delayed_command(inputs, feature_params)
     train, val = list(reference), []
-    pwm_free = set(inputs) <= {c.INPUT_BATTERY_VOLTAGE, *rename.values(), cand.input_name,
-                               *([ef.PWM_LAG] if lag_delayed else [])}
+    pwm_free = set(inputs) <= {c.INPUT_BATTERY_VOLTAGE, *rename.values(), cand.input_name, *lag_delayed}
     if cand.on_reference is not None and reference_params and params and pwm_free:
         # only when every command-derived input is the effect's own: the mapping would distort others
         train = [cand.on_reference(s, params, reference_params) for s in reference]
@@ -222,16 +221,18 @@ def retrain(model: NetworkModel, cand: fx.Candidate, params: dict[str, float], r
     return cast("NetworkModel", train_model(train, val, phi0=phi0, **kw).model)
 
 
-def _lag_on_the_delayed_command(inputs: Sequence[str], feature_params: dict[str, dict[str, float]]) -> bool:
-    """Where the model has both a lag and a dead time, the lag acts on the command as the ESC
-    gets it (``pwm_lag``'s ``delay_s``, set in place): a lag on the undelayed command would carry
-    the timing the dead time removes, and a dead time added after a lag could not show. True
-    when it did."""
-    if ef.PWM_LAG not in inputs or ef.PWM_DELAYED not in inputs:
-        return False
+def _lag_on_the_delayed_command(inputs: Sequence[str], feature_params: dict[str, dict[str, float]]) -> list[str]:
+    """Where the model has a dead time and a lag (``ef.DELAYABLE_LAGS``: the rotor's, or the
+    spin-down's), the lag acts on the command as the ESC gets it (its ``delay_s``, set in place):
+    a lag on the undelayed command would carry the timing the dead time removes, and a dead time
+    added after a lag could not show. The lags it set."""
+    if ef.PWM_DELAYED not in inputs:
+        return []
     delay = dict(ef.DEFAULT_PARAMS[ef.PWM_DELAYED], **feature_params.get(ef.PWM_DELAYED, {}))["delay_s"]
-    feature_params[ef.PWM_LAG] = {**feature_params.get(ef.PWM_LAG, {}), "delay_s": float(delay)}
-    return True
+    lags = [name for name in ef.DELAYABLE_LAGS if name in inputs]
+    for name in lags:
+        feature_params[name] = {**feature_params.get(name, {}), "delay_s": float(delay)}
+    return lags
 
 
 def warm_start_weights(model: NetworkModel, inputs: Sequence[str], train: Sequence[Signals],
