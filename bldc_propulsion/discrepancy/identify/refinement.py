@@ -77,6 +77,13 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
     if "motor_heating" in ev and (out.best is None or out.best in RESPONSE_EFFECTS) \
             and _heating_changed(ev["motor_heating"], run, progress):
         out.best, out.params = "motor_heating", {"tau_s": HEATING_TAU_S}
+    elif out.best == "motor_heating" and not _heating_changed(ev["motor_heating"], run, progress) \
+            and ev["motor_heating"].verdict.startswith("not new"):
+        # the scores' own proposal, from data that never warm the winding: their thermal state's
+        # slow feature fits what a slower spin-down leaves too (a foreign coasting ESC's measured
+        # data, hottest state 0.0x, took heating first and the spin-down was never tried on a
+        # model that could still learn it); the response is asked instead
+        out.best = None
     if (out.best is not None and out.best not in RESPONSE_EFFECTS) \
             or not _response_in_question(ev, out.best, run, rmse):
         if run.verdict is not None:  # identified in an earlier round: that verdict still holds
