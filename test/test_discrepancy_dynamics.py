@@ -448,6 +448,28 @@ def test_heating_is_not_new_where_the_measured_data_never_warm_the_winding(monke
     assert verdict(Heating(0.0, 0.0, 0.5, 1.0, 1000.0))[:2] == (False, "not significant")
 
 
+def test_heating_the_scores_propose_first_from_cool_data_leaves_the_response_to_be_asked(monkeypatch):
+    """The scores propose motor_heating first on data that never warm the winding (a foreign
+    coasting ESC's falls, hottest state 0.06): it is not new, and the response, identified, names
+    the spin-down that changed. Warm data whose heating the identification shows keep it first."""
+    from bldc_propulsion.discrepancy.identify import refinement
+    from bldc_propulsion.discrepancy.identify.heating import HEATING_MIN_STATE, Heating
+
+    slower = idf.StepChange(0.8, 0.15, 5.28, 1e-6, 12, 23, 1.1)
+    dyn = idf.Dynamics(0.02, 0.15, 0.4, 5.0)
+
+    def first(heat: Heating) -> str | None:
+        monkeypatch.setattr(refinement, "identify_heating", lambda m, r: heat)
+        run = idf.Identification([], ["the reference"], 0.01, 0.10,
+                                 idf.Response(dyn, dyn, idf.StepDynamics(None, None, slower)))
+        ev = {"motor_heating": _evidence("motor_heating", "new", 0.145, 1e-4),
+              "spin_down_asymmetry": _evidence("spin_down_asymmetry", "structural", 0.46, 5e-5)}
+        return idf.refine(Proposal(ev, "motor_heating", []), run, (102.4, 21.9), lambda _: None).best
+
+    assert first(Heating(-29.3, 0.0, 0.4 * HEATING_MIN_STATE, 1.0, 917.0)) == "spin_down_asymmetry"
+    assert first(Heating(-29.3, 0.0, 0.5, 1.0, 917.0)) == "motor_heating"
+
+
 def test_a_response_effect_tried_from_the_scores_is_identified_first():
     """A member of the response family that the workflow will try on its scores alone (it removes
     ``min_effect`` of the measured residual, though not significantly) is identified on the

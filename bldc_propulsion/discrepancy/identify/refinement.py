@@ -81,7 +81,7 @@ def refine(proposal: Proposal, run: Identification, rmse: tuple[float, float], p
             and ev["motor_heating"].verdict.startswith("not new"):
         # the scores' own proposal, from data that never warm the winding: their thermal state's
         # slow feature fits what a slower spin-down leaves too (a foreign coasting ESC's measured
-        # data, hottest state 0.0x, took heating first and the spin-down was never tried on a
+        # data, hottest state 0.06, took heating first and the spin-down was never tried on a
         # model that could still learn it); the response is asked instead
         out.best = None
     if (out.best is not None and out.best not in RESPONSE_EFFECTS) \
