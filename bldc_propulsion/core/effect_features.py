@@ -132,15 +132,22 @@ def _start(grid: np.ndarray, pwm_t: np.ndarray) -> float:
 
 
 # --- batch (offline) -------------------------------------------------------------------------------
+def _at_the_esc(name: str, grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray,
+                params: Mapping[str, float] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A lag's input: the command as it reaches the ESC (after the optional ``delay_s``), at rest
+    before the first, on the grid merged with its arrival times; and the grid's positions."""
+    arrive = pwm_t + _optional(params or {}, name, "delay_s", 0.0)
+    times, pos = _merged(grid, arrive)
+    return times, pos, np.where(times < arrive[0], REST_PWM, _held(arrive, pwm, times))
+
+
 def pwm_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, volt_t: np.ndarray, volt: np.ndarray,
             params: Mapping[str, float] | None = None) -> np.ndarray:
     """Command through a first-order lag of time constant ``tau_s``, at rest before the first
     command; with ``delay_s`` (optional) the command as it reaches the ESC after that dead time,
     so that a lag and a dead time in one model both act on the command the ESC acts on."""
     tau = _param(params, PWM_LAG, "tau_s")
-    et = pwm_t + _optional(params or {}, PWM_LAG, "delay_s", 0.0)  # when each command reaches the ESC
-    times, pos = _merged(grid, et)
-    u = np.where(times < et[0], REST_PWM, _held(et, pwm, times))  # at rest before the first command
+    times, pos, u = _at_the_esc(PWM_LAG, grid, pwm_t, pwm, params)
     y: np.ndarray = lag_on_times(times, u, tau, REST_PWM)[pos]
     return y
 
@@ -165,9 +172,7 @@ def pwm_asymmetric_lag(grid: np.ndarray, pwm_t: np.ndarray, pwm: np.ndarray, vol
     with ``delay_s`` (optional) after that dead time, as ``pwm_lag``."""
     up = _param(params, PWM_ASYMMETRIC_LAG, "tau_up_s")
     down = _param(params, PWM_ASYMMETRIC_LAG, "tau_down_s")
-    et = pwm_t + _optional(params or {}, PWM_ASYMMETRIC_LAG, "delay_s", 0.0)  # when each command reaches the ESC
-    times, pos = _merged(grid, et)
-    u = np.where(times < et[0], REST_PWM, _held(et, pwm, times))
+    times, pos, u = _at_the_esc(PWM_ASYMMETRIC_LAG, grid, pwm_t, pwm, params)
     y: np.ndarray = asymmetric_lag_on_times(times, u, up, down, REST_PWM)[pos]
     return y
 
@@ -289,8 +294,8 @@ class StreamingFeature:
         self.pwm: float | None = None
         self.volts: float | None = None
         self._history: deque[tuple[float, float]] = deque()  # (t, pwm) for the delay
-        # MAPPED_LAGS: commands not yet at the ESC (arrival time, mapped level), the low-pass state
-        # at time self._ts and the mapped level held since then
+        # MAPPED_LAGS and a delayed lag (``_queued``): commands not yet at the ESC (arrival time,
+        # mapped level), the lag's state at time self._ts and the mapped level held since then
         self._pending: deque[tuple[float, float]] = deque()
         self._ts = -math.inf
         self._u_mapped = 0.0
@@ -321,69 +326,62 @@ class StreamingFeature:
             if self.name in (PWM_LAG, PWM_ASYMMETRIC_LAG):
                 self.y = REST_PWM
 
-    def _update_mapped(self, t: float, pwm: float) -> None:
-        d, thr, _, _ = _mapping(self.name, self.params)
-        level = float(_map_level(float(pwm), thr))
-        if self.pwm is None:  # steady state at the first mapped command
-            self.y = level
-            self._u_mapped = level
+    def _queued(self) -> bool:
+        """Whether commands reach the lag through the queue: the mapped inputs, and a lag with a
+        dead time (``delay_s``)."""
+        return self.name in MAPPED_LAGS or (self.name in DELAYABLE_LAGS and self.params.get("delay_s", 0.0) > 0.0)
+
+    def _enqueue(self, t: float, pwm: float) -> None:
+        if self.name in MAPPED_LAGS:
+            delay, thr, _, _ = _mapping(self.name, self.params)
+            level = float(_map_level(float(pwm), thr))
+            first = level  # steady state at the first mapped command
+        else:
+            delay, level, first = self.params["delay_s"], float(pwm), REST_PWM  # at rest until it arrives
+        if self.pwm is None:
+            self.y = first
+            self._u_mapped = first
         self.pwm = float(pwm)
         self.t = t
-        self._pending.append((t + d, level))
+        self._pending.append((t + delay, level))
 
-    def _mapped_value(self, t: float) -> float:
-        _, _, tau, coast = _mapping(self.name, self.params)
+    def _queue_taus(self) -> tuple[float, float]:
+        """The queued lag's two time constants: the mapped inputs' low-pass and its time constant
+        while the mapped command is 0 (``_mapping``), the asymmetric lag's up and down, the
+        lag's own for both."""
+        if self.name in MAPPED_LAGS:
+            _, _, tau, coast = _mapping(self.name, self.params)
+            return tau, coast
+        if self.name == PWM_ASYMMETRIC_LAG:
+            return self.params["tau_up_s"], self.params["tau_down_s"]
+        return self.params["tau_s"], self.params["tau_s"]
+
+    def _tau_towards(self, u: float, taus: tuple[float, float]) -> float:
+        """The time constant towards the held level ``u`` from the state (``_queue_taus``)."""
+        if self.name in MAPPED_LAGS:
+            return taus[1] if u <= 0.0 else taus[0]
+        return taus[0] if u > self.y else taus[1]
+
+    def _queued_value(self, t: float) -> float:
+        taus = self._queue_taus()
         while self._pending and self._pending[0][0] <= t:
             te, level = self._pending.popleft()
             if te > self._ts:
                 if math.isfinite(self._ts):
-                    g = lag_gain(te - self._ts, coast if self._u_mapped <= 0.0 else tau)
+                    g = lag_gain(te - self._ts, self._tau_towards(self._u_mapped, taus))
                     self.y = lag_step(self.y, self._u_mapped, g)
                 self._ts = te
             self._u_mapped = level
         if t <= self._ts or not math.isfinite(self._ts):
             return float(self.y)
-        g = lag_gain(t - self._ts, coast if self._u_mapped <= 0.0 else tau)
+        g = lag_gain(t - self._ts, self._tau_towards(self._u_mapped, taus))
         return float(lag_step(self.y, self._u_mapped, g))
-
-    def _delayed_lag(self) -> bool:
-        return self.name in DELAYABLE_LAGS and self.params.get("delay_s", 0.0) > 0.0
-
-    def _lag_tau(self, u: float, y: float) -> float:
-        """The time constant towards ``u`` from ``y`` (the asymmetric lag's by direction)."""
-        if self.name == PWM_ASYMMETRIC_LAG:
-            return self.params["tau_up_s"] if u > y else self.params["tau_down_s"]
-        return self.params["tau_s"]
-
-    def _update_delayed_lag(self, t: float, pwm: float) -> None:
-        if self.pwm is None:  # at rest until the first command reaches the ESC
-            self.y = REST_PWM
-            self._u_mapped = REST_PWM
-        self.pwm = float(pwm)
-        self.t = t
-        self._pending.append((t + self.params["delay_s"], float(pwm)))
-
-    def _delayed_lag_value(self, t: float) -> float:
-        while self._pending and self._pending[0][0] <= t:
-            te, level = self._pending.popleft()
-            if math.isfinite(self._ts) and te > self._ts:
-                tau = self._lag_tau(self._u_mapped, self.y)
-                self.y = lag_step(self.y, self._u_mapped, lag_gain(te - self._ts, tau))
-            self._ts = max(self._ts, te)
-            self._u_mapped = level
-        if t <= self._ts or not math.isfinite(self._ts):
-            return float(self.y)
-        tau = self._lag_tau(self._u_mapped, self.y)
-        return float(lag_step(self.y, self._u_mapped, lag_gain(t - self._ts, tau)))
 
     def update_pwm(self, t: float, pwm: float) -> None:
         if self.t is not None and t < self.t:
             return
-        if self.name in MAPPED_LAGS:
-            self._update_mapped(t, pwm)
-            return
-        if self._delayed_lag():
-            self._update_delayed_lag(t, pwm)
+        if self._queued():
+            self._enqueue(t, pwm)
             return
         if self.t is None:
             self.pwm = float(pwm)
@@ -420,10 +418,8 @@ class StreamingFeature:
     def value(self, t: float) -> float:
         if self.pwm is None:
             return float("nan")
-        if self.name in MAPPED_LAGS:
-            return self._mapped_value(t)
-        if self._delayed_lag():
-            return self._delayed_lag_value(t)
+        if self._queued():
+            return self._queued_value(t)
         if self.name == PWM_ABOVE_START:
             return float(_map_level(float(self.pwm), _start_level(self.params, self.name)))
         if self.name == PWM_DELAYED:
