@@ -222,6 +222,29 @@ def test_a_start_level_is_never_placed_at_a_level_where_the_rotor_got_no_drive()
     assert idf.start_level_within(0.052, (0.0544, math.inf)) == pytest.approx(0.0549)
 
 
+def test_where_the_holds_cannot_judge_a_start_level_the_identification_says_so():
+    """Hand-made holds: the reference's rotor settles spinning only from PWM 0.060 up, the
+    measured one spins wherever the reference's does and sits at rest at 0.052 and 0.055 (its
+    start level 0.0565 is unseen: nothing says the reference drives there). Nothing is named
+    and the reason says the start level is judged only from 0.060 and that two holds lie below;
+    with a reference rotor spinning at 0.054 the same holds name the start level."""
+    ref_lv = np.array([0.060, 0.065, 0.070, 0.080, 0.090])
+    ref = idf.Holds(ref_lv, 4000 * (ref_lv - 0.05), np.ones(5, bool), np.zeros(5, bool), np.full(5, 12.0),
+                    np.zeros(5))
+    meas_lv = np.array([0.052, 0.055, 0.062, 0.075, 0.085])
+    meas_w = np.where(meas_lv < 0.0565, 0.0, 4000 * (meas_lv - 0.05))
+    meas = idf.Holds(meas_lv, meas_w, np.ones(5, bool), np.zeros(5, bool), np.full(5, 12.0), np.zeros(5))
+    rose, why = idf.start_level_rose(meas, ref)
+    assert not rose and "below PWM 0.0600 cannot show" in why and "2 measured hold(s)" in why, why
+    steps = idf.StepDynamics(None, None, None, start_level=(rose, why))
+    dyn = idf.Dynamics(0.02, 0.1, 0.2, 1.0, 0.05)
+    choice, reason = idf.which_dynamic(dyn, dyn, steps=steps)
+    assert choice is None and reason.endswith(why) and "ESC start level" in reason, reason
+    low = np.r_[0.054, ref_lv]
+    ref2 = idf.Holds(low, 4000 * (low - 0.05), np.ones(6, bool), np.zeros(6, bool), np.full(6, 12.0), np.zeros(6))
+    assert idf.start_level_rose(meas, ref2)[0]
+
+
 def test_a_start_level_above_where_the_settled_map_starts_gates_the_map():
     """Hand-made identifications of esc_deadband's parameters. The project's ESC moves its map:
     the settled holds start it at 0.060, the holds' gap agrees, the input starts the map at the

@@ -183,7 +183,11 @@ def which_dynamic(meas: Dynamics, ref: Dynamics | None, exclude: Sequence[str] =
         change, margin, why = changes[name]
         if change >= margin:
             return name, why
-    return None, "the identified dead time and time constants did not change beyond their margins"
+    why = "the identified dead time and time constants did not change beyond their margins"
+    if steps is not None and steps.start_level[1] and "esc_deadband" not in exclude:
+        # what the holds could judge of the start level, and where they could not
+        why += f"; the ESC start level: {steps.start_level[1]}"
+    return None, why
 
 
 def _fit_changes(meas: Dynamics, ref: Dynamics) -> dict[str, Change]:

@@ -111,11 +111,18 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     lag would take for a slower spin-down)."""
     found = _no_drive(measured, reference)
     if found is None:
-        return False, "the reference recordings hold too few levels at which the rotor settles spinning"
+        return False, ("the reference recordings hold too few levels at which the rotor settles spinning: "
+                       "the holds cannot show a start level")
     none, _, _, expect, lv_r = found
     if not none.any():
+        # below the reference's lowest driven hold nothing says the reference's ESC drives, so a
+        # rotor slow or at rest there is no evidence either way: say where the holds stop judging
+        below = int(np.sum(measured.levels < lv_r[0]))
         return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
-                       f"measured rotor spins as well")
+                       f"measured rotor spins as well; a start level below PWM {lv_r[0]:.4f} cannot show in "
+                       f"these recordings ({below} measured hold(s) lie below it; the reference's rotor is not "
+                       f"seen settled there: holds there long enough to settle, or starts from rest, on both "
+                       f"sets would show one)")
     k = int(np.argmax(np.where(none, measured.levels, -np.inf)))
     return True, (f"the rotor runs at less than half the reference's speed, or stops, at {int(none.sum())} held "
                   f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
