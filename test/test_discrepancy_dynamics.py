@@ -13,6 +13,7 @@ whole recordings is held equal on both sets (``_SAME``), so only the step respon
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from pathlib import Path
@@ -25,7 +26,7 @@ from bldc_propulsion.discrepancy import identify as idf
 from bldc_propulsion.discrepancy import scoring as sc
 from bldc_propulsion.discrepancy.base import Proposal, Refined
 from bldc_propulsion.discrepancy.results import Evidence
-from bldc_propulsion.recordings import load_signals
+from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.sim import random_bench as rb
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -243,6 +244,59 @@ def test_where_the_holds_cannot_judge_a_start_level_the_identification_says_so()
     low = np.r_[0.054, ref_lv]
     ref2 = idf.Holds(low, 4000 * (low - 0.05), np.ones(6, bool), np.zeros(6, bool), np.full(6, 12.0), np.zeros(6))
     assert idf.start_level_rose(meas, ref2)[0]
+
+
+def _ramp_from_rest(start: float, coasting_from: float = 0.0) -> Signals:
+    """A hand-made recording: 1 s at stop, then a ramp 0.050 -> 0.070 over 10 s (50 Hz frames);
+    the rotor's steady speed 5000 (level - start) rad/s reached through a 0.2 s lag, plus a
+    rotor coasting down from ``coasting_from`` rad/s at t = 0 with a 20 s time constant."""
+    from bldc_propulsion.recordings import Signals
+
+    t = np.arange(0.0, 12.0, 0.005)
+    pt = np.arange(0.0, 12.0, 0.02)
+    pv = np.where(pt < 1.0, c.PWM_STOP, np.minimum(0.05 + 0.002 * (pt - 1.0), 0.07)).round(5)
+    level = pv[np.searchsorted(pt, t, side="right") - 1]
+    target = np.maximum(5000.0 * (level - start), 0.0)
+    w = np.zeros_like(t)
+    for k in range(1, len(t)):
+        w[k] = w[k - 1] + (target[k] - w[k - 1]) * 0.005 / 0.2
+    w = np.maximum(w, coasting_from * np.exp(-t / 20.0))
+    return Signals("hand", "0", t, level, np.full(len(t), 12.0), w, None, pwm_events=(pt, pv),
+                   voltage_events=(t, np.full(len(t), 12.0)))
+
+
+def test_the_level_a_rotor_leaves_rest_at_on_a_rising_command():
+    """A ramp from rest: the rotor is first seen above 20 rad/s a little above where its drive
+    starts (0.053 + 20/5000, plus the lag's delay on a 0.002/s ramp); a rotor still turning when
+    the command rises is not leaving rest (inf)."""
+    seen = idf.leaves_rest_at(_ramp_from_rest(0.053), 20.0)
+    assert 0.057 <= seen <= 0.0575, seen
+    assert idf.leaves_rest_at(_ramp_from_rest(0.053, coasting_from=300.0), 20.0) == math.inf
+
+
+def test_a_rotor_at_rest_where_the_reference_leaves_rest_had_no_drive():
+    """Hand-made holds: the reference's rotor settles spinning only from PWM 0.060 (1000 rad/s at
+    the top) but leaves rest from 0.0518. A measured hold at rest at 0.0532 had no drive (the
+    start level rose, and bounds it from below); at 0.0525 (within SHIFT_MIN_RISE of 0.0518), at
+    30 rad/s (above 2 % of the top), still rising, or with no start from rest seen on the
+    reference, it is no evidence."""
+    ref_lv = np.array([0.060, 0.065, 0.070, 0.080, 0.090, 0.100])
+    ref = idf.Holds(ref_lv, 20000 * (ref_lv - 0.05), np.ones(6, bool), np.zeros(6, bool), np.full(6, 12.0),
+                    np.zeros(6), driven_from=0.0518)
+
+    def meas(level: float, speed: float, rising: bool = False) -> idf.Holds:
+        lv = np.array([level, 0.070, 0.090])
+        return idf.Holds(lv, np.array([speed, 400.0, 800.0]), np.array([True, True, True]),
+                         np.array([rising, False, False]), np.full(3, 12.0), np.zeros(3))
+
+    rose, why = idf.start_level_rose(meas(0.0532, 0.0), ref)
+    assert rose and "PWM 0.0532" in why and "from PWM 0.0518" in why, why
+    assert idf.no_drive_bounds(meas(0.0532, 0.0), ref) == (0.0532, 0.070)
+    assert not idf.start_level_rose(meas(0.0525, 0.0), ref)[0]
+    assert not idf.start_level_rose(meas(0.0532, 30.0), ref)[0]
+    assert not idf.start_level_rose(meas(0.0532, 0.0, rising=True), ref)[0]
+    unseen = dataclasses.replace(ref, driven_from=math.inf)
+    assert not idf.start_level_rose(meas(0.0532, 0.0), unseen)[0]
 
 
 def test_a_start_level_above_where_the_settled_map_starts_gates_the_map():

@@ -24,6 +24,7 @@ from .static_shape import (
     Holds,
     StartLevelShift,
     holds,
+    leaves_rest_at,
     no_drive_bounds,
     start_level_rose,
     start_level_shift,
@@ -34,6 +35,7 @@ from .steps import TAU_MIN_RATIO, StepChange, StepResponse, step_responses
 __all__ = ["DYNAMIC_EFFECTS", "GAP_RATIO", "HEATING_TAU_S", "RESPONSE_EFFECTS", "SHIFT_MIN_HOLDS",
            "START_LEVEL_MARGIN", "TAU_MIN_RATIO", "Dynamics", "Heating", "Holds", "Identification", "Response",
            "StartLevelShift", "StepChange", "StepDynamics", "StepResponse", "compare_steps", "holds",
-           "identify_dynamics", "identify_heating", "identify_start_level", "no_drive_bounds", "refine",
+           "identify_dynamics", "identify_heating", "identify_start_level", "leaves_rest_at", "no_drive_bounds",
+           "refine",
            "start_level_rose", "start_level_shift", "start_level_within", "step_dynamics", "step_responses",
            "which_dynamic"]

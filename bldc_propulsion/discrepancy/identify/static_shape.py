@@ -54,6 +54,9 @@ class Holds:
     rising: np.ndarray  #: the speed was still rising (spinning up towards the level's speed)
     voltage: np.ndarray  #: mean filtered battery voltage over the hold's end (V; NaN if none)
     thermal: np.ndarray  #: ``thermal_load`` state at the hold's end (HEATING_TAU_S)
+    #: the lowest level the rotor was seen leave rest at on a rising command (``leaves_rest_at``;
+    #: inf: never seen): the ESC drives there and at every level above
+    driven_from: float = math.inf
 
 
 def holds(signals: Sequence[Signals]) -> Holds:
@@ -83,7 +86,43 @@ def holds(signals: Sequence[Signals]) -> Holds:
                          drift > 2.0 * noise, float(np.mean(volt)) if len(volt) else math.nan,
                          float(np.nanmean(th[last])) if np.isfinite(th[last]).any() else math.nan))
     a = np.array(rows, dtype=float).reshape(-1, 6)
-    return Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
+    out = Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
+    moving = SPINNING_MIN_SHARE * float(np.max(out.speed[out.settled], initial=0.0))
+    if moving > 0.0:
+        out.driven_from = min((leaves_rest_at(s, moving) for s in signals), default=math.inf)
+    return out
+
+
+#: How long the rotor must have been at rest before a command rise for that rise to be a start
+#: from rest (a rotor still coasting down is turned by what it had, not by the drive).
+REST_BEFORE_S = 0.3
+
+
+def leaves_rest_at(s: Signals, moving_rad_s: float) -> float:
+    """The lowest command level at which the rotor was seen leaving rest (first above
+    ``moving_rad_s`` after REST_BEFORE_S below it) while the command only rose from where the
+    rotor was at rest; inf when never seen. A start up a slow ramp (a sweep from stop) places
+    the level the ESC first drives at, a step from rest bounds it from above: either way the ESC
+    drives at that level, and its map rises with the level, so it drives at every level above.
+    The tachometer reports a turning rotor a revolution late, so the level is, if anything, high."""
+    pt, pv = s.pwm_events
+    w = np.nan_to_num(s.speed, nan=0.0)
+    best, k, n = math.inf, 1, len(pt)
+    while k < n:
+        if at_stop(float(pv[k])) or pv[k] <= pv[k - 1]:
+            k += 1
+            continue
+        before = (s.t >= pt[k] - REST_BEFORE_S) & (s.t < pt[k])
+        j = k
+        while j + 1 < n and pv[j + 1] >= pv[j]:
+            j += 1
+        if pt[k] >= REST_BEFORE_S + s.t[0] and before.sum() >= 3 and not (w[before] > moving_rad_s).any():
+            end = pt[j + 1] if j + 1 < n else s.t[-1]
+            seen = np.flatnonzero((s.t >= pt[k]) & (s.t < end) & (w > moving_rad_s))
+            if len(seen):
+                best = min(best, float(pv[np.searchsorted(pt, s.t[seen[0]], side="right") - 1]))
+        k = j + 1
+    return best
 
 
 def _spinning(h: Holds) -> np.ndarray:
@@ -108,7 +147,16 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
     the range where the reference's rotor settles spinning, ending (not rising) below
     NO_DRIVE_FRACTION of the reference's speed at that level, had no drive: the start level rose.
     Read from the holds, not from a fit of the throttle map (which the network re-weights, and a
-    lag would take for a slower spin-down)."""
+    lag would take for a slower spin-down). Below the levels where the reference's rotor settles
+    spinning, a measured rotor at rest at the end of a hold SHIFT_MIN_RISE or more above the
+    level the reference's rotor was seen leaving rest at (``_at_rest_where_driven``) had no drive
+    either: a coasting rotor takes seconds to settle at a low level, a start from rest does not."""
+    rest = _at_rest_where_driven(measured, reference)
+    if rest.any():
+        k = int(np.argmax(np.where(rest, measured.levels, -np.inf)))
+        return True, (f"the rotor is at rest at the end of {int(rest.sum())} held level(s) up to PWM "
+                      f"{measured.levels[k]:.4f} on the measured data, where the reference's rotor leaves rest "
+                      f"from PWM {reference.driven_from:.4f} up")
     found = _no_drive(measured, reference)
     if found is None:
         return False, ("the reference recordings hold too few levels at which the rotor settles spinning: "
@@ -128,6 +176,19 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                   f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
                   f"at the end of the hold, not rising, where the reference's settles at {expect[k]:.0f} rad/s; "
                   f"its rotor spins from PWM {lv_r[0]:.4f})")
+
+
+def _at_rest_where_driven(measured: Holds, reference: Holds) -> np.ndarray:
+    """The measured holds that end at rest (not rising, below SPINNING_MIN_SHARE of the
+    reference's fastest settled hold) at least SHIFT_MIN_RISE above the lowest level the
+    reference's rotor was seen leaving rest at: the reference's ESC drives there, and a drive
+    that turned the reference's rotor from rest would turn this one (a supply low enough to
+    stall it there would show at every level)."""
+    top = float(np.max(reference.speed[reference.settled], initial=0.0))
+    if not math.isfinite(reference.driven_from) or top <= 0.0:
+        return np.zeros(len(measured.levels), bool)
+    return (~measured.rising & (measured.speed < SPINNING_MIN_SHARE * top)
+            & (measured.levels >= reference.driven_from + SHIFT_MIN_RISE - 1e-9))
 
 
 def _no_drive(measured: Holds, reference: Holds
@@ -157,9 +218,12 @@ def no_drive_bounds(measured: Holds, reference: Holds) -> tuple[float, float] | 
     where the rotor ends at rest (where the reference's spins), at or below the lowest held
     level above that with drive (inf: none held). None when no held level ends at rest."""
     found = _no_drive(measured, reference)
-    if found is None or not found[1].any():
+    rest = _at_rest_where_driven(measured, reference)
+    drive = np.zeros(len(measured.levels), bool)
+    if found is not None:
+        rest, drive = rest | found[1], found[2]
+    if not rest.any():
         return None
-    rest, drive = found[1], found[2]
     floor = float(np.max(measured.levels[rest]))
     above = drive & (measured.levels > floor)
     return floor, float(np.min(measured.levels[above])) if above.any() else math.inf
