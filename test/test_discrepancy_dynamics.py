@@ -228,7 +228,8 @@ def test_where_the_holds_cannot_judge_a_start_level_the_identification_says_so()
     measured one spins wherever the reference's does and sits at rest at 0.052 and 0.055 (its
     start level 0.0565 is unseen: nothing says the reference drives there). Nothing is named
     and the reason says the start level is judged only from 0.060 and that two holds lie below;
-    with a reference rotor spinning at 0.054 the same holds name the start level."""
+    with the reference's rotor seen leaving rest at 0.0545, only from 0.0555; seen at 0.0518, or
+    spinning settled at 0.054, the same holds name the start level."""
     ref_lv = np.array([0.060, 0.065, 0.070, 0.080, 0.090])
     ref = idf.Holds(ref_lv, 4000 * (ref_lv - 0.05), np.ones(5, bool), np.zeros(5, bool), np.full(5, 12.0),
                     np.zeros(5))
@@ -241,6 +242,12 @@ def test_where_the_holds_cannot_judge_a_start_level_the_identification_says_so()
     dyn = idf.Dynamics(0.02, 0.1, 0.2, 1.0, 0.05)
     choice, reason = idf.which_dynamic(dyn, dyn, steps=steps)
     assert choice is None and reason.endswith(why) and "ESC start level" in reason, reason
+    # the reference's rotor seen leaving rest at 0.0545: the holds at rest at 0.052 and 0.055 lie
+    # below it or within 0.001 of it, so they still show nothing, and the line says from where
+    seen = dataclasses.replace(ref, driven_from=0.0545)
+    rose, why = idf.start_level_rose(meas, seen)
+    assert not rose and "leaves rest from PWM 0.0545" in why and "below PWM 0.0555 cannot show" in why, why
+    assert idf.start_level_rose(meas, dataclasses.replace(ref, driven_from=0.0518))[0]  # 0.055 at rest
     low = np.r_[0.054, ref_lv]
     ref2 = idf.Holds(low, 4000 * (low - 0.05), np.ones(6, bool), np.zeros(6, bool), np.full(6, 12.0), np.zeros(6))
     assert idf.start_level_rose(meas, ref2)[0]

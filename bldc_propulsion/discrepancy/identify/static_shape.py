@@ -163,14 +163,16 @@ def start_level_rose(measured: Holds, reference: Holds) -> tuple[bool, str]:
                        "the holds cannot show a start level")
     none, _, _, expect, lv_r = found
     if not none.any():
-        # below the reference's lowest driven hold nothing says the reference's ESC drives, so a
-        # rotor slow or at rest there is no evidence either way: say where the holds stop judging
+        # below the reference's lowest settled hold only a rotor at rest where the reference's
+        # leaves rest is evidence: say where the holds stop judging
         below = int(np.sum(measured.levels < lv_r[0]))
-        return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor spins) the "
-                       f"measured rotor spins as well; a start level below PWM {lv_r[0]:.4f} cannot show in "
-                       f"these recordings ({below} measured hold(s) lie below it; the reference's rotor is not "
-                       f"seen settled there: holds there long enough to settle, or starts from rest, on both "
-                       f"sets would show one)")
+        judged = min(lv_r[0], reference.driven_from + SHIFT_MIN_RISE)
+        seen = (f"; below it the reference's rotor leaves rest from PWM {reference.driven_from:.4f}, and no "
+                f"measured hold from PWM {judged:.4f} up ends at rest" if judged < lv_r[0] else "")
+        return False, (f"at every held level from PWM {lv_r[0]:.4f} (where the reference's rotor settles "
+                       f"spinning) the measured rotor spins as well{seen}; a start level below PWM {judged:.4f} "
+                       f"cannot show in these recordings ({below} measured hold(s) lie below PWM {lv_r[0]:.4f}: "
+                       f"holds there long enough to settle, or starts from rest, on both sets would show one)")
     k = int(np.argmax(np.where(none, measured.levels, -np.inf)))
     return True, (f"the rotor runs at less than half the reference's speed, or stops, at {int(none.sum())} held "
                   f"level(s) up to PWM {measured.levels[k]:.4f} on the measured data ({measured.speed[k]:.0f} rad/s "
