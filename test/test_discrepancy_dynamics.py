@@ -275,10 +275,19 @@ def _ramp_from_rest(start: float, coasting_from: float = 0.0) -> Signals:
 def test_the_level_a_rotor_leaves_rest_at_on_a_rising_command():
     """A ramp from rest: the rotor is first seen above 20 rad/s a little above where its drive
     starts (0.053 + 20/5000, plus the lag's delay on a 0.002/s ramp); a rotor still turning when
-    the command rises is not leaving rest (inf)."""
+    the command rises is not leaving rest, and one seen above 20 rad/s only briefly (a glitch at
+    0.052) or at rest again before the command stops rising had no drive there."""
     seen = idf.leaves_rest_at(_ramp_from_rest(0.053), 20.0)
     assert 0.057 <= seen <= 0.0575, seen
     assert idf.leaves_rest_at(_ramp_from_rest(0.053, coasting_from=300.0), 20.0) == math.inf
+    # a speed glitch (or a start attempt that fails) at 0.052, the rotor at rest again after it:
+    # no drive there; the ramp's own start is still found
+    glitch = _ramp_from_rest(0.053)
+    glitch.speed[(glitch.t >= 2.0) & (glitch.t < 2.05)] = 80.0
+    assert idf.leaves_rest_at(glitch, 20.0) == seen
+    stalled = _ramp_from_rest(0.053)
+    stalled.speed[stalled.t >= 10.0] = 0.0  # stops turning before the command stops rising
+    assert idf.leaves_rest_at(stalled, 20.0) == math.inf
 
 
 def test_a_rotor_at_rest_where_the_reference_leaves_rest_had_no_drive():

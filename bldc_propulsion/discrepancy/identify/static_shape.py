@@ -104,7 +104,10 @@ def leaves_rest_at(s: Signals, moving_rad_s: float) -> float:
     rotor was at rest; inf when never seen. A start up a slow ramp (a sweep from stop) places
     the level the ESC first drives at, a step from rest bounds it from above: either way the ESC
     drives at that level, and its map rises with the level, so it drives at every level above.
-    The tachometer reports a turning rotor a revolution late, so the level is, if anything, high."""
+    The tachometer reports a turning rotor a revolution late, so the level is, if anything, high.
+    The level is read where the rotor last left rest before the command stopped rising, and it
+    must have turned since for REST_BEFORE_S: a start attempt that fails, or a glitch of the
+    speed, is no drive."""
     pt, pv = s.pwm_events
     w = np.nan_to_num(s.speed, nan=0.0)
     best, k, n = math.inf, 1, len(pt)
@@ -118,9 +121,12 @@ def leaves_rest_at(s: Signals, moving_rad_s: float) -> float:
             j += 1
         if pt[k] >= REST_BEFORE_S + s.t[0] and before.sum() >= 3 and not (w[before] > moving_rad_s).any():
             end = pt[j + 1] if j + 1 < n else s.t[-1]
-            seen = np.flatnonzero((s.t >= pt[k]) & (s.t < end) & (w > moving_rad_s))
-            if len(seen):
-                best = min(best, float(pv[np.searchsorted(pt, s.t[seen[0]], side="right") - 1]))
+            inside = np.flatnonzero((s.t >= pt[k]) & (s.t < end))
+            still = np.flatnonzero(w[inside] <= moving_rad_s)
+            # the rotor turns from the sample after the last one at rest to the end of the rise
+            after = int(still[-1]) + 1 if len(still) else 0
+            if after < len(inside) and end - s.t[inside[after]] >= REST_BEFORE_S:
+                best = min(best, float(pv[np.searchsorted(pt, s.t[inside[after]], side="right") - 1]))
         k = j + 1
     return best
 
