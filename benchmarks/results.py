@@ -604,6 +604,22 @@ def _health_goals(f: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _health_could_show(f: dict[str, Any]) -> list[str]:
+    """The goal's figure over the runs whose rotor turned long enough after the onset for the
+    fault to show (a record without it: nothing)."""
+    if "turning_share" not in f:
+        return []
+    within = f["detect_within_s"]
+    need = f["turning_share"] * within
+    parts = [f"{name} {_share(f['faults'][name]['counts']['could_show_detected_and_named_right'], c)}"
+             for name in f["fault_order"] if (c := f["faults"][name]["counts"]["could_show"]) is not None]
+    return [f"A fault shows only while the rotor turns, and random steps hold the motor stopped or below its "
+            f"start level for seconds, which a multirotor in flight never does. Over the runs whose simulated "
+            f"rotor turned (above {100 * f['min_speed_fraction']:.0f} % of the flight's fastest) for at "
+            f"least {need:g} s of the {within:g} s after the onset, detected within {within:g} s and named right "
+            "first: " + "; ".join(parts) + ".", ""]
+
+
 def render_health(f: dict[str, Any]) -> list[str]:
     """bench_health.py: per fault what the monitor said first after the onset, the healthy
     flights' false alarms, the spread per bench, and the issue's goals against them."""
@@ -633,7 +649,7 @@ def render_health(f: dict[str, Any]) -> list[str]:
               f"up to {f['name_within_s']:g} s after the onset; \"named right ≤ {within:g} s\" also asks the name "
               f"within {within:g} s. Delays: onset to detection, over the runs detected in time; size error: "
               "reported minus injected size (propeller_damage: the fraction of CT and CP lost), over the runs "
-              "named right.", "",
+              "named right.", "", *_health_could_show(f),
               f"Healthy flights: {h['flights']} of {f['healthy_flight_s']:.0f} s, {h['hours_monitored']:.2f} h "
               f"monitored (after each flight's first full window), **{h['false_alarms']} false alarm"
               f"{'s' if h['false_alarms'] != 1 else ''}** ({num(h['false_alarms_per_hour'])} per hour)"
