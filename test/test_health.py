@@ -317,3 +317,25 @@ def test_cli_health_refuses_a_recording_without_speed_in_one_line(model_path, tm
             w.write_float64("battery/adc", k * 0.02, 6.0)
     err = _one_line_error(capsys, "--model", str(model_path), str(bag))
     assert "rotor/speed" in err and "tachometer/adc" in err
+
+
+def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
+    """bench_health's "could show" measure by hand: a rotor at rest until 3 s, then at 100 rad/s
+    (the flight's fastest): of the 5 s after an onset at 1 s it turned 3 s; after 4 s, all 5; a
+    rotor below min_speed_fraction of the fastest is not turning. The run's outcome carries it."""
+    import sys
+    from types import SimpleNamespace
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_health import judge, turning_after
+
+    t = np.arange(0.0, 12.0, 0.001)
+    speed = np.where(t >= 3.0, 100.0, 0.0)
+    res = SimpleNamespace(truth_t=t, truth_speed=speed)
+    assert turning_after(res, 1.0) == pytest.approx(3.0, abs=0.002)
+    assert turning_after(res, 4.0) == pytest.approx(5.0, abs=0.002)
+    crawl = 0.9 * HealthConfig().min_speed_fraction * 100.0
+    slow = SimpleNamespace(truth_t=t, truth_speed=np.where(t >= 3.0, 100.0, crawl))
+    assert turning_after(slow, 0.0) == pytest.approx(2.0, abs=0.002)
+    out = judge([], Fault("propeller_damage", 0.1, 1.0), turning_after(res, 1.0))
+    assert out["turning_s"] == pytest.approx(3.0, abs=0.002) and out["name"] is None
