@@ -18,6 +18,7 @@ from scipy import stats
 
 from ... import contract as c
 from ...core import effect_features as ef
+from ...core.features import zero_order_hold
 from ...physics.plant import throttle
 from ...physics.scales import centred_voltage
 from ...recordings import Signals
@@ -87,7 +88,7 @@ def holds(signals: Sequence[Signals]) -> Holds:
                          float(np.nanmean(th[last])) if np.isfinite(th[last]).any() else math.nan))
     a = np.array(rows, dtype=float).reshape(-1, 6)
     out = Holds(a[:, 0], a[:, 1], a[:, 2].astype(bool), a[:, 3].astype(bool), a[:, 4], a[:, 5])
-    moving = SPINNING_MIN_SHARE * float(np.max(out.speed[out.settled], initial=0.0))
+    moving = _moving_speed(out)
     if moving > 0.0:
         out.driven_from = min((leaves_rest_at(s, moving) for s in signals), default=math.inf)
     return out
@@ -126,16 +127,22 @@ def leaves_rest_at(s: Signals, moving_rad_s: float) -> float:
             # the rotor turns from the sample after the last one at rest to the end of the rise
             after = int(still[-1]) + 1 if len(still) else 0
             if after < len(inside) and end - s.t[inside[after]] >= REST_BEFORE_S:
-                best = min(best, float(pv[np.searchsorted(pt, s.t[inside[after]], side="right") - 1]))
+                t_on = s.t[inside[after]]
+                best = min(best, float(zero_order_hold(pt, pv, np.array([t_on]))[0]))
         k = j + 1
     return best
 
 
+def _moving_speed(h: Holds) -> float:
+    """The speed a rotor must exceed to count as turning: SPINNING_MIN_SHARE of the fastest
+    settled hold (0 when none settled)."""
+    return SPINNING_MIN_SHARE * float(np.max(h.speed[h.settled], initial=0.0))
+
+
 def _spinning(h: Holds) -> np.ndarray:
     """The holds at which the rotor settles spinning: settled, not rising, above
-    SPINNING_MIN_SHARE of the fastest settled hold."""
-    top = float(np.max(h.speed[h.settled], initial=0.0))
-    return h.settled & ~h.rising & (h.speed > SPINNING_MIN_SHARE * top)
+    ``_moving_speed``."""
+    return h.settled & ~h.rising & (h.speed > _moving_speed(h))
 
 
 def lowest_spinning_level(h: Holds) -> float | None:
@@ -192,10 +199,10 @@ def _at_rest_where_driven(measured: Holds, reference: Holds) -> np.ndarray:
     reference's rotor was seen leaving rest at: the reference's ESC drives there, and a drive
     that turned the reference's rotor from rest would turn this one (a supply low enough to
     stall it there would show at every level)."""
-    top = float(np.max(reference.speed[reference.settled], initial=0.0))
-    if not math.isfinite(reference.driven_from) or top <= 0.0:
+    moving = _moving_speed(reference)
+    if not math.isfinite(reference.driven_from) or moving <= 0.0:
         return np.zeros(len(measured.levels), bool)
-    return (~measured.rising & (measured.speed < SPINNING_MIN_SHARE * top)
+    return (~measured.rising & (measured.speed < moving)
             & (measured.levels >= reference.driven_from + SHIFT_MIN_RISE - 1e-9))
 
 
