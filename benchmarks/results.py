@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import importlib.metadata
 import json
 import math
 import os
+import platform
 import shlex
 import statistics
 import subprocess
@@ -115,7 +117,8 @@ def command_line(argv: list[str] | None = None) -> str:
 
 def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, command: str | None = None,
                  seconds: float | None = None) -> None:
-    """Write ``figures`` with what produced them (command, date, commit, CPUs) to ``path``, atomically."""
+    """Write ``figures`` with what produced them (command, date, commit, CPUs, the numerical
+    libraries' versions: their releases move fitted floats) to ``path``, atomically."""
     # what produced the figures: not the records (earlier runs write them) nor any markdown (renders)
     dirty = bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".",
                       f":(exclude){RESULTS_DIR.relative_to(ROOT)}", ":(exclude)*.md"))
@@ -125,6 +128,8 @@ def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, comma
         "commit": _git("rev-parse", "--short", "HEAD") or None,
         "uncommitted_changes": dirty,
         "cpus": os.cpu_count(),
+        "libraries": {"python": platform.python_version(),
+                      **{k: importlib.metadata.version(k) for k in ("numpy", "scipy")}},
         "seconds": None if seconds is None else round(seconds, 1),
         "figures": _finite(figures),
     }
@@ -296,7 +301,9 @@ def provenance(rec: dict[str, Any]) -> str:
     commit = rec.get("commit") or "unknown commit"
     extra = " with uncommitted changes" if rec.get("uncommitted_changes") else ""
     took = f", {rec['seconds']:.0f} s" if rec.get("seconds") is not None else ""
-    return f"measured {rec['date']} at {commit}{extra} ({rec.get('cpus')} CPUs{took})"
+    libs = rec.get("libraries") or {}
+    on = "".join(f", {k} {libs[k]}" for k in ("numpy", "scipy") if k in libs)
+    return f"measured {rec['date']} at {commit}{extra} ({rec.get('cpus')} CPUs{on}{took})"
 
 
 # --- renderers: one per group (a record's figures -> markdown lines) ---------------------------------
@@ -784,7 +791,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
           "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (20-40 minutes)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
-          "python benchmarks/bench_foreign.py --first-seed 52 --seeds 4 --jobs 2 --path network "
+          "python benchmarks/bench_foreign.py --first-seed 96 --seeds 4 --jobs 1 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
           "`benchmarks/foreign_bench/`'s randomized benches (about 15 minutes); `--trace` prints each run's "
           "workflow lines (scores, identification, each trial's holdout test)."),

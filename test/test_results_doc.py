@@ -48,6 +48,18 @@ def test_the_demo_group_is_measured_and_its_command_is_the_update():
     assert re.fullmatch(r"\d{4}-\d{2}-\d{2}", rec["date"]) and rec["commit"]
 
 
+def test_a_record_names_the_numerical_libraries_its_floats_came_from(tmp_path):
+    from importlib.metadata import version
+    path = tmp_path / "r.json"
+    results.write_record(path, {"x": 1.0}, command="python benchmarks/x.py")
+    rec = results.read_record("r", tmp_path)
+    assert rec is not None
+    assert rec["libraries"]["numpy"] == version("numpy") and rec["libraries"]["scipy"] == version("scipy")
+    assert f"numpy {version('numpy')}, scipy {version('scipy')}" in results.provenance(rec)
+    del rec["libraries"]  # records written before the libraries were kept still render
+    assert "numpy" not in results.provenance(rec) and results.provenance(rec).startswith(f"measured {rec['date']}")
+
+
 def test_a_group_not_measured_says_which_command_to_run(tmp_path):
     (tmp_path / "demo.json").write_text((ROOT / "docs" / "results" / "demo.json").read_text(encoding="utf-8"))
     text = results.render_results_md(tmp_path)
