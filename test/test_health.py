@@ -94,17 +94,34 @@ def test_a_change_below_the_smallest_worth_an_alarm_is_kept_as_minor_never_an_al
     assert e.size == pytest.approx(0.1, rel=0.2)
 
 
+def test_a_change_that_could_be_below_the_smallest_worth_an_alarm_is_no_alarm():
+    """The smallest worth an alarm set at the very size the default monitor reports for a 10 %
+    propeller loss: its size is then above it only by less than two sigma, so it could be below
+    it; the same flight gives no alarm, one minor change, and says why."""
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    (alarm,) = monitor_over(samples, HealthConfig()).events
+    assert alarm.name == "propeller_damage" and alarm.size is not None
+    sizes = dict(HealthConfig().min_size) | {"propeller_damage": alarm.size}
+    mon = monitor_over(samples, HealthConfig(min_size=tuple(sizes.items())))
+    assert mon.events == [] and [e.name for e in mon.minor] == ["propeller_damage"], [e.as_dict() for e in mon.minor]
+    assert "below the smallest change worth an alarm at two sigma" in mon.minor[0].note
+
+
 def test_minor_is_decided_at_two_sigma_in_each_faults_unit():
-    """Hand-computed: sigma = theta / sqrt(statistic); a pack's factor is 1 + theta / sag."""
+    """Hand-computed: sigma = theta / sqrt(statistic); a pack's factor is 1 + theta / sag. A
+    change is minor when its size could, at two sigma, be below the smallest worth an alarm."""
     mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
     f = FAULTS.index
-    assert mon._minor(f("propeller_damage"), 0.02, 400.0)  # 0.02 + 2 * 0.001 < 0.03
-    assert not mon._minor(f("propeller_damage"), 0.02, 16.0)  # 0.02 + 2 * 0.005 = 0.03: not below
-    assert mon._minor(f("pack_resistance"), 0.004, 400.0)  # 1.1x + 2 sigma (0.01x) < 1.3x
-    assert not mon._minor(f("pack_resistance"), 0.02, 400.0)  # 1.5x
-    assert mon._minor(f("bearing_friction"), 0.3, 100.0)  # 1.3x + 2 * 0.03 < 1.5x
-    assert not mon._minor(f("bearing_friction"), 0.45, 100.0)  # 1.45x + 0.09 > 1.5x
-    assert mon._minor(f("motor_heating"), 5.0, 100.0) and not mon._minor(f("motor_heating"), 9.0, 100.0)
+    assert mon._minor(f("propeller_damage"), 0.031, 400.0)  # 0.031 - 2 * 0.00155 < 0.03
+    assert not mon._minor(f("propeller_damage"), 0.04, 400.0)  # 0.04 - 2 * 0.002 = 0.036
+    assert not mon._minor(f("propeller_damage"), 0.1, 16.0)  # 0.1 - 2 * 0.025 = 0.05
+    assert mon._minor(f("pack_resistance"), 0.02, 16.0)  # 1.5x - 2 * 0.125x = 1.25x < 1.3x
+    assert not mon._minor(f("pack_resistance"), 0.04, 400.0)  # 2x - 2 * 0.05x = 1.9x
+    assert mon._minor(f("bearing_friction"), 0.55, 100.0)  # 1.55x - 2 * 0.055 = 1.44x < 1.5x
+    assert not mon._minor(f("bearing_friction"), 0.7, 100.0)  # 1.7x - 0.14 = 1.56x
+    # a healthy flight's winding read 12.7 K warmer at a statistic of 45: 12.7 - 2 * 1.89 = 8.9 K
+    assert mon._minor(f("motor_heating"), 12.7, 45.0) and not mon._minor(f("motor_heating"), 30.0, 45.0)
+    assert mon._size_at(f("motor_heating"), 12.7, 45.0, 2.0) == pytest.approx(12.7 * (1 + 2 / 45 ** 0.5))
     with pytest.raises(ValueError, match="min_size"):
         HealthConfig(min_size=(("propeller_damage", 0.03),))
     with pytest.raises(ValueError, match="pack_resistance"):

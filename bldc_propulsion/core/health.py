@@ -315,11 +315,12 @@ class HealthConfig:
     #: the smallest change of each fault worth an alarm, in its unit (FAULT_UNITS: a fraction of
     #: CT and CP lost, a factor on the pack's or the friction's resistance, kelvin): a third of
     #: the sizes a vehicle must be warned of (issue 34: a 10 % propeller loss, a 2x pack
-    #: resistance, a 30 K winding rise; friction 1.5x). A named change whose size is, at two
-    #: sigma, below it is a minor change: kept in ``HealthMonitor.minor``, never an alarm. Why:
+    #: resistance, a 30 K winding rise; friction 1.5x). A named change whose size could, at two
+    #: sigma, be below it is a minor change: kept in ``HealthMonitor.minor``, never an alarm. Why:
     #: on clean data a change of a few per mille is significant (a real stand log's supply
     #: stiffening by 5 %; a propeller 0.7 % weaker on a healthy simulated flight), and an alarm
-    #: for it is a false one to whoever flies
+    #: for it is a false one to whoever flies; an alarm says a fault, so it waits until its size
+    #: is sure (a healthy flight's winding read 12.7 +- 1.9 K warmer: no fault a flight needs)
     min_size: tuple[tuple[str, float], ...] = (
         ("propeller_damage", 0.03), ("pack_resistance", 1.3), ("bearing_friction", 1.5),
         ("motor_heating", 10.0))
@@ -1059,8 +1060,8 @@ class HealthMonitor:
             ev.named_s = t_now
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
             ev.statistic = float(row[best])
-            if self._minor(best, float(theta[o, best]), float(row[best])):
-                return self._set_aside(ev)
+            if self._size_at(best, float(theta[o, best]), float(row[best]), 2.0) < self._min_size(best):
+                return self._set_aside(ev, "below")  # sure already: no need to wait
             self.state = _REFINING
             return []
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
@@ -1092,16 +1093,24 @@ class HealthMonitor:
             worst = max(worst, self._single(ch, np.column_stack([ch.nuisance, ch.tests[o, :, f]]), post))
         return worst
 
-    def _minor(self, f: int, theta: float, statistic: float) -> bool:
-        """Whether fault f's change of theta (its statistic: (theta / sigma)^2) is, at two
-        sigma, below the smallest worth an alarm (``HealthConfig.min_size``)."""
+    def _size_at(self, f: int, theta: float, statistic: float, k: float) -> float:
+        """Fault f's size (its unit) at theta + k sigma, for its statistic (theta / sigma)^2."""
         sigma = theta / math.sqrt(statistic) if statistic > 0.0 else math.inf
-        return self._size(f, theta + 2.0 * sigma) < dict(self.config.min_size)[FAULTS[f]]
+        return self._size(f, theta + k * sigma)
 
-    def _set_aside(self, ev: HealthEvent) -> list[HealthEvent]:
-        """A named change too small to be a fault: kept in ``minor``, and, as after a reported
-        one, a fresh window (the change is the new normal). Returns no event."""
-        ev.note = "below the smallest change worth an alarm (HealthConfig.min_size)"
+    def _min_size(self, f: int) -> float:
+        return dict(self.config.min_size)[FAULTS[f]]
+
+    def _minor(self, f: int, theta: float, statistic: float) -> bool:
+        """Whether fault f's change of theta (its statistic: (theta / sigma)^2) could, at two
+        sigma, be below the smallest worth an alarm (``HealthConfig.min_size``)."""
+        return self._size_at(f, theta, statistic, -2.0) < self._min_size(f)
+
+    def _set_aside(self, ev: HealthEvent, how: str) -> list[HealthEvent]:
+        """A named change that is (``how``: "below") or could be ("could be below") too small
+        to be a fault: kept in ``minor``, and, as after a reported one, a fresh window (the
+        change is the new normal). Returns no event."""
+        ev.note = f"{how} the smallest change worth an alarm at two sigma (HealthConfig.min_size)"
         self.minor.append(ev)
         self._pending = None
         self.state = _ARMING
@@ -1128,7 +1137,7 @@ class HealthMonitor:
             ev.statistic = max(ev.statistic, float(stat[o, f]))
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
             if stat[o, f] > 0 and self._minor(f, float(theta[o, f]), float(stat[o, f])):
-                return self._set_aside(ev)
+                return self._set_aside(ev, "could be below")
             return [self._settle(ev)]
         return []
 
