@@ -796,7 +796,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "`benchmarks/foreign_bench/`'s randomized benches (about 15 minutes); `--trace` prints each run's "
           "workflow lines (scores, identification, each trial's holdout test)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
-          "python benchmarks/bench_health.py --first-seed 816 --seeds 4 --flights 4 --hours 4 "
+          "python benchmarks/bench_health.py --first-seed 820 --seeds 4 --flights 4 --hours 4 "
           "--json docs/results/health.json", render_health,
           "Four benches drawn by `sim.random_bench` (the seeds below, never tuned on), a physics model fitted on "
           "each; per bench 4 flights with each fault (propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) "
