@@ -15,7 +15,7 @@ flight seeds, 10 000 * bench + ...); the reported benches are seeds from --first
 200), disjoint from them. With ``--json PATH`` the figures and every run's outcome are also
 written as a figures record (``benchmarks/results.py`` renders it into docs/results.md).
 
-    .venv/bin/python benchmarks/bench_health.py --seeds 6 --flights 2 --hours 0.5 [--json PATH]
+    .venv/bin/python benchmarks/bench_health.py --seeds 6 --flights 2 --hours 0.5 [--jobs 2] [--json PATH]
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ import math
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -134,50 +135,77 @@ def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None
     return out
 
 
+def plan(first_seed: int, seeds: int, flights: int, hours: float) -> list[dict[str, Any]]:
+    """Every bench's flights, drawn up front from one generator in a fixed order (per bench: its
+    fault flights, then its healthy ones), so a run's onset, charge and seed do not depend on
+    how many jobs share the work."""
+    rng = np.random.default_rng(12345)
+    per_bench_healthy = max(1, math.ceil(hours * 3600.0 / HEALTHY_FLIGHT_S / seeds))
+    out = []
+    for bench_seed in range(first_seed, first_seed + seeds):
+        faults = []
+        for k in range(flights):
+            for name, size in GOALS.items():
+                onset = float(rng.uniform(*ONSET_RANGE_S))
+                faults.append({"fault": Fault(name, size, onset), "soc": float(rng.uniform(0.5, 1.0)),
+                               "seed": 10_000 * bench_seed + 100 * k + list(GOALS).index(name)})
+        healthy = [{"seed": 10_000 * bench_seed + 5000 + k, "soc": float(rng.uniform(0.5, 1.0))}
+                   for k in range(per_bench_healthy)]
+        out.append({"bench": bench_seed, "faults": faults, "healthy": healthy})
+    return out
+
+
+def one_bench(job: dict[str, Any], t_start: float) -> dict[str, Any]:
+    """Fit the bench's model and run its planned flights: {fit, results (by fault), healthy}."""
+    bench_seed = job["bench"]
+    with tempfile.TemporaryDirectory() as d:
+        model, fit_s = fit_model(bench_seed, Path(d))
+    bench = draw_bench(bench_seed)
+    print(f"bench {bench_seed}: model fitted in {fit_s:.0f} s", file=sys.stderr, flush=True)
+    results: dict[str, list[dict[str, Any]]] = {name: [] for name in GOALS}
+    for f in job["faults"]:
+        fault = f["fault"]
+        res = simulate("random_steps", FLIGHT_S, f["seed"], params=bench, soc=f["soc"], faults=[fault])
+        run = run_health(model, *streams(res))
+        j = judge(run.events, fault, turning_after(res, fault.onset_s))
+        j.update(bench=bench_seed, seed=f["seed"], onset_s=fault.onset_s)
+        results[fault.name].append(j)
+        print(f"  {fault.name} @{fault.onset_s:.1f}: {j} ({time.perf_counter() - t_start:.0f} s)",
+              file=sys.stderr, flush=True)
+    healthy = []
+    for h in job["healthy"]:
+        res = simulate("random_steps", HEALTHY_FLIGHT_S, h["seed"], params=bench, soc=h["soc"])
+        run = run_health(model, *streams(res))
+        healthy.append({"bench": bench_seed, "seed": h["seed"], "monitored_s": run.monitored_s,
+                        "false_alarms": len(run.events), "events": [e.as_dict() for e in run.events]})
+        print(f"  healthy {h['seed']}: {len(run.events)} alarms over {run.monitored_s:.0f} s "
+              f"({time.perf_counter() - t_start:.0f} s)", file=sys.stderr, flush=True)
+    return {"fit": {"bench": bench_seed, "fit_s": fit_s,
+                    "battery_voltage_strength": model.effects["battery_voltage"]},
+            "results": results, "healthy": healthy}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=6, help="benches (default 6)")
     ap.add_argument("--first-seed", type=int, default=200, help="first bench seed (default 200; tuning used 1-9)")
     ap.add_argument("--flights", type=int, default=2, help="flights per fault and bench (default 2)")
     ap.add_argument("--hours", type=float, default=0.5, help="healthy flight hours in all (default 0.5)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="benches run at once, one process each (default 1; the figures do not depend on it)")
     ap.add_argument("--json", metavar="PATH",
                     help="also write the figures to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args()
+    if args.seeds < 1 or args.flights < 1 or args.jobs < 1 or not args.hours > 0:
+        ap.error("--seeds, --flights and --jobs must be >= 1 and --hours > 0")
     check_record_path(args.json)
     t_start = time.perf_counter()
-    rng = np.random.default_rng(12345)
-    per_bench_healthy = max(1, math.ceil(args.hours * 3600.0 / HEALTHY_FLIGHT_S / args.seeds))
-    results: dict[str, list[dict[str, Any]]] = {name: [] for name in GOALS}
-    healthy: list[dict[str, Any]] = []
-    fits: list[dict[str, Any]] = []
-    with tempfile.TemporaryDirectory() as d:
-        for bench_seed in range(args.first_seed, args.first_seed + args.seeds):
-            model, fit_s = fit_model(bench_seed, Path(d))
-            fits.append({"bench": bench_seed, "fit_s": fit_s,
-                         "battery_voltage_strength": model.effects["battery_voltage"]})
-            bench = draw_bench(bench_seed)
-            print(f"bench {bench_seed}: model fitted in {fit_s:.0f} s", file=sys.stderr)
-            for k in range(args.flights):
-                for name, size in GOALS.items():
-                    onset = float(rng.uniform(*ONSET_RANGE_S))
-                    fault = Fault(name, size, onset)
-                    seed = 10_000 * bench_seed + 100 * k + list(GOALS).index(name)
-                    res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)),
-                                   faults=[fault])
-                    run = run_health(model, *streams(res))
-                    j = judge(run.events, fault, turning_after(res, onset))
-                    j.update(bench=bench_seed, seed=seed, onset_s=onset)
-                    results[name].append(j)
-                    print(f"  {name} @{onset:.1f}: {j} ({time.perf_counter() - t_start:.0f} s)", file=sys.stderr)
-            for k in range(per_bench_healthy):
-                seed = 10_000 * bench_seed + 5000 + k
-                res = simulate("random_steps", HEALTHY_FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
-                run = run_health(model, *streams(res))
-                healthy.append({"bench": bench_seed, "seed": seed, "monitored_s": run.monitored_s,
-                                "false_alarms": len(run.events),
-                                "events": [e.as_dict() for e in run.events]})
-                print(f"  healthy {seed}: {len(run.events)} alarms over {run.monitored_s:.0f} s "
-                      f"({time.perf_counter() - t_start:.0f} s)", file=sys.stderr)
+    jobs = plan(args.first_seed, args.seeds, args.flights, args.hours)
+    with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
+        done = list(pool.map(one_bench, jobs, [t_start] * len(jobs)))  # in bench order
+    results: dict[str, list[dict[str, Any]]] = {name: [r for b in done for r in b["results"][name]] for name in GOALS}
+    healthy = [h for b in done for h in b["healthy"]]
+    fits = [b["fit"] for b in done]
     summary = summarize(results, healthy)
     summary.update(benches=list(range(args.first_seed, args.first_seed + args.seeds)), tuning_benches=TUNING_BENCHES,
                    tuning_flight_seeds=TUNING_FLIGHT_SEEDS, fits=fits, seconds=time.perf_counter() - t_start)
