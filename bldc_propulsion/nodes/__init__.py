@@ -33,10 +33,10 @@ if EXECUTABLE:  # nothing is running yet to stop in order: leave at once, status
     quiet_start.install(0, (signal.SIGINT, signal.SIGTERM))
 
 
-#: Longest a node executable's teardown (executors, nodes, the ROS context) may take once it
-#: begins, s: below ``ros2 launch``'s 5 s before it escalates to SIGTERM (which a node only takes
-#: as another stop) and SIGKILL, so a hung teardown ends the process itself and says where.
-TEARDOWN_LIMIT_S = 4.0
+#: Longest a node executable's teardown (executors, nodes, the ROS context) may take once the
+#: stop began, s: a stop takes 0.2-0.4 s even on a loaded machine, and the quadrotor must be down
+#: within 2 s of Ctrl-C, well before ``ros2 launch`` escalates to SIGTERM (5 s) and SIGKILL.
+TEARDOWN_LIMIT_S = 1.5
 #: Whether :func:`guard_teardown` armed the watchdog (once: a second Ctrl-C does not re-arm it).
 _GUARDED = False
 
@@ -45,13 +45,20 @@ def guard_teardown() -> None:
     """In a node executable: unless the process has ended :data:`TEARDOWN_LIMIT_S` from now,
     print every thread's Python stack on stderr and exit 1; as a library, nothing.
 
-    Why: a stop normally takes 0.2-0.5 s, but rarely (once in about 100 stops of the quadrotor's
-    nine processes at once under busy loops, and once on CI, still running after 10 s) a node
-    hangs in rclpy's ``destroy_node``: the last node's destroy deletes the DDS participant,
-    which waits inside Fast DDS while its peers are going away too. Leaving without that
-    teardown is no cure: the participant's goodbye is what lets peers drop the node at once
-    (measured: within 0.1 s of its exit, against 19 s, the DDS lease, without). Without this
-    guard such a node hangs until ``ros2 launch`` kills it, saying nothing of where.
+    Why: a stop normally takes 0.2-0.4 s, but now and then (about 1 in 50 stops of the
+    quadrotor's nine processes at once on a loaded machine) a node never ends in rclpy's
+    ``destroy_node``. gdb on such a node: the last node's destroy deletes the DDS participant,
+    and rmw_fastrtps first removes its listener (``DomainParticipant::set_listener(nullptr)``),
+    which waits, with no deadline, for a discovery callback in flight (a peer's participant
+    being removed, as peers stop at the same moment) to finish. Fast DDS 2.14.5 from PyPI is
+    built without ``pthread_cond_clockwait``, so libstdc++'s wait for an infinite deadline on
+    the steady clock overflows to a deadline in the past and spins, re-taking the mutex the
+    callback needs to leave: the callback starves and the wait never ends (a build that has
+    ``pthread_cond_clockwait``, as on Ubuntu 24.04, sleeps in the wait instead). Leaving
+    without the teardown is no cure for the usual stop: the participant's goodbye is what lets
+    peers drop the node at once (measured: within 0.1 s of its exit, against 19 s, the DDS
+    lease, without). Without this guard such a node spins until ``ros2 launch`` kills it,
+    saying nothing of where.
     faulthandler's watchdog is a C thread: it fires although the hung call holds the GIL.
     """
     global _GUARDED
