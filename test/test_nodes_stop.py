@@ -115,7 +115,9 @@ def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, 
 def test_the_quadrotors_nine_processes_stop_within_2_s_of_sigint_under_a_cpu_hog():
     """quadrotor.launch.py's nine processes, two busy loops on this 2-core machine meanwhile:
     every process exits 0, quietly, within 2 s of SIGINT (``ros2 launch`` escalates to SIGTERM
-    after 5 s). Was ~4 s (interpreter finalization: ``bldc_propulsion.nodes.leave``)."""
+    after 5 s). Was ~4 s (interpreter finalization: ``bldc_propulsion.nodes.leave``). A node the
+    teardown guard ended in ``destroy_node`` (Fast DDS's livelock, about 1 stop in 50) makes it
+    an expected failure, as long as every process was down within the 2 s."""
     ros = {**env(), "ROS_DOMAIN_ID": str(200 + os.getpid() % 30),
            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 

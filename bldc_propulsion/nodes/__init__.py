@@ -53,12 +53,12 @@ def guard_teardown() -> None:
     being removed, as peers stop at the same moment) to finish. Fast DDS 2.14.5 from PyPI is
     built without ``pthread_cond_clockwait``, so libstdc++'s wait for an infinite deadline on
     the steady clock overflows to a deadline in the past and spins, re-taking the mutex the
-    callback needs to leave: the callback starves and the wait never ends (a build that has
-    ``pthread_cond_clockwait``, as on Ubuntu 24.04, sleeps in the wait instead). Leaving
-    without the teardown is no cure for the usual stop: the participant's goodbye is what lets
-    peers drop the node at once (measured: within 0.1 s of its exit, against 19 s, the DDS
-    lease, without). Without this guard such a node spins until ``ros2 launch`` kills it,
-    saying nothing of where.
+    callback needs to leave: the callback starves and the wait never ends (a build with
+    ``pthread_cond_clockwait``, as Ubuntu 24.04's should be, would sleep there; not checked).
+    Leaving without the teardown is no cure for the usual stop: the participant's goodbye is
+    what lets peers drop the node at once (measured: within 0.1 s of its exit, against 19 s,
+    the DDS lease, without). Without this guard such a node spins until ``ros2 launch`` kills
+    it, saying nothing of where.
     faulthandler's watchdog is a C thread: it fires although the hung call holds the GIL.
     """
     global _GUARDED

@@ -18,8 +18,9 @@ node of the process, which is why config/propulsion.yaml addresses nodes as ``/*
 (benchmarks/bench_nodes_live.py): it waits through middleware listeners rather than a wait
 set of every node's entities. ``single`` runs every node on ``LeanExecutor`` (a single-threaded
 executor, a quarter to a half more CPU than ``events`` with four motors); ``mixed``: the
-battery filter on the EventsExecutor in a thread of its own, the motors on ``LeanExecutor``. Every executor hands
-the callbacks the message info (sequence numbers, publisher timestamps; ``common.WithInfo``).
+battery filter on the EventsExecutor in a thread of its own, the motors on ``LeanExecutor``.
+Every executor hands the callbacks the message info (sequence numbers, publisher timestamps;
+``common.WithInfo``).
 """
 
 from __future__ import annotations
