@@ -157,12 +157,13 @@ def test_the_quadrotors_nine_processes_stop_within_2_s_of_sigint_under_a_cpu_hog
             if p.poll() is None:
                 p.kill()
                 p.wait()
-    failed = [(name, rc, err[-3000:]) for name, (rc, err) in zip(names, results, strict=True)
-              if rc != 0 or err]
+    bad = [(name, rc, err) for name, (rc, err) in zip(names, results, strict=True) if rc != 0 or err]
+    failed = [(name, rc, err[-3000:]) for name, rc, err in bad]
     assert stopped_s < 2.0, (stopped_s, failed)
-    if failed and all(upstream_teardown_livelock(rc, err) for _, rc, err in failed):
+    # judged on the whole stderr: faulthandler's "Timeout (" opens a dump longer than the shown tail
+    if bad and all(upstream_teardown_livelock(rc, err) for _, rc, err in bad):
         pytest.xfail(f"Fast DDS's set_listener livelock in destroy_node (nodes.guard_teardown): "
-                     f"{[name for name, _, _ in failed]} ended by the guard, all down in {stopped_s:.2f} s")
+                     f"{[name for name, _, _ in bad]} ended by the guard, all down in {stopped_s:.2f} s")
     assert not failed, failed
 
 
