@@ -3,6 +3,7 @@ physics meets its own analytic steady state, and each hidden-effect switch does 
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -106,6 +107,19 @@ def test_heating_raises_the_winding_temperature_and_slows_the_rotor():
     r_hot = b.r_winding_ohm * (1.0 + m.COPPER_ALPHA_PER_K * rise)
     assert at(warm, 60.0) == pytest.approx(m.steady_speed(b, 1.0, m.pack_ocv(b, 1.0), r_hot), rel=0.01)
     assert at(warm, 60.0) < at(cold, 60.0)
+
+
+@pytest.mark.parametrize("seed", [4, 46])
+def test_full_drive_warm_speed_is_where_the_simulated_winding_levels_off(seed):
+    # the thermal time constant shortened to 2 s (the balance does not depend on it): 40 s at full
+    # drive on the stiff supply levels the winding off; its speed there is full_drive_speeds' warm
+    b = dataclasses.replace(draw_bench(seed), thermal_tau_s=2.0)
+    v = m.pack_ocv(b, 1.0)
+    cold, warm = m.full_drive_speeds(b, v)
+    res = run(b, steps([(0.5, c.PWM_FULL)], 40.0), 40.0, motor_heating=True)
+    assert at(res, 40.0) == pytest.approx(warm, rel=2e-3)
+    assert cold == pytest.approx(m.steady_speed(b, 1.0, v), rel=1e-9)
+    assert 0.01 < 1.0 - warm / cold < 0.2  # a winding that heats by tens of kelvin, not a runaway
 
 
 def test_battery_sags_under_load_and_the_stiff_supply_does_not():

@@ -189,6 +189,30 @@ def steady_speed(b: ForeignBench, duty: float, supply_v: float, r_ohm: float | N
     return float(brentq(net, 0.0, duty * supply_v / k, xtol=1e-9, rtol=1e-12))
 
 
+def full_drive_speeds(b: ForeignBench, supply_v: float) -> tuple[float, float]:
+    """(cold, warm) steady speed at full duty on a stiff ``supply_v``: the winding at ambient, and
+    at the temperature where its copper loss i^2 R(T) and the thermal resistance balance (this
+    bench's thermal model: no other heat reaches the winding). What the speed identifies of
+    heating whatever a model's split of copper coefficient, resistance and thermal capacity."""
+
+    def current(r_ohm: float) -> float:
+        return (supply_v - b.ke_v_s * steady_speed(b, 1.0, supply_v, r_ohm)) / r_ohm
+
+    def excess(rise_k: float) -> float:  # the balance's rise for an assumed rise, minus that rise
+        r = b.r_winding_ohm * (1.0 + COPPER_ALPHA_PER_K * rise_k)
+        return b.thermal_resistance_k_per_w * current(r) ** 2 * r - rise_k
+
+    # the loss falls as R rises (the current falls faster than R grows), so one crossing from >0
+    hi = 1.0
+    while excess(hi) > 0.0:
+        hi *= 2.0
+        if hi > 1e4:
+            raise ValueError(f"foreign bench: no thermal balance at full drive on {supply_v} V (runaway)")
+    rise = float(brentq(excess, 0.0, hi, xtol=1e-9))
+    warm_r = b.r_winding_ohm * (1.0 + COPPER_ALPHA_PER_K * rise)
+    return steady_speed(b, 1.0, supply_v), steady_speed(b, 1.0, supply_v, warm_r)
+
+
 # --- simulation -----------------------------------------------------------------------------------
 @dataclasses.dataclass
 class Run:
