@@ -298,6 +298,40 @@ def revisited_levels(bag: Path, splits: int) -> list[dict]:
             for level in sorted(set(visits["up"]) & set(visits["down"]))]
 
 
+def add_efficiency(src: Path, revisited: list[dict]) -> None:
+    """Add each visit's shaft power over supply power (settled medians of the log's own torque,
+    speed, voltage and current rows, holds found as ``revisited_levels`` finds them) where the log
+    has a torque column: a winding warmer on the way down loses more in its copper (R i^2), so a
+    slower way down at the same efficiency is not a warmer winding."""
+    header, data, t = read_rows(src)
+    names = [h.strip() for h in header]
+    need = ("ESC signal (µs)", "Torque (N·m)", "Voltage (V)", "Current (A)", "Motor Electrical Speed (RPM)")
+    if not revisited or any(n not in names for n in need):
+        return
+
+    def col(name: str) -> np.ndarray:
+        k = names.index(name)
+        return np.array([float(r[k]) if len(r) > k and r[k].strip() else np.nan for r in data])
+
+    us, torque, volts, amps = col(need[0]), col(need[1]), col(need[2]), col(need[3])
+    speed = col(need[4]) * (np.pi / 30.0)  # mechanical rpm (the module docstring) to rad/s
+    ok = np.isfinite(us) & np.isfinite(t)
+    t_c, us_c = t[ok], us[ok]
+    edges = np.flatnonzero(np.diff(us_c) != 0.0) + 1
+    starts, ends = np.r_[0, edges], np.r_[edges, len(us_c)] - 1
+    top = t_c[starts[int(np.argmax(us_c[starts]))]]
+    wanted = {round(r["us"]): r for r in revisited}
+    for a, b in zip(starts, ends, strict=True):
+        t0, t1, level = t_c[a], t_c[b], round(float(us_c[a]))
+        if level not in wanted or t1 - t0 < MIN_HOLD_S:
+            continue
+        settled = (t >= t1 - SETTLED_SHARE * (t1 - t0)) & (t <= t1)
+        shaft = np.nanmedian(np.abs(torque[settled]) * speed[settled])
+        supply = np.nanmedian(volts[settled] * amps[settled])
+        if np.isfinite(shaft) and supply > 0.0:
+            wanted[level]["up" if t0 <= top else "down"]["efficiency"] = float(shaft / supply)
+
+
 #: The esc_test logs: six ESC + motor pairs on the one DALPROP T7056 propeller (../shared/real/README.md).
 THRUST_LAW_LOGS = ("Log_2019-11-05_171350.csv", "Log_2019-11-07_174807.csv", "Log_2019-11-07_175456.csv",
                    "Log_2019-11-07_184325.csv", "Log_2019-11-07_211050.csv", "Log_2019-11-09_181347.csv")
@@ -379,6 +413,7 @@ def main() -> int:
         log_range, law_range_n = ranges([p["test"] for p in parts])
         health = monitor_whole_log(d, src, rows)
         revisited = revisited_levels(d / "whole", args.splits)
+        add_efficiency(src, revisited)
         for r in rows:
             if "refused" not in r:
                 r["percent"] = 100.0 * r["rmse_rad_s"] / log_range
@@ -430,12 +465,14 @@ def main() -> int:
     if revisited:
         print("the same command on the way up and on the way down (settled medians of the log, no model):")
         print(f"{'level':>7s} {'us':>5s} {'part':>5s} {'up rad/s':>9s} {'A':>6s} {'V':>6s} {'part':>5s} "
-              f"{'down rad/s':>10s} {'A':>6s} {'V':>6s} {'speed down/up':>13s}")
+              f"{'down rad/s':>10s} {'A':>6s} {'V':>6s} {'speed down/up':>13s} {'shaft/supply up, down':>22s}")
         for r in revisited:
             u, w = r["up"], r["down"]
+            eff = (f"{u['efficiency']:.3f}, {w['efficiency']:.3f}" if "efficiency" in u and "efficiency" in w
+                   else "-")
             print(f"{r['level']:7.4f} {r['us']:5.0f} {u['part']:5d} {u['speed_rad_s']:9.0f} "
                   f"{u['current_a']:6.1f} {u['voltage_v']:6.2f} {w['part']:5d} {w['speed_rad_s']:10.0f} "
-                  f"{w['current_a']:6.1f} {w['voltage_v']:6.2f} {w['speed_rad_s'] / u['speed_rad_s']:13.3f}")
+                  f"{w['current_a']:6.1f} {w['voltage_v']:6.2f} {w['speed_rad_s'] / u['speed_rad_s']:13.3f} {eff:>22s}")
     if args.json:
         write_record(args.json, {"thrust_law": law, "log": log.name, "log_range_rad_s": log_range,
                                  "log_thrust_range_n": law_range_n,

@@ -535,18 +535,25 @@ def render_real(f: dict[str, Any]) -> list[str]:
         lines += ["", "The same command on the staircase's way up and on its way down (settled medians of the log, "
                   "no model):", "",
                   "| command | way up: part, speed, current, voltage | way down: part, speed, current, voltage | "
-                  "speed down / up |", "|---|---|---|---|"]
+                  "speed down / up | shaft / supply power, up → down |", "|---|---|---|---|---|"]
         for r in revisited:
             u, w = r["up"], r["down"]
+            eff = (f"{u['efficiency']:.3f} → {w['efficiency']:.3f}" if "efficiency" in u and "efficiency" in w
+                   else "n/a")
             lines.append(f"| {r['us']:.0f} µs | {u['part']}, {u['speed_rad_s']:.0f} rad/s, {u['current_a']:.1f} A, "
                          f"{u['voltage_v']:.2f} V | {w['part']}, {w['speed_rad_s']:.0f} rad/s, {w['current_a']:.1f} A, "
-                         f"{w['voltage_v']:.2f} V | {w['speed_rad_s'] / u['speed_rad_s']:.3f} |")
+                         f"{w['voltage_v']:.2f} V | {w['speed_rad_s'] / u['speed_rad_s']:.3f} | {eff} |")
         slower = [100.0 * (1.0 - r["down"]["speed_rad_s"] / r["up"]["speed_rad_s"]) for r in revisited]
         less = [100.0 * (1.0 - r["down"]["current_a"] / r["up"]["current_a"]) for r in revisited]
+        lost = [100.0 * (r["up"]["efficiency"] - r["down"]["efficiency"]) for r in revisited
+                if "efficiency" in r["up"] and "efficiency" in r["down"]]
         down = sorted({r["down"]["part"] for r in revisited})
         lines += ["", f"At the same command and supply voltage the way down runs {min(slower):.1f}-{max(slower):.1f} % "
-                  f"slower on {min(less):.1f}-{max(less):.1f} % less current, as a motor and ESC still warm from full "
-                  f"drive would. Every hold of the way down lies in part {', '.join(map(str, down))}: the models "
+                  f"slower on {min(less):.1f}-{max(less):.1f} % less current"
+                  + (f", and turns {min(lost):.1f} to {max(lost):.1f} points less of the supply's power into shaft "
+                     "power (the log's torque)" if lost else "")
+                  + ": a motor and ESC still warm from full drive would, though the log cannot say which part is "
+                  f"warm. Every hold of the way down lies in part {', '.join(map(str, down))}: the models "
                   "tested there were trained on parts that show only the way up."]
     if (health := f.get("health")) is not None:
         lines += ["", "The health monitor over the whole log with each split's model. Nobody changed the stand, "
