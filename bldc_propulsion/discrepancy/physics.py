@@ -146,7 +146,15 @@ def fitted_value(name: str, strength: float, p: BenchParams, supply_v: float | N
 
 def value_text(value: FittedValue) -> str:
     """A ``fitted_value`` for people, e.g. 'dead time 52 ms': the one text of it in the console,
-    the report and ``describe``."""
+    the report and ``describe``. Heating leads with what the speed identifies, the share of the
+    full-drive speed lost once warm: its %/K and time constant hold only with the CONFIG's winding
+    resistance and thermal capacity (the simulator's 12 in bench's unless a CONFIG or the motor's
+    priors say otherwise), which the speed cannot check, so the text says so."""
+    if value.get("warm_speed_loss_percent") is not None:
+        return (f"full-drive speed {value['warm_speed_loss_percent']:.2g} % lower once warm ({value['quantity']} "
+                f"{value['value']:.4g} {value['unit']}, thermal time constant "
+                f"{value.get('thermal_time_constant_s', math.nan):.0f} s, given the CONFIG's winding resistance "
+                "and thermal capacity)")
     text = f"{value['quantity']} {value['value']:.4g} {value['unit']}".rstrip()
     if value.get("thermal_time_constant_s") is not None:
         text += f", thermal time constant {value['thermal_time_constant_s']:.0f} s"
@@ -154,8 +162,6 @@ def value_text(value: FittedValue) -> str:
         text += f", throttle map from {value['map_origin_pwm']:.4g}"
     if value.get("time_constant_ms") is not None:
         text += f"; spin-up time constant {value['time_constant_ms']:.0f} ms at {value['at_speed_rad_s']:.0f} rad/s"
-    if value.get("warm_speed_loss_percent") is not None:
-        text += f"; full-drive speed {value['warm_speed_loss_percent']:.2g} % lower once warm"
     return text
 
 
