@@ -7,7 +7,8 @@ with no CONFIG runs it. Physics path: the package's nominal physics with every e
 network trained on the reference (test/test_discrepancy.py's inputs, size and epochs), then
 ``run_workflow``. Prints per path the table (true effect x first named; controls: false names),
 the holdout RMSE reduction per effect (median [min, max]) and, for the physics path, the named
-hidden effect's fitted physical value against the bench's truth.
+hidden effect's fitted physical value against the bench's truth (heating's: the share of the
+full-drive speed lost once warm, ``IDENTIFIED``).
 
     PYTHONPATH=. python benchmarks/bench_foreign.py --seeds 2 --jobs 2 --path physics
 """
