@@ -82,6 +82,17 @@ def test_the_confusion_rendering_counts_right_on_a_hand_made_run_list():
     assert "- rotor_lag: 25.0 % [0.0, 50.0]" in text  # median of 50 % and 0 %
 
 
+def test_foreign_heating_is_judged_on_the_speed_lost_and_its_per_kelvin_shown_aside():
+    heating = {"path": "physics", "case": "motor_heating", "seed": 7, "named": ["motor_heating"],
+               "first": "motor_heating", "before": 7.0, "after": 1.0, "fitted": 6.0, "truth": 5.0,
+               "unit": "% of the full-drive speed lost warm", "per_k": 0.95, "truth_per_k": 0.393,
+               "tau_s": 120.0, "truth_tau_s": 89.0}
+    other = {**heating, "path": "network", "fitted": 100.0}  # the other path's run: not in this table
+    text = "\n".join(results.render_foreign({"runs": [heating, other]}, "physics"))
+    assert "fitted value / truth 1.20, 1/1 within 30 %" in text  # 6 / 5, not 0.95 / 0.393
+    assert "seed 7 0.95 vs 0.393 %/K, time constant 120 vs 89 s" in text
+
+
 def test_a_benchmarks_json_path_is_checked_before_any_work(tmp_path):
     import subprocess
 
