@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DURATION_S = 30.0
 HIDDEN = 8
 EPOCHS = 300
+RESTSTART_STRATA = 8  #: "reststarts": level bands per round (8 starts fill a 110 s recording)
 
 #: Test commands (PWM level held per 50 Hz frame), designed so that each effect is excited:
 #: "steps": random levels 0.06-0.10 held 0.4-2.5 s (spin-up/spin-down, dead time);
@@ -43,6 +44,10 @@ EPOCHS = 300
 #: "lowstarts": the same levels held 1-2.5 s, each from a stop of 0.5-1 s: an ESC that cuts its map
 #: off below its start level (the rotor coasts there as it does under a drive below its
 #: back-EMF) shows the level only when the rotor is slow, so a staircase shows it once at most;
+#: "reststarts": the low levels from rest, for a rotor that coasts for seconds (a foreign bench's
+#: needs 4-15 s to stop from 0.075, 85 % within 10 s): stops of 10-13 s, and the levels stratified
+#: over 0.05-0.075 (each of RESTSTART_STRATA bands once, in random order, per as many starts), so
+#: every recording holds the lowest levels where a start level lies instead of leaving it to chance;
 #: "low": ramps and steps below and just above the ESC start level (0.05-0.07) between mid levels;
 #: "load": long full throttle with short dips (the winding heats up).
 def command(kind: str, duration: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,6 +55,7 @@ def command(kind: str, duration: float, seed: int) -> tuple[np.ndarray, np.ndarr
     t = np.arange(0.0, duration, 1.0 / c.PWM_FRAME_HZ)
     u = np.full(len(t), c.PWM_STOP)
     k = int(c.PWM_FRAME_HZ)  # 1 s stopped (arming)
+    strata: list[int] = []  # "reststarts": the bands not yet held in this round
     while k < len(t):
         if kind == "steps":
             n, lev = int(rng.uniform(0.4, 2.5) * c.PWM_FRAME_HZ), np.full(1, rng.uniform(0.06, 0.10))
@@ -62,6 +68,13 @@ def command(kind: str, duration: float, seed: int) -> tuple[np.ndarray, np.ndarr
         elif kind == "lowstarts":
             n1, n2 = int(rng.uniform(0.5, 1.0) * c.PWM_FRAME_HZ), int(rng.uniform(1.0, 2.5) * c.PWM_FRAME_HZ)
             lev = np.concatenate([np.full(n1, c.PWM_STOP), np.full(n2, rng.uniform(0.05, 0.075))])
+            n = len(lev)
+        elif kind == "reststarts":
+            n1, n2 = int(rng.uniform(10.0, 13.0) * c.PWM_FRAME_HZ), int(rng.uniform(1.0, 2.5) * c.PWM_FRAME_HZ)
+            if not strata:
+                strata = rng.permutation(RESTSTART_STRATA).tolist()
+            level = 0.05 + 0.025 * (strata.pop() + rng.uniform()) / RESTSTART_STRATA
+            lev = np.concatenate([np.full(n1, c.PWM_STOP), np.full(n2, level)])
             n = len(lev)
         elif kind == "updown":
             n1, n2 = int(rng.uniform(1.0, 2.5) * c.PWM_FRAME_HZ), int(rng.uniform(1.5, 3.0) * c.PWM_FRAME_HZ)
