@@ -16,6 +16,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.foreign_bench import model as m  # noqa: E402
 from benchmarks.foreign_bench.draw import draw_bench, full_throttle  # noqa: E402
 from benchmarks.foreign_bench.record import write_bag  # noqa: E402
+from benchmarks.foreign_bench.scenarios import RESTSTARTS_S, project_scenarios  # noqa: E402
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import open_recording  # noqa: E402
 from bldc_propulsion.recordings import load_signals  # noqa: E402
@@ -86,6 +87,28 @@ def test_deadband_keeps_the_rotor_at_rest_below_the_start_level():
     assert at(run(b, cmd, 3.0), 3.0) > 0.0
     above = steps([(0.5, b.start_level + 0.002)], 3.0)
     assert at(run(b, above, 3.0, esc_deadband=True), 3.0) > 0.0
+
+
+@pytest.mark.parametrize("seed", [100, 102, 103])  # rotors at rest within 10 s of PWM 0.075 (85 % of benches)
+def test_reststarts_start_every_low_level_from_rest_and_cover_every_band(seed):
+    """The foreign esc_deadband experiment (scenarios.OWN_EXPERIMENT) shows a start level only if
+    each level starts from rest and the lowest levels are there; the project's lowstarts finds
+    these coasting rotors still turning."""
+    T = project_scenarios()
+    b = draw_bench(seed)
+    cmd = T.command("reststarts", RESTSTARTS_S, seed)
+    res = run(b, cmd, RESTSTARTS_S, spin_down_asymmetry=True)  # a coasting ESC: the slowest stop
+    onsets = np.flatnonzero(np.diff(cmd[1]) > 0) + 1
+    levels = cmd[1][onsets]
+    assert len(onsets) >= T.RESTSTART_STRATA
+    # one level in each band of 0.05-0.075 (the command rounds levels to 1e-4)
+    edges = c.PWM_STOP + 0.025 * np.arange(T.RESTSTART_STRATA + 1) / T.RESTSTART_STRATA
+    first = np.sort(levels[:T.RESTSTART_STRATA])
+    assert np.all((first >= edges[:-1] - 5e-5) & (first <= edges[1:] + 5e-5))
+    assert max(at(res, cmd[0][k]) for k in onsets) < 1.0
+    short = T.command("lowstarts", 30.0, seed)
+    coasting = run(b, short, 30.0, spin_down_asymmetry=True)
+    assert max(at(coasting, short[0][k]) for k in np.flatnonzero(np.diff(short[1]) > 0) + 1) > 50.0
 
 
 def test_input_delay_starts_the_response_after_the_dead_time():
