@@ -6,7 +6,9 @@ with no CONFIG runs it. Physics path: the package's nominal physics with every e
 (``physics.config.load_config(None)``) through ``run_physics_workflow``. Network path: a baseline
 network trained on the reference (test/test_discrepancy.py's inputs, size and epochs), then
 ``run_workflow``. Prints per path the table (true effect x first named; controls: false names),
-the holdout RMSE reduction per effect (median [min, max]) and, for the physics path, the named
+the holdout RMSE reduction per effect (median [min, max]), for a run that misses the hidden effect
+what that effect does to the measured speed at all (RMS, the bench's physics with it on against
+off: ``scenarios.hidden_effect_size``) and, for the physics path, the named
 hidden effect's fitted physical value against the bench's truth (heating's: the share of the
 full-drive speed lost once warm, ``IDENTIFIED``).
 
@@ -32,7 +34,7 @@ if str(ROOT) not in sys.path:
 
 from benchmarks.foreign_bench.draw import draw_bench, full_throttle  # noqa: E402
 from benchmarks.foreign_bench.model import ALL_ON, full_drive_speeds  # noqa: E402
-from benchmarks.foreign_bench.scenarios import CASES, project_scenarios, write_case  # noqa: E402
+from benchmarks.foreign_bench.scenarios import CASES, hidden_effect_size, project_scenarios, write_case  # noqa: E402
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 
@@ -99,6 +101,8 @@ def one_run(path: str, case: str, seed: int, trace: bool = False) -> dict:
             fitted, unit = float(value["value"]), str(value.get("unit", ""))
             truth = bench.truth(case, ALL_ON)["value"]
     return {"path": path, "case": case, "seed": seed, "named": list(data["named"]),
+            # what the hidden effect does to the measured speed at all (the judge's, from the bench's physics)
+            "effect_rad_s": hidden_effect_size(case, seed, bench),
             "first": data["named"][0] if data["named"] else "(nothing)",
             "before": float(data["holdout_rmse_before"]), "after": float(data["holdout_rmse_after"]),
             "fitted": fitted, "truth": truth, "unit": unit, **extra, "bags_s": t_bags,
@@ -197,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{r['path']}] {r['case']:20s} seed {r['seed']}: named {r['named'] or 'nothing'}; holdout "
                   f"{r['before']:.1f} -> {r['after']:.1f} rad/s{value} ({r['seconds']:.0f} s, bags "
                   f"{r['bags_s']:.0f} s; {len(rows)}/{len(jobs)} at {time.perf_counter() - t0:.0f} s)"
+                  + (f"\n    the hidden effect moves the measured speed by {r['effect_rad_s']:.2f} rad/s RMS"
+                     if r["case"] != "control" and r["first"] != r["case"] else "")
                   + (f"\n    base completed with: {', '.join(r['completed'])}" if r["completed"] else "")
                   + (f"\n    no verdict: {r['no_verdict']}" if r["no_verdict"] else ""), flush=True)
     for p in paths:

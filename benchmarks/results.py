@@ -475,6 +475,12 @@ def render_foreign(f: dict[str, Any], path: str) -> list[str]:
     """bench_foreign.py's runs of one path (a run of both paths holds the other's too)."""
     runs = [r for r in f["runs"] if r["path"] == path]
     lines = render_confusion({"runs": runs}, key="case")
+    missed = [r for r in runs if r["case"] != "control" and r["first"] != r["case"] and "effect_rad_s" in r]
+    if missed:  # bench_foreign: what the missed effect does to the measured speed at all, beside the residual
+        lines += ["", "Where the hidden effect was not named first, what it does to the measured speed (RMS, the "
+                  "bench's physics with it on against off) beside the holdout residual before: "
+                  + "; ".join(f"{r['case']} seed {r['seed']} {r['effect_rad_s']:.2f} vs {r['before']:.1f} rad/s"
+                              for r in missed) + "."]
     if aside := [r for r in runs if "per_k" in r]:  # bench_foreign.IDENTIFIED: why heating's %/K is not judged
         lines += ["", "Heating is judged on the share of the full-drive speed lost once the winding is warm (what "
                   "the speed identifies). Not judged, as the CONFIG's winding resistance and thermal capacity set "
@@ -806,7 +812,16 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
     Group("foreign_physics", "Discrepancy on a bench written by someone else, physics path",
           "python benchmarks/bench_foreign.py --first-seed 100 --seeds 3 --jobs 2 --path physics "
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
-          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about 80 minutes on 2 cores)."),
+          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about 80 minutes on 2 cores). Its "
+          "esc_deadband rows predate the experiment from rest: the next group has that case."),
+    Group("foreign_deadband", "A start level from rest on a bench written by someone else, both paths",
+          "python benchmarks/bench_foreign.py --first-seed 103 --seeds 6 --jobs 2 --path both --effects esc_deadband "
+          "--json docs/results/foreign_deadband.json",
+          lambda f: ["Physics path:", "", *render_foreign(f, "physics"), "", "Network path:", "",
+                     *render_foreign(f, "network")],
+          "esc_deadband alone, recorded from rest (`foreign_bench.scenarios.OWN_EXPERIMENT`: stops of 10-13 s where "
+          "the project's experiment stops 0.5-1 s and these rotors coast 4-15 s, the low levels covered by bands), "
+          "on benches never run before (about 40 minutes on 2 cores)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
           "python benchmarks/bench_foreign.py --first-seed 96 --seeds 4 --jobs 1 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),

@@ -16,7 +16,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.foreign_bench import model as m  # noqa: E402
 from benchmarks.foreign_bench.draw import draw_bench, full_throttle  # noqa: E402
 from benchmarks.foreign_bench.record import write_bag  # noqa: E402
-from benchmarks.foreign_bench.scenarios import RESTSTARTS_S, project_scenarios  # noqa: E402
+from benchmarks.foreign_bench.scenarios import RESTSTARTS_S, hidden_effect_size, project_scenarios  # noqa: E402
 from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.bagio import open_recording  # noqa: E402
 from bldc_propulsion.recordings import load_signals  # noqa: E402
@@ -109,6 +109,16 @@ def test_reststarts_start_every_low_level_from_rest_and_cover_every_band(seed):
     short = T.command("lowstarts", 30.0, seed)
     coasting = run(b, short, 30.0, spin_down_asymmetry=True)
     assert max(at(coasting, short[0][k]) for k in np.flatnonzero(np.diff(short[1]) > 0) + 1) > 50.0
+
+
+def test_hidden_effect_size_is_what_the_effect_does_to_the_measured_speed():
+    """The judge's size of a hidden effect: nothing for a start level no command lies below (the
+    commands' levels are 1e-4 apart, the stop level 0.05 is no drive either way), tens of rad/s for
+    one in the middle of the low levels, and nothing for the control."""
+    b = draw_bench(103)
+    assert hidden_effect_size("esc_deadband", 103, dataclasses.replace(b, start_level=c.PWM_STOP + 1e-4)) == 0.0
+    assert hidden_effect_size("esc_deadband", 103, dataclasses.replace(b, start_level=0.07)) > 30.0
+    assert hidden_effect_size("control", 103, b) == 0.0
 
 
 def test_input_delay_starts_the_response_after_the_dead_time():

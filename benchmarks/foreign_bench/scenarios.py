@@ -12,12 +12,16 @@ rotors coast to rest for longer than the project's experiment waits.
 
 from __future__ import annotations
 
+import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .draw import draw_bench
-from .model import ALL_ON, SWITCHABLE, ForeignBench, simulate
+from .model import ALL_ON, SWITCHABLE, ForeignBench, integrate, simulate
 from .record import write_bag
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -56,24 +60,52 @@ def case_specs(case: str) -> dict[str, list[tuple[str, float, float]]]:
             "measured": list(meas), "holdout": list(hold)}
 
 
+#: base recording seed and effects per role (the hidden effect OFF where ``off`` stands)
+ROLE_SEEDS = {"reference": 4000, "validation": 4900, "measured": 5000, "holdout": 6000}
+
+
+def recordings(case: str, seed: int) -> Iterator[tuple[str, int, str, float, float, int, dict[str, bool]]]:
+    """(role, index, command kind, state of charge, seconds, recording seed, effects) of every
+    recording of ``case``. Recording seeds differ per role, case and bench seed (noise and commands)."""
+    off = {} if case == "control" else {case: False}
+    for role, specs in case_specs(case).items():
+        effects = off if role in ("reference", "validation") else dict(ALL_ON)
+        for k, (kind, soc, duration) in enumerate(specs):
+            yield role, k, kind, soc, duration, ROLE_SEEDS[role] + 100 * seed + 10 * CASES.index(case) + k, effects
+
+
 def write_case(case: str, seed: int, directory: Path, bench: ForeignBench | None = None) -> dict[str, list[str]]:
     """Simulate and write every recording of ``case`` on the bench of ``seed``; returns the bag
-    paths per role. Recording seeds differ per role, case and bench seed (noise and commands)."""
+    paths per role."""
     T = project_scenarios()
     bench = bench or draw_bench(seed)
-    off = {} if case == "control" else {case: False}
-    roles = {"reference": (off, 4000), "validation": (off, 4900), "measured": (ALL_ON, 5000),
-             "holdout": (ALL_ON, 6000)}
     directory.mkdir(parents=True, exist_ok=True)
     out: dict[str, list[str]] = {}
-    for role, specs in case_specs(case).items():
-        effects, base = roles[role]
-        out[role] = []
-        for k, (kind, soc, duration) in enumerate(specs):
-            rec_seed = base + 100 * seed + 10 * CASES.index(case) + k
-            cmd_t, cmd = T.command(kind, duration, rec_seed)
-            run = simulate(bench, cmd_t, cmd, duration, seed=rec_seed, soc0=soc, effects=effects)
-            path = directory / f"{role}{k}_{kind}"
-            write_bag(run, path)
-            out[role].append(str(path))
+    for role, k, kind, soc, duration, rec_seed, effects in recordings(case, seed):
+        cmd_t, cmd = T.command(kind, duration, rec_seed)
+        run = simulate(bench, cmd_t, cmd, duration, seed=rec_seed, soc0=soc, effects=effects)
+        path = directory / f"{role}{k}_{kind}"
+        write_bag(run, path)
+        out.setdefault(role, []).append(str(path))
     return out
+
+
+def hidden_effect_size(case: str, seed: int, bench: ForeignBench | None = None) -> float:
+    """RMS (rad/s) of what the hidden effect does to the rotor speed over the case's measured
+    recordings: the bench's physics (no sensors) with every effect on against the same commands
+    with ``case``'s effect off. The judge's measure of whether the measured data can show the
+    effect at all, beside the decoded speed's noise; 0 for the control."""
+    if case == "control":
+        return 0.0
+    T = project_scenarios()
+    bench = bench or draw_bench(seed)
+    sq, n = 0.0, 0
+    for role, _, kind, soc, duration, rec_seed, effects in recordings(case, seed):
+        if role != "measured":
+            continue
+        cmd_t, cmd = T.command(kind, duration, rec_seed)
+        on = integrate(bench, cmd_t, cmd, duration, soc, effects)["speed"]
+        off = integrate(bench, cmd_t, cmd, duration, soc, {**effects, case: False})["speed"]
+        sq += float(np.sum((on - off) ** 2))
+        n += len(on)
+    return math.sqrt(sq / n)
