@@ -441,7 +441,9 @@ def render_confusion(f: dict[str, Any], key: str = "effect") -> list[str]:
     right = sum(r["first"] == (NOTHING if r[key] == "control" else r[key]) for r in runs)
     false = sum(len(r["named"]) for r in runs if r[key] == "control")
     seeds = sorted({r["seed"] for r in runs})
-    lines += ["", f"Named right first: **{right}/{len(runs)}**; false names on the controls: {false}; "
+    controls = (f"false names on the controls: {false}" if any(r[key] == "control" for r in runs)
+                else "no control runs")
+    lines += ["", f"Named right first: **{right}/{len(runs)}**; {controls}; "
               + (f"seeds {seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else f"seed {seeds[0]}")
               + ". Holdout RMSE reduction, median [min, max] over seeds:", ""]
     what = "strength" if any("strength" in r for r in runs) else "value"
