@@ -3,8 +3,12 @@
 1. Rendering the committed ``docs/results/*.json`` reproduces docs/results.md and the README's
    results regions byte for byte (so nobody edits a figure by hand).
 2. The demo's figures are recomputed by the code that wrote them (``benchmarks/results.py
-   --update demo``: the demo's commands on the bundled bags) and compared with the JSON. The runs
-   are deterministic, so the comparison is exact up to 1e-9 relative (a float's JSON round trip).
+   --update demo``: the demo's commands on the bundled bags) and compared with the JSON: what is
+   named, every verdict and count exactly, floats within ``REL_TOL``. The runs are deterministic on
+   one machine, but CPUs differ in the last bits of their BLAS and numpy SIMD kernels (AVX-512
+   against AVX2), and the fits carry that to 2e-4 relative at most (the demo's dead time, 35.371
+   against 35.377 ms; most figures 1e-8 to 1e-6): floats compare to the three or four significant
+   digits a figure is rendered with.
 3. Every number with a unit in the README's prose comes from a rendered region, or is listed in
    ``ALLOWED`` with the reason it cannot go stale.
 
@@ -93,6 +97,15 @@ def test_foreign_heating_is_judged_on_the_speed_lost_and_its_per_kelvin_shown_as
     assert "seed 7 0.95 vs 0.393 %/K, time constant 120 vs 89 s" in text
 
 
+def test_a_foreign_miss_shows_what_its_effect_does_to_the_measured_speed():
+    hit = {"path": "physics", "case": "esc_deadband", "seed": 3, "named": ["esc_deadband"], "first": "esc_deadband",
+           "before": 9.0, "after": 3.0, "effect_rad_s": 11.6}
+    miss = {**hit, "seed": 4, "named": [], "first": "(nothing)", "after": 9.0, "effect_rad_s": 0.73}
+    text = "\n".join(results.render_foreign({"runs": [hit, miss]}, "physics"))
+    assert "Named right first: **1/2**; no control runs" in text  # no controls: no claim about them
+    assert "esc_deadband seed 4 0.73 vs 9.0 rad/s." in text and "seed 3 11.6" not in text
+
+
 def test_a_benchmarks_json_path_is_checked_before_any_work(tmp_path):
     import subprocess
 
@@ -104,16 +117,26 @@ def test_a_benchmarks_json_path_is_checked_before_any_work(tmp_path):
 
 
 # --- 2. the demo's figures, recomputed ---------------------------------------------------------------
+REL_TOL = 1e-3  #: floats: 5x the CPU-to-CPU spread seen, a rendered figure's fourth digit
+
+
 def _same(got: Any, want: Any, where: str = "") -> list[str]:
-    """Where ``got`` differs from ``want`` (floats within 1e-9 relative), as readable lines."""
+    """Where ``got`` differs from ``want`` (floats within ``REL_TOL``), as readable lines."""
     if isinstance(want, dict) and isinstance(got, dict):
         out = [f"{where}.{k}: missing" for k in want if k not in got]
         return out + [d for k in want if k in got for d in _same(got[k], want[k], f"{where}.{k}")]
     if isinstance(want, list) and isinstance(got, list) and len(want) == len(got):
         return [d for i, (g, w) in enumerate(zip(got, want, strict=True)) for d in _same(g, w, f"{where}[{i}]")]
     if isinstance(want, float) and isinstance(got, (int, float)) and not isinstance(got, bool):
-        return [] if math.isclose(got, want, rel_tol=1e-9, abs_tol=1e-12) else [f"{where}: {got!r} != {want!r}"]
+        return [] if math.isclose(got, want, rel_tol=REL_TOL, abs_tol=1e-9) else [f"{where}: {got!r} != {want!r}"]
     return [] if got == want else [f"{where}: {got!r} != {want!r}"]
+
+
+def test_the_comparison_takes_cpu_rounding_but_not_a_changed_figure():
+    want = {"named": ["input_delay"], "share": 0.9173423157712909, "epochs": 40}
+    assert _same({**want, "share": 0.9173423249612108}, want) == []  # AVX-512 against AVX2
+    assert _same({**want, "share": 0.919}, want) == [".share: 0.919 != 0.9173423157712909"]
+    assert _same({**want, "epochs": 41}, want) and _same({**want, "named": []}, want)
 
 
 @pytest.fixture(scope="module")
