@@ -115,10 +115,25 @@ def command_line(argv: list[str] | None = None) -> str:
     return shlex.join(["python", str(script), *rest])
 
 
+def simd_level() -> str | None:
+    """The widest vector kernels numpy dispatches to on this CPU (x86: "AVX-512", "AVX2"), or None
+    where numpy does not say. Floats fitted on AVX-512 and on AVX2 differ in the last bits, and a
+    verdict near its threshold can follow them, so a record keeps it. numpy publishes its runtime
+    CPU features only in a private table (numpy.show_runtime prints them): read defensively."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as features
+    except ImportError:
+        return None
+    for name, label in (("AVX512F", "AVX-512"), ("AVX2", "AVX2"), ("SSE42", "SSE4.2"), ("ASIMD", "ASIMD")):
+        if features.get(name):
+            return label
+    return None
+
+
 def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, command: str | None = None,
                  seconds: float | None = None) -> None:
-    """Write ``figures`` with what produced them (command, date, commit, CPUs, the numerical
-    libraries' versions: their releases move fitted floats) to ``path``, atomically."""
+    """Write ``figures`` with what produced them (command, date, commit, CPUs and their vector
+    kernels, the numerical libraries' versions: both move fitted floats) to ``path``, atomically."""
     # what produced the figures: not the records (earlier runs write them) nor any markdown (renders)
     dirty = bool(_git("status", "--porcelain", "--untracked-files=no", "--", ".",
                       f":(exclude){RESULTS_DIR.relative_to(ROOT)}", ":(exclude)*.md"))
@@ -128,6 +143,7 @@ def write_record(path: str | os.PathLike[str], figures: dict[str, Any], *, comma
         "commit": _git("rev-parse", "--short", "HEAD") or None,
         "uncommitted_changes": dirty,
         "cpus": os.cpu_count(),
+        "simd": simd_level(),
         "libraries": {"python": platform.python_version(),
                       **{k: importlib.metadata.version(k) for k in ("numpy", "scipy")}},
         "seconds": None if seconds is None else round(seconds, 1),
@@ -303,7 +319,8 @@ def provenance(rec: dict[str, Any]) -> str:
     took = f", {rec['seconds']:.0f} s" if rec.get("seconds") is not None else ""
     libs = rec.get("libraries") or {}
     on = "".join(f", {k} {libs[k]}" for k in ("numpy", "scipy") if k in libs)
-    return f"measured {rec['date']} at {commit}{extra} ({rec.get('cpus')} CPUs{on}{took})"
+    simd = f", {rec['simd']}" if rec.get("simd") else ""
+    return f"measured {rec['date']} at {commit}{extra} ({rec.get('cpus')} CPUs{simd}{on}{took})"
 
 
 # --- renderers: one per group (a record's figures -> markdown lines) ---------------------------------

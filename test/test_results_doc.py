@@ -60,7 +60,10 @@ def test_a_record_names_the_numerical_libraries_its_floats_came_from(tmp_path):
     assert rec is not None
     assert rec["libraries"]["numpy"] == version("numpy") and rec["libraries"]["scipy"] == version("scipy")
     assert f"numpy {version('numpy')}, scipy {version('scipy')}" in results.provenance(rec)
-    del rec["libraries"]  # records written before the libraries were kept still render
+    assert rec["simd"] in ("AVX-512", "AVX2", "SSE4.2", "ASIMD", None)  # x86-64 CI machines: AVX2 at least
+    assert results.provenance({**rec, "simd": "AVX-512"}).startswith(f"measured {rec['date']} at {rec['commit']}") \
+        and "(1 CPUs, AVX-512, numpy" in results.provenance({**rec, "simd": "AVX-512", "cpus": 1})
+    del rec["libraries"], rec["simd"]  # records written before the libraries were kept still render
     assert "numpy" not in results.provenance(rec) and results.provenance(rec).startswith(f"measured {rec['date']}")
 
 
