@@ -60,7 +60,7 @@ def case_specs(case: str) -> dict[str, list[tuple[str, float, float]]]:
             "measured": list(meas), "holdout": list(hold)}
 
 
-#: base recording seed and effects per role (the hidden effect OFF where ``off`` stands)
+#: base recording seed per role (``recordings`` adds the bench seed, the case and the index)
 ROLE_SEEDS = {"reference": 4000, "validation": 4900, "measured": 5000, "holdout": 6000}
 
 
@@ -94,7 +94,7 @@ def hidden_effect_size(case: str, seed: int, bench: ForeignBench | None = None) 
     """RMS (rad/s) of what the hidden effect does to the rotor speed over the case's measured
     recordings: the bench's physics (no sensors) with every effect on against the same commands
     with ``case``'s effect off. The judge's measure of whether the measured data can show the
-    effect at all, beside the decoded speed's noise; 0 for the control."""
+    effect at all (rendered beside the holdout residual); 0 for the control."""
     if case == "control":
         return 0.0
     T = project_scenarios()
