@@ -178,3 +178,35 @@ def test_strengths_are_checked_by_one_rule() -> None:
     assert "[0, 1]" in pp.strength_problem("spin_down_asymmetry", 1.5)
     with pytest.raises(BadInputError, match=r"^--effect rotor_lag='x': not a number"):
         pp.resolve_effects({"rotor_lag": "x"})
+
+
+def test_supply_puts_back_the_polarisation_the_battery_filter_has_not_passed() -> None:
+    """A pack of E behind R_s and one RC branch (R_p, tau_p), its terminal voltage measured
+    through a first-order low-pass (scipy's lfilter as the reference filter): what the model feeds
+    the motor, the filtered voltage plus ``Supply``'s correction less the series drop, is the
+    terminal voltage at every step of a current staircase; without the branch in the model it
+    is off by a fifth of the branch's largest drop."""
+    from scipy.signal import lfilter
+
+    from bldc_propulsion.physics.plant import Supply
+
+    dt, tau_s, r_s, r_p, tau_p, e = 0.001, 2.0, 0.03, 0.02, 2.5, 12.0
+    ib = np.repeat([0.0, 20.0, 5.0, 30.0, 0.0], 4000)
+    a_p, a_f = 1.0 - math.exp(-dt / tau_p), 1.0 - math.exp(-dt / tau_s)
+    vp_true = lfilter([a_p], [1.0, a_p - 1.0], r_p * ib)  # v_p[k] after step k's current
+    terminal = e - r_s * ib - np.concatenate(([0.0], vp_true[:-1]))  # the branch as it stood during step k
+    filtered = np.concatenate(([e], lfilter([a_f], [1.0, a_f - 1.0], terminal, zi=[(1.0 - a_f) * e])[0][:-1]))
+
+    def seen(p: pp.PlantParams) -> np.ndarray:
+        sp = Supply.of(p, {"battery_voltage": 1.0}, e, tau_s)
+        state, out = sp.start(0.0), []
+        for k in range(len(ib)):
+            out.append(filtered[k] + sp.correction(state) - r_s * ib[k])
+            state = sp.advance(state, float(ib[k]))
+        return np.array(out)
+
+    p = dataclasses.replace(pp.PlantParams(), sim_step_s=dt, battery_series_resistance_ohm=r_s,
+                            supply_polarisation_resistance_ohm=r_p, supply_polarisation_time_constant_s=tau_p)
+    assert np.max(np.abs(seen(p) - terminal)) < 1e-9
+    off = np.max(np.abs(seen(dataclasses.replace(p, supply_polarisation_resistance_ohm=0.0)) - terminal))
+    assert off > 0.2 * r_p * 30.0

@@ -68,6 +68,11 @@ CASES = {
                                                    {"esc_deadband": 3.0}, 10, TAU),
     # a curved map (linear and square blend)
     "random bench, curved map": (dataclasses.replace(rb.draw_bench(4), esc_throttle_curvature=0.6), {}, 10, TAU),
+    # a pack with a fast polarisation branch the filter passes only in part (plant.Supply)
+    "polarisation branch": (dataclasses.replace(BenchParams(), sim_step_s=0.005,
+                                                supply_polarisation_resistance_ohm=0.04,
+                                                supply_polarisation_time_constant_s=2.5),
+                            {"battery_voltage": 0.9}, 10, TAU),
 }
 
 

@@ -169,12 +169,12 @@ class _Lanes(_Twins):
         along the lanes' own sensitivities by ``moves`` (per lane, in its units before the
         rebase), each perturbed lane keeps its distance from it: no jump in the prediction."""
         fresh = PhysicsTwins(params, *self._build, faults=ADAPTED, voltage_lane=False)
-        for x in (self._w, self._temp, self._ib_lp, self._w_now):
+        for x in (self._w, self._temp, self._ib_lp, self._vp, self._vp_lp, self._w_now):
             lift = sum(m * (x[j + 1] - x[0]) * self._inv[j + 1] for j, m in enumerate(moves))
             for j in range(len(x)):
                 x[j] += lift
         self._w[:] = [max(w, 0.0) for w in self._w]
-        self._steps, self._rs, self._inv = fresh._steps, fresh._rs, fresh._inv
+        self._steps, self._rs, self._rp, self._inv = fresh._steps, fresh._rs, fresh._rp, fresh._inv
         self.params, self.friction_reference_a = fresh.params, fresh.friction_reference_a
 
 

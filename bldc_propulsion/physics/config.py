@@ -41,8 +41,14 @@ CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp", "esc_throttle_exponent", "ba
 #: rotor between 1100 and 1150 us (~1.1). ``esc_throttle_curvature``: the map's square-law share
 #: (``plant.throttle``), from none (0) to the square law (1); the discrepancy workflow fits it on
 #: the reference (``fit.MAP_SHAPE``).
+#: ``supply_polarisation_*``: the pack's fast polarisation branch (``plant.Supply``), from none to
+#: several times a LiPo's series resistance, its time constant from one that the series resistance
+#: could stand for to one the battery filter passes (``fit.SWITCH_COMPANIONS``: fitted with the
+#: battery_voltage strength).
 LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2.0),
-                                                 "esc_throttle_curvature": (0.0, 1.0)}
+                                                 "esc_throttle_curvature": (0.0, 1.0),
+                                                 "supply_polarisation_resistance_ohm": (0.0, 0.3),
+                                                 "supply_polarisation_time_constant_s": (0.3, 30.0)}
 #: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
 #: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
 #: the error is ~0.5 rad/s RMS, 2.5 rad/s at most, below the tachometer's ~5 rad/s noise).

@@ -31,6 +31,13 @@ class PlantParams:
     # --- the source as the ESC sees it ------------------------------------------------------
     # ~8 mOhm per cell (a fresh 20-25C 2 Ah pack) + XT60/deans connector + 15 cm of 14 AWG lead
     battery_series_resistance_ohm: float = 0.035
+    # the pack's fast polarisation (charge transfer) as one RC branch behind the series resistance:
+    # the sag that builds over seconds after a load step. A battery filter of ~2 s passes only part
+    # of it in that time, so a model driven by the filtered voltage puts back the part it has not
+    # passed (``plant.Supply``), as it does for the series resistance's drop. 0: no such branch
+    # (the default; a branch far slower than the filter needs none: the filter passes it).
+    supply_polarisation_resistance_ohm: float = 0.0
+    supply_polarisation_time_constant_s: float = 3.0
 
     # --- ESC ------------------------------------------------------------------------------
     # MOSFET on-resistance (two of them conduct, ~2 x 10 mOhm), motor leads, bullet connectors
@@ -120,6 +127,7 @@ PLANT_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PlantPa
 #: Constants that may be zero (a switch-off of a small term); all others must be > 0.
 PLANT_MAY_BE_ZERO = frozenset({
     "battery_series_resistance_ohm",
+    "supply_polarisation_resistance_ohm",
     "esc_resistance_ohm",
     "esc_deadband_pwm",
     "esc_map_origin_share",
@@ -131,7 +139,8 @@ PLANT_MAY_BE_ZERO = frozenset({
 })
 #: Constants a model file may lack, read at their default: added after model files were written
 #: (a file written before holds the same model it held).
-PLANT_OPTIONAL_FIELDS = frozenset({"esc_map_origin_share", "esc_throttle_curvature"})
+PLANT_OPTIONAL_FIELDS = frozenset({"esc_map_origin_share", "esc_throttle_curvature",
+                                   "supply_polarisation_resistance_ohm", "supply_polarisation_time_constant_s"})
 #: Constants whose value is a temperature (any finite value).
 PLANT_ANY_FINITE = frozenset({"winding_reference_temperature_c", "ambient_temperature_c"})
 #: Coarsest integration step the rotor tolerates (its time constant is ~0.1 s at nominal inertia).

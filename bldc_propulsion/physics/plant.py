@@ -231,20 +231,49 @@ class Supply:
     at ``v_ref``, 1 the measured voltage. The measured voltage already carries the series
     resistance's drop; if it was measured through a first-order low-pass of ``tau_s`` > 0 (the
     battery filter), the part of the drop the filter has not yet passed, R_s (i - lowpass(i)), is
-    taken off again: the source voltage is V + R_s lowpass(i_supply), behind R_s.
+    taken off again: the source voltage is V + R_s lowpass(i_supply), behind R_s. Likewise the
+    pack's polarisation branch (R_p, tau_p: its voltage v_p follows R_p i_supply with tau_p), whose
+    sag the filter has passed only in part: the motor sees V + lowpass(v_p) - v_p more.
+    (``correction``: what the caller adds to the scaled voltage, and how its state moves.)
     """
 
     v_ref: float
     strength: float
     source_resistance_ohm: float  #: s R_s with a filtered voltage, 0 with the terminal's own
     lowpass_gain: float  #: per step, 1 - exp(-dt / tau_s) (0 without a filter)
+    polarisation_ohm: float = 0.0  #: s R_p with a filtered voltage, else 0
+    polarisation_gain: float = 0.0  #: per step, 1 - exp(-dt / tau_p)
 
     @classmethod
     def of(cls, p: PlantParams, eff: Mapping[str, float], v_ref: float, tau_s: float) -> Supply:
         s = eff["battery_voltage"]
         rs = s * p.battery_series_resistance_ohm if tau_s > 0.0 else 0.0
         gain = lag_gain(p.sim_step_s, tau_s) if tau_s > 0.0 else 0.0
-        return cls(float(v_ref), s, rs, gain)
+        rp = s * p.supply_polarisation_resistance_ohm if tau_s > 0.0 else 0.0
+        gp = lag_gain(p.sim_step_s, p.supply_polarisation_time_constant_s) if rp > 0.0 else 0.0
+        return cls(float(v_ref), s, rs, gain, rp, gp)
+
+    def start(self, ib: float) -> tuple[float, float, float]:
+        """The correction's state (lowpass(i_supply), v_p, lowpass(v_p)) of a pack that has
+        supplied ``ib`` (A) for long: the filter has passed all of its drop."""
+        vp = self.polarisation_ohm * ib
+        return ib, vp, vp
+
+    def advance(self, state: tuple[float, float, float], ib: float) -> tuple[float, float, float]:
+        """The state after a step that drew ``ib`` (A) from the supply."""
+        ib_lp, vp, vp_lp = state
+        ib_lp = lag_step(ib_lp, ib, self.lowpass_gain)
+        if self.polarisation_ohm == 0.0:
+            return ib_lp, vp, vp_lp
+        # the filter has seen the branch as it stood during the step, before the step's current moved it
+        vp_lp = lag_step(vp_lp, vp, self.lowpass_gain)
+        return ib_lp, lag_step(vp, self.polarisation_ohm * ib, self.polarisation_gain), vp_lp
+
+    def correction(self, state: tuple[float, float, float]) -> float:
+        """What the motor sees (V) beyond the scaled measured voltage, before the series
+        resistance's own drop (``make_step`` takes R_s duty^2 off): R_s lowpass(i) + lowpass(v_p) - v_p."""
+        ib_lp, vp, vp_lp = state
+        return self.source_resistance_ohm * ib_lp + (vp_lp - vp)
 
 
 def held(sample_t: np.ndarray, sample_v: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -386,15 +415,19 @@ def motor_response_with_current(
     source = (sp.v_ref + sp.strength * (volts - sp.v_ref)).tolist()
     duty = esc_duty(p, eff, cmd_t, cmd, step_t).tolist()
     step = make_step(p, eff, sp.source_resistance_ohm)
-    rs, a_lp = sp.source_resistance_ohm, sp.lowpass_gain
     w = w0
     temp = p.ambient_temperature_c
-    ib_lp = running_supply_current(step, w0, temp, duty[0], source[0], rs) if w0 > 0.0 else 0.0
+    ib0 = running_supply_current(step, w0, temp, duty[0], source[0], sp.source_resistance_ohm) if w0 > 0.0 else 0.0
+    ib_lp, vp, vp_lp = sp.start(ib0)
+    rs, a_lp, rp, g_p = sp.source_resistance_ohm, sp.lowpass_gain, sp.polarisation_ohm, sp.polarisation_gain
     speed = [0.0] * n
     current = [0.0] * n
-    for k in range(n):
+    for k in range(n):  # Supply.correction and Supply.advance, inlined: the fits' innermost loop
         d = duty[k]
-        speed[k], w, i, temp = step(w, temp, d, source[k] + rs * ib_lp)
+        speed[k], w, i, temp = step(w, temp, d, source[k] + (rs * ib_lp + (vp_lp - vp)))
         current[k] = ib = d * i
         ib_lp = lag_step(ib_lp, ib, a_lp)
+        if rp:
+            vp_lp = lag_step(vp_lp, vp, a_lp)
+            vp = lag_step(vp, rp * ib, g_p)
     return np.interp(t_out, step_t, speed), np.interp(t_out, step_t, current)

@@ -115,7 +115,8 @@ class PlantStream:
         self._dt = p.sim_step_s
         self._delay = dead_time_s(p, eff)
         self._map = esc_map(p, eff)  #: throttle's (threshold, exponent, origin, curvature)
-        self._supply = (sp.v_ref, sp.strength, sp.source_resistance_ohm, sp.lowpass_gain)
+        self._supply = (sp.v_ref, sp.strength, sp.source_resistance_ohm, sp.lowpass_gain, sp.polarisation_ohm,
+                        sp.polarisation_gain)
         self.late_inputs = 0
         self.reset(initial_speed)
 
@@ -136,6 +137,7 @@ class PlantStream:
         self._w = self.initial_speed
         self._temp = self.params.ambient_temperature_c
         self._ib_lp = 0.0
+        self._vp = self._vp_lp = 0.0  #: the pack's polarisation voltage and its low-passed value
         self._level = PWM_STOP
         self._duty = throttle(PWM_STOP, *self._map)
         self._pi = 0
@@ -233,14 +235,14 @@ class PlantStream:
     def _march(self, k_end: int, commit: bool) -> tuple[float, float]:
         """Steps from the committed state up to (not including) ``k_end``; keeps the state if
         ``commit``. Returns the speed outputs of steps k_end - 2 and k_end - 1."""
-        k, w, temp, ib_lp = self._k, self._w, self._temp, self._ib_lp
+        k, w, temp, ib_lp, vp, vp_lp = self._k, self._w, self._temp, self._ib_lp, self._vp, self._vp_lp
         level, duty, pi, vi = self._level, self._duty, self._pi, self._vi
         prev = last = self._w_last
         pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
         n_p, n_v = len(pt), len(vt)
         t0, dt, lead = self._t0, self._dt, self._delay
         threshold, exponent, origin, curvature = self._map
-        v_ref, sbv, rs, a_lp = self._supply
+        v_ref, sbv, rs, a_lp, rp, g_p = self._supply
         step = self._step
         assert t0 is not None, "steps exist only after the first command"
         while k < k_end:
@@ -257,12 +259,16 @@ class PlantStream:
                 vi += 1
             if k == 0 and w > 0.0:  # started running: the supply current already filtered
                 ib_lp = running_supply_current(step, w, temp, duty, v_ref + sbv * (vv[vi] - v_ref), rs)
+                vp = vp_lp = rp * ib_lp  # (plant.Supply.start)
             prev = last
-            last, w, i, temp = step(w, temp, duty, v_ref + sbv * (vv[vi] - v_ref) + rs * ib_lp)
+            last, w, i, temp = step(w, temp, duty, v_ref + sbv * (vv[vi] - v_ref) + (rs * ib_lp + (vp_lp - vp)))
             ib_lp = lag_step(ib_lp, duty * i, a_lp)
+            if rp:  # (plant.Supply.advance)
+                vp_lp = lag_step(vp_lp, vp, a_lp)
+                vp = lag_step(vp, rp * duty * i, g_p)
             k += 1
         if commit:
-            self._k, self._w, self._temp, self._ib_lp = k, w, temp, ib_lp
+            self._k, self._w, self._temp, self._ib_lp, self._vp, self._vp_lp = k, w, temp, ib_lp, vp, vp_lp
             self._level, self._duty, self._w_last = level, duty, last
             if pi > _TRIM:
                 del pt[:pi], pv[:pi]
