@@ -49,6 +49,10 @@ LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2
                                                  "esc_throttle_curvature": (0.0, 1.0),
                                                  "supply_polarisation_resistance_ohm": (0.0, 0.3),
                                                  "supply_polarisation_time_constant_s": (0.3, 30.0)}
+#: LINEAR_RANGES constants whose upper end is no bound a fit can hit (``fit.fit_flags``): a polarisation
+#: slower than the range is one the battery filter passes nearly whole, so the model hardly depends
+#: on where beyond it the branch lies (the project's simulator's pack: 30 s, at the range's end).
+LINEAR_OPEN_ABOVE = frozenset({"supply_polarisation_time_constant_s"})
 #: Integration step of the physics model unless a CONFIG sets ``sim_step_s``: 5 ms keeps a 30 s
 #: recording at ~6 ms of simulation (the implicit Euler is stable; against the 1 ms simulator
 #: the error is ~0.5 rad/s RMS, 2.5 rad/s at most, below the tachometer's ~5 rad/s noise).

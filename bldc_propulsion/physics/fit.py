@@ -25,7 +25,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .. import contract as c
-from .config import CALIBRATED, LINEAR_RANGES, PhysicsConfig, Recorded, supply_tau_s
+from .config import CALIBRATED, LINEAR_OPEN_ABOVE, LINEAR_RANGES, PhysicsConfig, Recorded, supply_tau_s
 from .plant import full_drive_speeds
 
 #: The ranges of ``config.CALIBRATED``, the constants calibrated on the measured data (log scale):
@@ -472,7 +472,7 @@ def fit_flags(fit: Fit, config: PhysicsConfig, what: str) -> list[FitFlag]:
             out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated, other))
     for name in fit.linear:  # their low end is "off", physical (as spin-down's 1), not a bound hit
         value, (low, high) = float(getattr(fit.model.params, name)), LINEAR_RANGES[name]
-        if value >= high - 1e-3:
+        if value >= high - 1e-3 and name not in LINEAR_OPEN_ABOVE:
             out.append(FitFlag(what, name, value, float(getattr(config.params, name)), low, high, True, stated, other))
     loaded = loaded_speed_flag(fit.model, what)
     if loaded is not None:
