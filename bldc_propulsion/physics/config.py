@@ -43,8 +43,8 @@ CALIBRATED = ("motor_kv_rpm_per_v", "propeller_cp", "esc_throttle_exponent", "ba
 #: the reference (``fit.MAP_SHAPE``).
 #: ``supply_polarisation_*``: the pack's fast polarisation branch (``plant.Supply``), from none to
 #: several times a LiPo's series resistance, its time constant from one that the series resistance
-#: could stand for to one the battery filter passes (``fit.SWITCH_COMPANIONS``: fitted with the
-#: battery_voltage strength).
+#: could stand for to one the battery filter passes (``fit.REFERENCE_COMPANIONS``: fitted where
+#: battery_voltage is completed into the base on the reference).
 LINEAR_RANGES: dict[str, tuple[float, float]] = {"esc_map_origin_share": (0.0, 2.0),
                                                  "esc_throttle_curvature": (0.0, 1.0),
                                                  "supply_polarisation_resistance_ohm": (0.0, 0.3),

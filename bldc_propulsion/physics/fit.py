@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypedDict
 
@@ -92,12 +92,16 @@ COMPANION_LOG_RANGE = math.log(4.0)
 #: went from 6.0 to 1.6 rad/s. The friction is not a companion here: fitted along with the
 #: threshold it wandered with every later effect (the demo's bags: 0.62 A, then 0.1 A at its
 #: bound with the dead time, for the bench's 0.4 A), and the bound hit refused the dead time.
-#: A pack sags over seconds after a step too (its polarisation), which a ~2 s battery filter
-#: passes only in part: with the series resistance alone, the battery_voltage strength fitted
-#: 0.83-0.89 on foreign bench 102's reference (a 2.8 s branch) for 0.99 with the branch removed, and
-#: the slow sag it left made a winding's heating remove 20-30 % of a reference that had none.
-SWITCH_COMPANIONS: dict[str, tuple[str, ...]] = {
-    "esc_deadband": ("esc_map_origin_share",),
+SWITCH_COMPANIONS: dict[str, tuple[str, ...]] = {"esc_deadband": ("esc_map_origin_share",)}
+#: SWITCH_COMPANIONS of an effect completed into the base on the reference (``fit_reference``'s
+#: ``with_companions``) only, then held like the map's shape. A pack sags over seconds after a step
+#: (its polarisation), which a ~2 s battery filter passes only in part: with the series resistance
+#: alone, the battery_voltage strength fitted 0.83-0.89 on foreign bench 102's reference (a 2.8 s
+#: branch) for 0.99 with the branch removed, and the slow sag it left made a winding's heating remove
+#: 20-30 % of a reference that had none. Not on the measured data: there the two constants stood in
+#: for what a badly calibrated model lacked (the demo's bags, no reference, Kv 2.2x the nominal:
+#: R_p at the top of its range, and battery_voltage no longer a basis for a verdict).
+REFERENCE_COMPANIONS: dict[str, tuple[str, ...]] = {
     "battery_voltage": ("supply_polarisation_resistance_ohm", "supply_polarisation_time_constant_s")}
 #: Constants of the base fitted on the reference in the discrepancy workflow along with the CALIBRATED
 #: ones (log scale, within COMPANION_LOG_RANGE of the CONFIG's; ``fit_reference``'s ``base_companions``),
@@ -328,7 +332,8 @@ def fit_reference(model: PhysicsConfig, data: Data, hold: Sequence[str] = (), sw
     ``with_companions`` (``switch_companions``) and the constants ``base_companions`` (log scale,
     within COMPANION_LOG_RANGE of ``model``'s: BASE_COMPANIONS)."""
     on = tuple(n for n in c.EFFECTS if model.effects[n] > 0.0 and n not in held_effects)
-    model, linear = switch_companions(model, with_companions, linear)
+    model, linear = switch_companions(model, with_companions, linear,
+                                      table={**SWITCH_COMPANIONS, **REFERENCE_COMPANIONS})
     anchors = {n: float(getattr(model.params, n)) for n in base_companions}
     fit = calibrate(model, data, *base_window(model, hold), on, max_nfev=60, linear=linear,
                     companion_anchor=anchors)
@@ -533,13 +538,16 @@ def recalibrate_with(fit: Fit, model: PhysicsConfig, data: Data, names: Sequence
 
 
 def switch_companions(model: PhysicsConfig, names: Sequence[str], linear: Sequence[str] = (),
-                      companions_from: PhysicsConfig | None = None) -> tuple[PhysicsConfig, tuple[str, ...]]:
-    """(``model``, linear constants) for ``calibrate`` with the SWITCH_COMPANIONS of the effects
-    ``names`` added to ``linear``: those not there yet start from ``companions_from``'s values (a
-    fit of the same bench on other recordings) or, without it, SWITCH_START."""
+                      companions_from: PhysicsConfig | None = None,
+                      table: Mapping[str, tuple[str, ...]] = SWITCH_COMPANIONS,
+                      ) -> tuple[PhysicsConfig, tuple[str, ...]]:
+    """(``model``, linear constants) for ``calibrate`` with the companions (``table``:
+    SWITCH_COMPANIONS) of the effects ``names`` added to ``linear``: those not there yet start from
+    ``companions_from``'s values (a fit of the same bench on other recordings) or, without it,
+    SWITCH_START."""
     lin = list(linear)
     values: dict[str, Any] = {}  # (untyped: see calibrate)
-    for n in (n for name in names for n in SWITCH_COMPANIONS.get(name, ())):
+    for n in (n for name in names for n in table.get(name, ())):
         if n not in lin:
             lin.append(n)
             values[n] = float(getattr(companions_from.params, n)) if companions_from else SWITCH_START[n]
