@@ -174,7 +174,7 @@ class _Lanes(_Twins):
             for j in range(len(x)):
                 x[j] += lift
         self._w[:] = [max(w, 0.0) for w in self._w]
-        self._steps, self._rs, self._rp, self._inv = fresh._steps, fresh._rs, fresh._rp, fresh._inv
+        self._steps, self._rs, self._rp, self._gp, self._inv = fresh._steps, fresh._rs, fresh._rp, fresh._gp, fresh._inv
         self.params, self.friction_reference_a = fresh.params, fresh.friction_reference_a
 
 

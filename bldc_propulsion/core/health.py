@@ -168,13 +168,15 @@ class PhysicsTwins:
             del lanes[-1], self._lift[-1]
         self._steps: list[Step] = []
         self._rs: list[float] = []
-        self._rp: list[tuple[float, float]] = []  #: per lane, the polarisation's (s R_p, gain)
+        self._rp: list[float] = []  #: per lane, the polarisation's s R_p and its gain per step
+        self._gp: list[float] = []
         self._inv: list[float] = []
         for p, delta in lanes:
             sp = Supply.of(p, eff, supply_v, supply_tau_s)
             self._steps.append(make_step(p, eff, sp.source_resistance_ohm))
             self._rs.append(sp.source_resistance_ohm)
-            self._rp.append((sp.polarisation_ohm, sp.polarisation_gain))
+            self._rp.append(sp.polarisation_ohm)
+            self._gp.append(sp.polarisation_gain)
             self._inv.append(1.0 / delta)
         sp = Supply.of(params, eff, supply_v, supply_tau_s)
         self._v_ref, self._sbv, self._a_lp = sp.v_ref, sp.strength, sp.lowpass_gain
@@ -233,7 +235,7 @@ class PhysicsTwins:
         level, duty = self._level, self._duty
         threshold, exponent, origin, curvature = self._map
         v_ref, sbv, a_lp = self._v_ref, self._sbv, self._a_lp
-        steps, rs, rps, lift = self._steps, self._rs, self._rp, self._lift
+        steps, rs, rp, gp, lift = self._steps, self._rs, self._rp, self._gp, self._lift
         w, temp, ib_lp, ib, w_now = self._w, self._temp, self._ib_lp, self._ib, self._w_now
         vp, vp_lp = self._vp, self._vp_lp
         lanes = range(len(steps))
@@ -255,10 +257,9 @@ class PhysicsTwins:
                                                       source + lift[j] + (rs[j] * ib_lp[j] + (vp_lp[j] - vp[j])))
                 ib[j] = duty * i
                 ib_lp[j] += a_lp * (ib[j] - ib_lp[j])
-                rp, g_p = rps[j]
-                if rp:  # (plant.Supply.advance)
+                if rp[j]:  # (plant.Supply.advance)
                     vp_lp[j] += a_lp * (vp[j] - vp_lp[j])
-                    vp[j] += g_p * (rp * ib[j] - vp[j])
+                    vp[j] += gp[j] * (rp[j] * ib[j] - vp[j])
             k += 1
         self._k, self._level, self._duty = k, level, duty
         if pi > 64:  # inputs consumed: dropped in batches (amortised)

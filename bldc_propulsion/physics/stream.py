@@ -117,6 +117,7 @@ class PlantStream:
         self._map = esc_map(p, eff)  #: throttle's (threshold, exponent, origin, curvature)
         self._supply = (sp.v_ref, sp.strength, sp.source_resistance_ohm, sp.lowpass_gain, sp.polarisation_ohm,
                         sp.polarisation_gain)
+        self._supply_start = sp.start  #: the correction's state of a running start
         self.late_inputs = 0
         self.reset(initial_speed)
 
@@ -258,8 +259,8 @@ class PlantStream:
             while vi + 1 < n_v and vt[vi + 1] <= ts:
                 vi += 1
             if k == 0 and w > 0.0:  # started running: the supply current already filtered
-                ib_lp = running_supply_current(step, w, temp, duty, v_ref + sbv * (vv[vi] - v_ref), rs)
-                vp = vp_lp = rp * ib_lp  # (plant.Supply.start)
+                ib_lp, vp, vp_lp = self._supply_start(
+                    running_supply_current(step, w, temp, duty, v_ref + sbv * (vv[vi] - v_ref), rs))
             prev = last
             last, w, i, temp = step(w, temp, duty, v_ref + sbv * (vv[vi] - v_ref) + (rs * ib_lp + (vp_lp - vp)))
             ib_lp = lag_step(ib_lp, duty * i, a_lp)
