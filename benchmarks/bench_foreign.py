@@ -39,7 +39,7 @@ from bldc_propulsion import contract as c  # noqa: E402
 from bldc_propulsion.errors import BadInputError  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from results import check_record_path, write_record  # noqa: E402
+from results import INVISIBLE_RAD_S, check_record_path, judged_case, write_record  # noqa: E402
 
 PATHS = ("physics", "network")
 #: effects whose physics-path value the bench can state in the same unit (the others: inertia
@@ -114,9 +114,11 @@ def one_run(path: str, case: str, seed: int, trace: bool = False) -> dict:
 
 def print_table(rows: list[dict], path: str, cases: list[str]) -> None:
     """Confusion table, holdout reduction and fitted value vs truth for one path."""
-    rows = [r for r in rows if r["path"] == path]
+    # a hidden effect that does not move the measured speed is judged as a control (results.judged_case)
+    rows = [{**r, "case": judged_case(r), "hidden": r["case"]} for r in rows if r["path"] == path]
     if not rows:
         return
+    cases = [*cases, *(["control"] if "control" not in cases and any(r["case"] == "control" for r in rows) else [])]
     cols = [*c.EFFECTS, "(nothing)"]
     short = {"battery_voltage": "battery", "spin_down_asymmetry": "spin_down", "motor_heating": "heating",
              "esc_deadband": "deadband", "input_delay": "delay"}
@@ -148,6 +150,9 @@ def print_table(rows: list[dict], path: str, cases: list[str]) -> None:
                      ", ".join(f"{r['per_k']:.3g} vs {r['truth_per_k']:.3g} %/K, time constant {r['tau_s']:.0f} vs "
                                f"{r['truth_tau_s']:.0f} s" for r in aside))
         print(line)
+    if invisible := [r for r in rows if r["case"] != r["hidden"]]:
+        print(f"judged as controls (the hidden effect moves the measured speed by < {INVISIBLE_RAD_S} rad/s): "
+              + ", ".join(f"{r['hidden']} seed {r['seed']}" for r in invisible))
     right = sum(r["first"] == ("(nothing)" if r["case"] == "control" else r["case"]) for r in rows)
     print(f"[{path}] named right first: {right}/{len(rows)}; workflow + bags "
           f"{sum(r['seconds'] for r in rows):.0f} s in total", flush=True)

@@ -109,6 +109,21 @@ def test_a_foreign_miss_shows_what_its_effect_does_to_the_measured_speed():
     assert "esc_deadband seed 4 0.73 vs 9.0 rad/s." in text and "seed 3 11.6" not in text
 
 
+def test_a_foreign_effect_that_does_not_move_the_speed_is_judged_as_a_control():
+    hit = {"path": "physics", "case": "esc_deadband", "seed": 3, "named": ["esc_deadband"], "first": "esc_deadband",
+           "before": 9.0, "after": 3.0, "effect_rad_s": 11.6}
+    quiet = {**hit, "seed": 8, "named": [], "first": "(nothing)", "after": 9.0, "effect_rad_s": 0.0}
+    wrong = {**quiet, "seed": 9, "named": ["input_delay"], "first": "input_delay"}  # a name there is a false one
+    small = {**quiet, "seed": 4, "effect_rad_s": 0.73}  # small but there: still a miss
+    text = "\n".join(results.render_foreign({"runs": [hit, quiet, wrong, small]}, "physics"))
+    assert "| esc_deadband | 0 | 0 | 0 | 1 | 0 | 0 | 1 | 1/2 |" in text
+    assert "| control | 0 | 0 | 1 | 0 | 0 | 0 | 1 | 1/2 |" in text
+    assert "Named right first: **2/4**; false names on the controls: 1" in text
+    assert "esc_deadband seed 8 (0 rad/s, named nothing); esc_deadband seed 9 (0 rad/s, named input_delay)" in text
+    assert "esc_deadband seed 4 0.73 vs 9.0 rad/s." in text and "seed 8 0.00 vs" not in text
+    assert results.judged_case({"case": "esc_deadband"}) == "esc_deadband"  # no figure: judged as recorded
+
+
 def test_a_benchmarks_json_path_is_checked_before_any_work(tmp_path):
     import subprocess
 
