@@ -863,10 +863,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "the project's experiment stops 0.5-1 s and these rotors coast 4-15 s, the low levels covered by bands), "
           "on benches never run before (about 40 minutes on 2 cores)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
-          "python benchmarks/bench_foreign.py --first-seed 96 --seeds 4 --jobs 1 --path network "
+          "python benchmarks/bench_foreign.py --first-seed 120 --seeds 8 --jobs 2 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
-          "`benchmarks/foreign_bench/`'s randomized benches (about 15 minutes); `--trace` prints each run's "
-          "workflow lines (scores, identification, each trial's holdout test)."),
+          "`benchmarks/foreign_bench/`'s randomized benches, never tuned on (about 15 minutes on 2 cores); "
+          "`--trace` prints each run's workflow lines (scores, "
+          "identification, each trial's holdout test)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--json docs/results/health.json", render_health,
