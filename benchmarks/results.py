@@ -845,7 +845,8 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "kind, best of several runs (seconds; CPU time, so other load disturbs it little)."),
     Group("confusion_network", "Discrepancy, network path: the confusion table",
           "python experiments/confusion_table.py --seeds 10 --jobs 2 --json docs/results/confusion_network.json",
-          render_confusion, "Every hidden effect and a control on benches drawn from each seed (about 25 minutes)."),
+          render_confusion,
+          "Every hidden effect and a control on benches drawn from each seed (about 30 minutes on 2 cores)."),
     Group("confusion_physics", "Discrepancy, physics path: the confusion table",
           "python experiments/physics_confusion.py --seeds 20 --jobs 2 --json docs/results/confusion_physics.json",
           render_confusion, "Every hidden effect and a control on benches drawn from each seed (about 30 minutes)."),
@@ -865,7 +866,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
           "python benchmarks/bench_foreign.py --first-seed 120 --seeds 8 --jobs 2 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
-          "`benchmarks/foreign_bench/`'s randomized benches, never tuned on (about 15 minutes on 2 cores); "
+          "`benchmarks/foreign_bench/`'s randomized benches, never tuned on (about 30 minutes on 2 cores); "
           "`--trace` prints each run's workflow lines (scores, "
           "identification, each trial's holdout test)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
