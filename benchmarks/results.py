@@ -862,7 +862,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
                      *render_foreign(f, "network")],
           "esc_deadband alone, recorded from rest (`foreign_bench.scenarios.OWN_EXPERIMENT`: stops of 10-13 s where "
           "the project's experiment stops 0.5-1 s and these rotors coast 4-15 s, the low levels covered by bands), "
-          "on benches never run before (about 40 minutes on 2 cores)."),
+          "on benches never run before (about 50 minutes on 2 cores)."),
     Group("foreign_network", "Discrepancy on a bench written by someone else, network path",
           "python benchmarks/bench_foreign.py --first-seed 120 --seeds 8 --jobs 2 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
