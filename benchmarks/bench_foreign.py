@@ -118,7 +118,8 @@ def print_table(rows: list[dict], path: str, cases: list[str]) -> None:
     rows = [{**r, "case": judged_case(r), "hidden": r["case"]} for r in rows if r["path"] == path]
     if not rows:
         return
-    cases = [*cases, *(["control"] if "control" not in cases and any(r["case"] == "control" for r in rows) else [])]
+    if "control" not in cases and any(r["case"] == "control" for r in rows):
+        cases = [*cases, "control"]
     cols = [*c.EFFECTS, "(nothing)"]
     short = {"battery_voltage": "battery", "spin_down_asymmetry": "spin_down", "motor_heating": "heating",
              "esc_deadband": "deadband", "input_delay": "delay"}

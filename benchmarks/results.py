@@ -867,8 +867,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "python benchmarks/bench_foreign.py --first-seed 120 --seeds 8 --jobs 2 --path network "
           "--json docs/results/foreign_network.json", lambda f: render_foreign(f, "network"),
           "`benchmarks/foreign_bench/`'s randomized benches, never tuned on (about 30 minutes on 2 cores); "
-          "`--trace` prints each run's workflow lines (scores, "
-          "identification, each trial's holdout test)."),
+          "`--trace` prints each run's workflow lines (scores, identification, each trial's holdout test)."),
     Group("health", "Health monitor on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--json docs/results/health.json", render_health,
