@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 from bldc_propulsion.core.battery_filter import BatteryFilter, BatteryFilterConfig  # noqa: E402
 from bldc_propulsion.core.health import FAULT_UNITS, UNNAMED, HealthConfig, run_health  # noqa: E402
 from bldc_propulsion.recordings import decode_speed, load_signals  # noqa: E402
-from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim import PROFILES, simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
 from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
 from bldc_propulsion.sim.record import TACH_BATCH, write_sim_bag  # noqa: E402
@@ -135,7 +135,7 @@ def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None
     return out
 
 
-def plan(first_seed: int, seeds: int, flights: int, hours: float) -> list[dict[str, Any]]:
+def plan(first_seed: int, seeds: int, flights: int, hours: float, profile: str = "flight") -> list[dict[str, Any]]:
     """Every bench's flights, drawn up front from one generator in a fixed order (per bench: its
     fault flights, then its healthy ones), so a run's onset, charge and seed do not depend on
     how many jobs share the work."""
@@ -151,7 +151,7 @@ def plan(first_seed: int, seeds: int, flights: int, hours: float) -> list[dict[s
                                "seed": 10_000 * bench_seed + 100 * k + list(GOALS).index(name)})
         healthy = [{"seed": 10_000 * bench_seed + 5000 + k, "soc": float(rng.uniform(0.5, 1.0))}
                    for k in range(per_bench_healthy)]
-        out.append({"bench": bench_seed, "faults": faults, "healthy": healthy})
+        out.append({"bench": bench_seed, "faults": faults, "healthy": healthy, "profile": profile})
     return out
 
 
@@ -165,7 +165,7 @@ def one_bench(job: dict[str, Any], t_start: float) -> dict[str, Any]:
     results: dict[str, list[dict[str, Any]]] = {name: [] for name in GOALS}
     for f in job["faults"]:
         fault = f["fault"]
-        res = simulate("random_steps", FLIGHT_S, f["seed"], params=bench, soc=f["soc"], faults=[fault])
+        res = simulate(job["profile"], FLIGHT_S, f["seed"], params=bench, soc=f["soc"], faults=[fault])
         run = run_health(model, *streams(res))
         j = judge(run.events, fault, turning_after(res, fault.onset_s))
         j.update(bench=bench_seed, seed=f["seed"], onset_s=fault.onset_s)
@@ -174,7 +174,7 @@ def one_bench(job: dict[str, Any], t_start: float) -> dict[str, Any]:
               file=sys.stderr, flush=True)
     healthy = []
     for h in job["healthy"]:
-        res = simulate("random_steps", HEALTHY_FLIGHT_S, h["seed"], params=bench, soc=h["soc"])
+        res = simulate(job["profile"], HEALTHY_FLIGHT_S, h["seed"], params=bench, soc=h["soc"])
         run = run_health(model, *streams(res))
         healthy.append({"bench": bench_seed, "seed": h["seed"], "monitored_s": run.monitored_s,
                         "false_alarms": len(run.events), "events": [e.as_dict() for e in run.events]})
@@ -193,6 +193,9 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=0.5, help="healthy flight hours in all (default 0.5)")
     ap.add_argument("--jobs", type=int, default=1,
                     help="benches run at once, one process each (default 1; the figures do not depend on it)")
+    ap.add_argument("--profile", choices=sorted(PROFILES), default="flight",
+                    help="the flights' command profile (default flight: a multirotor's motor, never stopped; "
+                    "random_steps stops it for seconds at a time, as no flight does)")
     ap.add_argument("--json", metavar="PATH",
                     help="also write the figures to PATH (benchmarks/results.py renders them)")
     args = ap.parse_args()
@@ -200,7 +203,7 @@ def main() -> None:
         ap.error("--seeds, --flights and --jobs must be >= 1 and --hours > 0")
     check_record_path(args.json)
     t_start = time.perf_counter()
-    jobs = plan(args.first_seed, args.seeds, args.flights, args.hours)
+    jobs = plan(args.first_seed, args.seeds, args.flights, args.hours, args.profile)
     with ProcessPoolExecutor(max_workers=min(args.jobs, len(jobs))) as pool:
         done = list(pool.map(one_bench, jobs, [t_start] * len(jobs)))  # in bench order
     results: dict[str, list[dict[str, Any]]] = {name: [r for b in done for r in b["results"][name]] for name in GOALS}
@@ -208,7 +211,8 @@ def main() -> None:
     fits = [b["fit"] for b in done]
     summary = summarize(results, healthy)
     summary.update(benches=list(range(args.first_seed, args.first_seed + args.seeds)), tuning_benches=TUNING_BENCHES,
-                   tuning_flight_seeds=TUNING_FLIGHT_SEEDS, fits=fits, seconds=time.perf_counter() - t_start)
+                   tuning_flight_seeds=TUNING_FLIGHT_SEEDS, profile=args.profile, fits=fits,
+                   seconds=time.perf_counter() - t_start)
     print_table(summary)
     if args.json:
         summary.update(fault_order=list(GOALS), sizes=GOALS, units={name: FAULT_UNITS[name] for name in GOALS},
@@ -288,7 +292,8 @@ def print_table(s: dict[str, Any]) -> None:
     def num(x: float | None, fmt: str = ".2f") -> str:
         return "-" if x is None else format(x, fmt)
 
-    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
+    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s.get('profile', 'random_steps')} flights, "
+          f"{s['seconds']:.0f} s")
     print("| fault | runs | detected <= 5 s | named right first | both (goal) | named wrong | unnamed | missed | "
           "delay median / max (s) | size error median / max abs | per bench (detected and named) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")

@@ -129,6 +129,43 @@ def high_load(duration_s: float, rng: np.random.Generator) -> np.ndarray:
     return _hold(levels, holds, n)
 
 
+#: A multirotor's idle in flight: the flight controller never lets a motor stop while flying
+#: (Betaflight's airmode and PX4's idle keep it turning), so it stays above every start level
+#: the randomized benches draw (0.052-0.058).
+FLIGHT_IDLE = 0.060
+
+
+def flight(duration_s: float, rng: np.random.Generator) -> np.ndarray:
+    """One motor of a multirotor in flight: never stopped, hovering with manoeuvres.
+
+    Take-off to a hover level drawn per flight (0.068-0.082: a 35-65 % hover throttle), which
+    wanders slowly (a random walk of 0.0002 per square-root second, as wind and the pack's sag move it);
+    manoeuvres of 0.3-3 s each move the motor -0.012 to +0.015 about it, one in ten a punch-out
+    to 0.095-0.10; the attitude loop's frame-to-frame noise (0.0015) rides on top. Clipped to
+    [FLIGHT_IDLE, PWM_FULL]: what a health monitor sees between take-off and landing, where
+    ``random_steps`` stops the motor for seconds at a time.
+    """
+    n = _frames(duration_s)
+    t = _frame_t(n)
+    hover = float(rng.uniform(0.068, 0.082))
+    walk = hover + np.cumsum(rng.normal(0.0, 0.0002 / math.sqrt(PWM_FRAME_HZ), n))
+    offsets: list[float] = []
+    holds: list[float] = []
+    total = 0.0
+    while total < duration_s:
+        if rng.uniform() < 0.1:
+            offsets.append(float(rng.uniform(0.095, PWM_FULL)) - hover)  # a punch-out
+            holds.append(float(rng.uniform(0.5, 2.0)))
+        else:
+            offsets.append(float(rng.uniform(-0.012, 0.015)))
+            holds.append(float(rng.uniform(0.3, 3.0)))
+        total += holds[-1]
+    lvl = walk + _hold(offsets, holds, n) + rng.normal(0.0, 0.0015, n)
+    take_off = np.clip(t / 2.0, 0.0, 1.0)  # 2 s from idle up to the flight's levels
+    lvl = FLIGHT_IDLE + take_off * (lvl - FLIGHT_IDLE)
+    return np.clip(lvl, FLIGHT_IDLE, PWM_FULL)
+
+
 PROFILES: dict[str, Profile] = {
     "staircase": staircase,
     "triangle": triangle,
@@ -136,6 +173,7 @@ PROFILES: dict[str, Profile] = {
     "chirp": chirp,
     "random_steps": random_steps,
     "high_load": high_load,
+    "flight": flight,
 }
 
 
