@@ -15,6 +15,8 @@ from _health_data import monitor_events, monitor_over, synthetic_flight
 from _models import healthy_physics_model
 from bldc_propulsion import cli
 from bldc_propulsion.core.health import (
+    _STEADY,
+    _T,
     FAULTS,
     UNNAMED,
     HealthConfig,
@@ -54,6 +56,46 @@ def test_a_propeller_change_is_named_with_its_onset_and_size():
     assert e.name == "propeller_damage" and e.unit == "fraction"
     assert 100.0 <= e.detected_s <= 105.0 and abs(e.onset_s - 100.0) <= 0.5
     assert e.size == pytest.approx(0.1, rel=0.2)
+
+
+#: A multirotor's dither on the hand-made data: block means move ~1.5 % of the scale per block
+DITHER_RAD_S = 15.0
+
+
+def test_no_alarm_on_a_dithered_flight():
+    assert monitor_events(synthetic_flight(180.0, 1, dither_rad_s=DITHER_RAD_S)) == []
+
+
+def test_a_propeller_change_in_a_dithered_flight_is_named():
+    """The predicted speed never holds (a new N(0, 15 rad/s) every frame, as under an attitude
+    loop), so no block is steady by the step rule alone; the flight's own dither sets what a
+    transient is, and the 10 % loss is found within 5 s and named."""
+    events = monitor_events(synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0),
+                                             dither_rad_s=DITHER_RAD_S))
+    assert len(events) == 1, [e.as_dict() for e in events]
+    e = events[0]
+    assert e.name == "propeller_damage" and 100.0 <= e.detected_s <= 105.0, e.as_dict()
+    assert e.size == pytest.approx(0.1, rel=0.2)
+
+
+def test_a_slow_spin_down_in_a_dithered_flight_is_a_transient():
+    """60 s of dithered holds, then the predicted speed falls 300 -> 100 rad/s with a 1.5 s time
+    constant and no dither: 13 rad/s in its first block, under the dither's threshold (about 7 x
+    0.32 x 9.5 = 21 rad/s: block means of 5 frames of 15 rad/s differ by ~9.5), but 45 rad/s over 4
+    blocks. Its first second carries no speed test; from 3 s on (under 2 rad/s a block, the
+    drift under the threshold) it does."""
+    flight = [s for s in synthetic_flight(60.0, 4, speeds=lambda t: (250.0, 350.0), dither_rad_s=DITHER_RAD_S)]
+    start = 300.0
+    for k in range(600):
+        t = 60.0 + 0.01 * k
+        w = 100.0 + (start - 100.0) * math.exp(-(t - 60.0) / 1.5)
+        cur = 12.0 * (w / 600.0) ** 2
+        flight.append(HealthSample(t, w, w, 11.5, TwinSample(t, w, cur, (1.0, 0.0, 0.0, 0.0), (0.0,) * 4, 40.0)))
+    mon = monitor_over(flight)
+    rows = mon._buf[np.argsort(mon._buf[:, _T])]
+    steady = {round(float(r[_T]), 2): float(r[_STEADY]) for r in rows if r[_T] > 60.0}
+    assert all(v == 0.0 for t, v in steady.items() if t < 61.0), steady
+    assert all(v == 1.0 for t, v in steady.items() if 63.0 < t < 65.9), steady
 
 
 def _stopped_before(onset_s: float, seed: int) -> list[HealthSample]:
@@ -238,6 +280,28 @@ def test_a_fault_mid_flight_is_named_with_its_size(runs, name, size, low, high):
     e = run.events[0]
     assert e.name == name, (e.note, e.candidates)
     assert low <= e.size <= high, e.as_dict()
+
+
+@pytest.mark.parametrize("fault", [None, Fault("propeller_damage", 0.1, ONSET_S)])
+def test_a_flight_of_a_multirotors_motor_is_watched(model_path, tmp_path, fault):
+    """The ``flight`` profile (never stopped, dithered every frame, manoeuvres and punch-outs) on
+    the nominal bench: no alarm when healthy; a 10 % propeller loss found within 5 s of its onset
+    and named. Before the dither set what a transient is, no block of such a flight was steady
+    and the speed channel tested nothing."""
+    from bldc_propulsion.model import load_model
+
+    path = tmp_path / "flight"
+    write_sim_bag(simulate("flight", FLIGHT["duration_s"], FLIGHT["seed"], soc=FLIGHT["soc"],
+                           faults=[] if fault is None else [fault]), path)
+    s = load_signals(path)
+    run = run_health(load_model(model_path), s.pwm_events, s.voltage_events, s.speed_events)
+    if fault is None:
+        assert run.events == [] and run.monitored_s > 60.0, [e.as_dict() for e in run.events]
+        return
+    assert run.events, "propeller_damage not found"
+    e = run.events[0]
+    assert e.name == "propeller_damage" and ONSET_S <= e.detected_s <= ONSET_S + 5.0, e.as_dict()
+    assert e.size == pytest.approx(0.1, abs=0.03), e.as_dict()
 
 
 def test_an_exact_model_names_a_propeller_loss_that_begins_with_a_new_hold():

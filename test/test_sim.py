@@ -311,6 +311,21 @@ def test_every_profile_starts_by_arming_the_esc(name: str) -> None:
     assert len(short) == 100
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_the_flight_profile_never_stops_the_motor_and_never_holds(seed: int) -> None:
+    """One multirotor motor: after arming and a 2 s take-off never below the flight idle (above
+    every start level the randomized benches draw), hovering mid-range, moved every frame (the
+    attitude loop's dither), with a punch-out near full throttle somewhere in two minutes."""
+    from bldc_propulsion.sim.profiles import FLIGHT_IDLE
+
+    t, lv = make_profile("flight", 120.0, seed)
+    flying = lv[t >= ARMING_S + 2.0]
+    assert flying.min() >= FLIGHT_IDLE and flying.max() >= 0.095
+    assert 0.062 <= float(np.median(flying)) <= 0.09
+    steps = np.abs(np.diff(flying))
+    assert float(np.mean(steps > 1e-4)) > 0.8  # moved in most frames (held only where clipped)
+
+
 def test_profile_shapes() -> None:
     _, st = make_profile("staircase", 120.0, 0)
     assert st.min() == pytest.approx(PWM_STOP) and st.max() == pytest.approx(PWM_FULL)
