@@ -84,7 +84,7 @@ def test_a_slow_spin_down_in_a_dithered_flight_is_a_transient():
     0.32 x 9.5 = 21 rad/s: block means of 5 frames of 15 rad/s differ by ~9.5), but 45 rad/s over 4
     blocks. Its first second carries no speed test; from 3 s on (under 2 rad/s a block, the
     drift under the threshold) it does."""
-    flight = [s for s in synthetic_flight(60.0, 4, speeds=lambda t: (250.0, 350.0), dither_rad_s=DITHER_RAD_S)]
+    flight = synthetic_flight(60.0, 4, speeds=lambda t: (250.0, 350.0), dither_rad_s=DITHER_RAD_S)
     start = 300.0
     for k in range(600):
         t = 60.0 + 0.01 * k

@@ -510,6 +510,12 @@ def _lag_of_blocks(t: np.ndarray, values: np.ndarray, tau_s: float) -> np.ndarra
     return lag_on_times(t, np.append(values[1:], values[-1]), tau_s, float(values[0]))
 
 
+def _change_beside(x: np.ndarray) -> np.ndarray:
+    """Per block after the first of ``x`` (a window's column, its first block only the starting
+    point), the larger change from the block before or to the block after (0 after the last)."""
+    return np.maximum(np.abs(np.diff(x)), np.abs(np.diff(np.append(x[1:], x[-1]))))
+
+
 def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     """[start, end) of every run of True in ``flags``."""
     edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
@@ -863,11 +869,9 @@ class HealthMonitor:
         charge = np.cumsum(ib * np.diff(win[:, _T])) / (cfg.reference_s + cfg.window_s)
         volt_nuisance = np.column_stack([ones, charge, ib, cur[:, _PF], cur[:, _PS]])
         sag = self._sag_per_ampere(v, volt_nuisance)
-        # a dithered block's timing error (_SPEED_TIMING_SHARE), the larger change beside it
-        w_all = win[:, _W]
-        w_step = np.maximum(np.abs(np.diff(w_all)), np.abs(np.diff(np.append(w_all[1:], w_all[-1]))))
+        # a dithered block's timing error (_SPEED_TIMING_SHARE)
         speed = _Channel("speed", cur[:, _RC], valid * cur[:, _KNOWN], w, cur[:, _R2],
-                         self._input_noise(cur) + (_SPEED_TIMING_SHARE * w_step) ** 2,
+                         self._input_noise(cur) + (_SPEED_TIMING_SHARE * _change_beside(win[:, _W])) ** 2,
                          np.column_stack([ones, t_rel, t_rel**2]), speed_tests)
         dib = cur[:, _S0 + nf:_S0 + 2 * nf]
         # each fault's voltage signature: the sag its current change causes; the pack's: its own
@@ -876,9 +880,7 @@ class HealthMonitor:
         none = np.zeros(m)
         # where the current steps, the model's current is off by its timing (a dead time or a
         # rotor lag off by a share of a block): the voltage's block carries that much more noise
-        i_all = win[:, _IB]
-        step = np.maximum(np.abs(np.diff(i_all)), np.abs(np.diff(np.append(i_all[1:], i_all[-1]))))
-        timing = (_TIMING_SHARE * sag * step) ** 2
+        timing = (_TIMING_SHARE * sag * _change_beside(win[:, _IB])) ** 2
         # every block carries the voltage's test, transients and rest included: the sag is static in
         # the current (block means of v and i obey it as samples do), a current step is where a
         # pack's change shows most, and a rotor at rest pins the open-circuit voltage down
