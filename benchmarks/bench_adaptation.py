@@ -2,8 +2,9 @@
 on healthy flights.
 
 Per bench seed (``sim.random_bench.draw_bench``): a physics model fitted on a HEALTHY recording of
-that bench (``bench_health.fit_model``), then flights of random steps on the same bench, with a
-fault injected at a random onset and without; each flight's streams (the tachometer decoded, the
+that bench (``bench_health.fit_model``), then flights on the same bench (``--profile``: a
+multirotor's motor by default, ``random_steps`` a bench's experiment), with a fault injected
+at a random onset and without; each flight's streams (the tachometer decoded, the
 battery ADC through the battery filter: ``bench_health.streams``) go through the estimator with
 and without adaptation, predicting on a 100 Hz grid, against the simulator's true speed.
 
@@ -25,7 +26,7 @@ whole flight. The issue's goals: back within 1.2x within 10 s; healthy ratio <= 
 The adapter's settings (core.adaptation.AdaptationConfig) were tuned on bench seeds 1-3 only;
 the reported benches are seeds from --first-seed (default 300), disjoint from them.
 
-    .venv/bin/python benchmarks/bench_adaptation.py --seeds 4 --flights 1 [--json PATH]
+    .venv/bin/python benchmarks/bench_adaptation.py --seeds 4 --flights 1 [--profile random_steps] [--json PATH]
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ from bldc_propulsion.core.adaptation import AdaptationConfig, adapter_for  # noq
 from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
 from bldc_propulsion.sim import simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
+from bldc_propulsion.sim.profiles import PROFILES  # noqa: E402
 from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
 
 #: The faults judged, at sizes a vehicle meets (the health monitor's goals plus friction).
@@ -175,6 +177,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=4, help="benches (default 4)")
     ap.add_argument("--first-seed", type=int, default=300, help="first bench seed (default 300; tuning used 1-3)")
     ap.add_argument("--flights", type=int, default=1, help="flights per fault and bench, and healthy ones (default 1)")
+    ap.add_argument("--profile", choices=sorted(PROFILES), default="flight",
+                    help="the flights' command profile (default flight: a multirotor's motor, never stopped; "
+                         "random_steps: a bench's experiment over the whole range)")
     ap.add_argument("--json", metavar="PATH", help="also write the figures to PATH")
     args = ap.parse_args()
     check_record_path(args.json)
@@ -193,17 +198,18 @@ def main() -> None:
                     fault = Fault(name, size, float(rng.uniform(*ONSET_RANGE_S)))
                     seed = 10_000 * bench_seed + 100 * k + j
                     soc = float(rng.uniform(0.5, 1.0))
-                    res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=soc, faults=[fault])
-                    twin = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=soc)
+                    res = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=soc, faults=[fault])
+                    twin = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=soc)
                     r = {"bench": bench_seed, "seed": seed, "onset_s": fault.onset_s,
                          **judge(model, res, fault, twin)}
                     runs[name].append(r)
                     print(f"  {fault.spec}: {json.dumps(r, default=float)}", file=sys.stderr)
                 seed = 10_000 * bench_seed + 5000 + k
-                res = simulate("random_steps", FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
+                res = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
                 healthy.append({"bench": bench_seed, "seed": seed, **healthy_ratio(model, res)})
                 print(f"  healthy: {healthy[-1]}", file=sys.stderr)
-    summary = {"benches": benches, "tuning_benches": TUNING_BENCHES, "faults": FAULTS, "runs": runs,
+    summary = {"benches": benches, "tuning_benches": TUNING_BENCHES, "profile": args.profile, "faults": FAULTS,
+               "runs": runs,
                "healthy": healthy, "seconds": time.perf_counter() - t_start}
     print_table(summary)
     if args.json:
@@ -224,7 +230,8 @@ def _range(xs: list[float]) -> str:
 
 
 def print_table(s: dict[str, Any]) -> None:
-    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s['seconds']:.0f} s")
+    print(f"benches {s['benches']} (tuned on {s['tuning_benches']}), {s.get('profile', 'random_steps')} flights, "
+          f"{s['seconds']:.0f} s")
     print("| fault (size) | runs | after / twin, adapted: median / worst | offline | recovery to 1.2x twin (s) | "
           "within 1.2x from 10 s on | post/pre adapted | offline | recovery to 1.2x pre (s) | "
           "within 1.2x from 10 s on | twin's own post/pre | thrust RMSE after, adapted / offline (N, median) | "

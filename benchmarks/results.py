@@ -754,12 +754,14 @@ def render_band(f: dict[str, Any]) -> list[str]:
     """bench_band.py: per kind the share of held-out measured speeds inside the one-sigma band."""
     lo, hi = f["goal_percent"]
     lines = [f"Benches {', '.join(f['benches'])}; goal {lo:.0f}-{hi:.0f} % pooled, every kind.", "",
-             "| kind | pooled | per bench: median [min, max] | mean sigma | on its own validation | goal |",
-             "|---|---|---|---|---|---|"]
+             "| kind | pooled | per bench: median [min, max] | per recording kind | mean sigma "
+             "| on its own validation | goal |",
+             "|---|---|---|---|---|---|---|"]
     for kind, k in f["kinds"].items():
         per = list(k["per_bench_percent"].values())
+        tests = ", ".join(f"{name} {v:.1f} %" for name, v in k.get("per_test_percent", {}).items())
         lines.append(f"| {kind} | {k['pooled_percent']:.1f} % | {statistics.median(per):.1f} "
-                     f"[{min(per):.1f}, {max(per):.1f}] % | {k['mean_sigma_rad_s']:.2f} rad/s | "
+                     f"[{min(per):.1f}, {max(per):.1f}] % | {tests or '-'} | {k['mean_sigma_rad_s']:.2f} rad/s | "
                      f"{k['validation_percent']:.1f} % | {'met' if k['goal_met'] else 'not met'} |")
     return lines
 
@@ -788,8 +790,9 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
              f"of its pre-change level within 10 s; on healthy flights, adapted RMSE at most {goal_healthy}x "
              "the offline model's. The pre-change level is taken two ways: the same flight simulated without "
              "the change (its twin: same seed, state of charge and command), through the same estimator, over "
-             "the same seconds; and the 20 s before the onset. The second compares different seconds of a flight "
-             "of random steps: the healthy twin's own post/pre ratio spreads as the last column shows.", "",
+             "the same seconds; and the 20 s before the onset. The second compares different seconds of a flight, "
+             "which differ in difficulty: the healthy twin's own post/pre ratio spreads as the last column shows. "
+             f"Each flight: 100 s of {PROFILE_TEXT.get(f.get('profile', 'random_steps'), f.get('profile'))}.", "",
              "| fault (size) | runs | after / twin, adapted: median / worst | offline | recovery to 1.2x the "
              "twin (s) | within 1.2x of the twin from 10 s on | post/pre, adapted | recovery to 1.2x pre (s) "
              "| within 1.2x of pre from 10 s on | RMSE after the change, adapted / offline (rad/s, median) "
@@ -895,15 +898,22 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
           "benchmark, each band fitted on the validation recordings only; coverage at one sigma on held-out "
-          "recordings (about 10 minutes on one core)."),
-    Group("adaptation", "Online adaptation on randomized benches (issue 34)",
+          "recordings: a chirp, random steps, a staircase and a multirotor's motor in flight (about 10 minutes "
+          "on one core)."),
+    Group("adaptation", "Online adaptation in flight on randomized benches (issue 34)",
           "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 "
           "--json docs/results/adaptation.json",
           render_adaptation,
           "Four benches drawn by `sim.random_bench` (seeds 308-311), a physics model fitted on each; per bench two "
-          "100 s flights with each change (propeller_damage 0.1, bearing_friction 3x, motor_heating 30 K, "
-          "pack_resistance 2x) at a random onset, each also without it, and two healthy ones, predicted with and "
-          "without `--adapt` (about 10 minutes)."),
+          "100 s flights of a multirotor's motor with each change (propeller_damage 0.1, bearing_friction 3x, "
+          "motor_heating 30 K, pack_resistance 2x) at a random onset, each also without it, and two healthy ones, "
+          "predicted with and without `--adapt` (about 10 minutes)."),
+    Group("adaptation_steps", "Online adaptation on random steps on randomized benches (issue 34)",
+          "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
+          "--json docs/results/adaptation_steps.json",
+          render_adaptation,
+          "As above on the same benches, the flights random steps over the whole range, the motor stopped at "
+          "times (a bench's experiment)."),
 ]}
 
 

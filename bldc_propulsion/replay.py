@@ -114,7 +114,8 @@ class HealthJson(TypedDict):
     duration_s: float  #: from the first to the last measured speed it took
     monitored_s: float  #: the part after the healthy reference, where changes can be found
     threshold: float
-    minor: list[dict[str, object]]  #: named changes below HealthConfig.min_size (never an alarm)
+    #: changes that are no alarm (named below HealthConfig.min_size, unnamed that did not hold)
+    minor: list[dict[str, object]]
 
 
 class ReplaySummary(TypedDict):

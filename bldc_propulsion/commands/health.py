@@ -101,7 +101,7 @@ class RecordingHealth(TypedDict):
     monitored_s: float
     threshold: float
     events: list[dict[str, object]]
-    minor: list[dict[str, object]]  #: named changes below the smallest worth an alarm (no alarm)
+    minor: list[dict[str, object]]  #: no alarm: named below the smallest worth one, or unnamed that did not hold
     injected_faults: list[str]
     noise: dict[str, dict[str, float]]  #: channel -> the monitor's noise figures (a, b, visit, kappa)
 
