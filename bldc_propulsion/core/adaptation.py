@@ -101,8 +101,14 @@ class AdaptationConfig:
     #: a sample's error grows with how fast the model's speed moves: an error of the model's timing
     #: (dead time, rotor lag) of this long (s) counts as noise, not as a parameter's change
     timing_s: float = 0.3
-    #: theta's sigma at the start and its ceiling (propeller loss fraction, friction factor)
-    prior_sigma: tuple[float, float] = (0.1, 0.2)
+    #: theta's sigma at the start and its ceiling (propeller loss fraction, friction factor).
+    #: The friction's 0.5: a bearing that triples its friction (theta 2) is 4 sigma of it; at 0.2
+    #: it was 10, and the ceiling held the gain so low that the adapted speed took 22 s (median)
+    #: to come within 1.2x of the healthy twin's after it, in flight on tuning benches 1-3 (9
+    #: runs; 9.5 s at 0.5; within 1.2x from 10 s on, every fault: 25 -> 28 of 36 runs in flight,
+    #: 18 -> 21 on random steps; 1.0 did as 0.5). The price: the friction takes a share of a
+    #: propeller loss at first (test_adaptation's case: 1.7 -> 2.4 rad/s after it, 0.8 before)
+    prior_sigma: tuple[float, float] = (0.1, 0.5)
     #: an innovation beyond this many of its expected sigmas counts as this many
     innovation_limit: float = 4.0
     #: no update while the model's speed is below this share of its full-drive speed (rest,
