@@ -82,6 +82,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether ``exc`` came of a Ctrl-C: a KeyboardInterrupt raised while a C extension module
+    initialised (scipy's HiGHS, imported on first use) comes out as "ImportError: initialization
+    failed" with the KeyboardInterrupt as its cause, which is no internal fault."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (also used by the console scripts)."""
     parser = build_parser()
@@ -96,7 +110,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"bldc-propulsion {args.command}: interrupted; no output was written", file=sys.stderr)
         return 130
-    except Exception:  # an internal fault: say so, with the traceback for a bug report
+    except Exception as exc:
+        if _caused_by_interrupt(exc):
+            print(f"bldc-propulsion {args.command}: interrupted; no output was written", file=sys.stderr)
+            return 130
+        # an internal fault: say so, with the traceback for a bug report
         traceback.print_exc()
         print(f"bldc-propulsion {args.command}: internal error (exit 1); please report it", file=sys.stderr)
         return 1

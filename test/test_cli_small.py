@@ -130,6 +130,25 @@ def test_train_over_an_output_it_may_not_replace_prints_only_its_error(tmp_path)
 
 
 # --- 3. Ctrl-C while the command line starts ----------------------------------------------------
+def test_ctrl_c_while_a_c_extension_initialises_is_an_interrupt_not_an_internal_error(monkeypatch, capsys):
+    """A KeyboardInterrupt raised while a C extension module initialises (scipy's HiGHS, imported
+    on a command's first use of it) reaches the command line as "ImportError: initialization
+    failed" caused by it: exit 130 and the one interrupted line, not exit 1 with a traceback
+    (seen once in CI, Ctrl-C 0.5 s into a train)."""
+    from bldc_propulsion.commands import info
+
+    def run(args: object) -> None:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise ImportError("initialization failed") from e
+
+    monkeypatch.setattr(info, "run", run)
+    assert cli.main(["info", str(BAGS / "staircase")]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "bldc-propulsion info: interrupted; no output was written", err
+
+
 @pytest.mark.parametrize("delay_s", [0.2, 0.5])
 def test_ctrl_c_during_start_up_exits_130_without_a_traceback(tmp_path, delay_s):
     out = tmp_path / "m.npz"

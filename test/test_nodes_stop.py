@@ -82,7 +82,10 @@ def recording(tmp_path_factory):
     ("SIGINT", 0.4, "separate"), ("SIGTERM", 1.1, "separate"), ("SIGINT", 2.3, "separate"),
     ("SIGINT", 0.8, "events"), ("SIGTERM", 1.5, "single"), ("SIGINT", 1.9, "mixed")])
 def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, after_s, nodes):
-    """``separate``: the three node executables; else propulsion_all with that ``--executor``."""
+    """``separate``: the three node executables; else propulsion_all with that ``--executor``.
+    Every node exits 0 with nothing on stderr; one that the teardown guard ended in
+    ``destroy_node`` (Fast DDS's livelock, about 1 stop in 50, ``nodes.guard_teardown``) makes it
+    an expected failure, as in the nine processes' test below."""
     if nodes == "separate":
         names = NODES
         nodes = [start_node(n) for n in names]
@@ -96,6 +99,7 @@ def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, 
         time.sleep(after_s)  # messages are flowing into every node
         for p in nodes:
             p.send_signal(getattr(signal, sig))
+        livelocked = []
         for name, p in zip(names, nodes, strict=True):
             try:
                 _, err = p.communicate(timeout=10)
@@ -103,8 +107,12 @@ def test_nodes_stopped_in_a_stream_exit_0_and_quietly(recording, tmp_path, sig, 
                 p.kill()
                 p.communicate()
                 pytest.fail(f"{name} did not stop within 10 s of {sig}")
-            if p.returncode != 0 or err.strip():  # the whole stderr: a hung teardown's stacks say where
+            if upstream_teardown_livelock(p.returncode, err.strip()):
+                livelocked.append(name)  # ended by the guard within its limit: judged below
+            elif p.returncode != 0 or err.strip():  # the whole stderr: a hung teardown's stacks say where
                 pytest.fail(f"{name} exited {p.returncode} after {sig}; its stderr:\n{err[-8000:]}", pytrace=False)
+        if livelocked:  # as the nine processes' test: the known upstream hang, the node down all the same
+            pytest.xfail(f"Fast DDS's set_listener livelock in destroy_node (nodes.guard_teardown): {livelocked}")
     finally:
         for p in (*nodes, player):
             if p.poll() is None:
