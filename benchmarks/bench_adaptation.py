@@ -52,9 +52,8 @@ from results import check_record_path, write_record  # noqa: E402
 
 from bldc_propulsion.core.adaptation import AdaptationConfig, adapter_for  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
-from bldc_propulsion.sim import simulate  # noqa: E402
+from bldc_propulsion.sim import PROFILES, simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
-from bldc_propulsion.sim.profiles import PROFILES  # noqa: E402
 from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
 
 #: The faults judged, at sizes a vehicle meets (the health monitor's goals plus friction).
@@ -209,8 +208,7 @@ def main() -> None:
                 healthy.append({"bench": bench_seed, "seed": seed, **healthy_ratio(model, res)})
                 print(f"  healthy: {healthy[-1]}", file=sys.stderr)
     summary = {"benches": benches, "tuning_benches": TUNING_BENCHES, "profile": args.profile, "faults": FAULTS,
-               "runs": runs,
-               "healthy": healthy, "seconds": time.perf_counter() - t_start}
+               "runs": runs, "healthy": healthy, "seconds": time.perf_counter() - t_start}
     print_table(summary)
     if args.json:
         write_record(args.json, json.loads(json.dumps(summary, default=float)), seconds=summary["seconds"])

@@ -82,24 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _caused_by_interrupt(exc: BaseException) -> bool:
-    """Whether ``exc`` came of a Ctrl-C: a KeyboardInterrupt raised while a C extension module
-    initialised (scipy's HiGHS, imported on first use) comes out as "ImportError: initialization
-    failed" with the KeyboardInterrupt as its cause, which is no internal fault."""
-    seen: set[int] = set()
-    e: BaseException | None = exc
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return True
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return False
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status (also used by the console scripts)."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    interrupted = f"bldc-propulsion {args.command}: interrupted; no output was written"
     try:
         # from here on outputs may be staged: KeyboardInterrupt lets them clean up
         quiet_start.end(signal.SIGINT)
@@ -108,11 +95,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"bldc-propulsion {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"bldc-propulsion {args.command}: interrupted; no output was written", file=sys.stderr)
+        print(interrupted, file=sys.stderr)
         return 130
-    except Exception as exc:
-        if _caused_by_interrupt(exc):
-            print(f"bldc-propulsion {args.command}: interrupted; no output was written", file=sys.stderr)
+    except Exception:
+        # a Ctrl-C turned into another exception on the way (a KeyboardInterrupt raised while a C
+        # extension initialises, scipy's HiGHS imported on first use, comes out as "ImportError:
+        # initialization failed") is no internal fault
+        if quiet_start.interrupted():
+            print(interrupted, file=sys.stderr)
             return 130
         # an internal fault: say so, with the traceback for a bug report
         traceback.print_exc()

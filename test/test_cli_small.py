@@ -135,14 +135,16 @@ def test_ctrl_c_while_a_c_extension_initialises_is_an_interrupt_not_an_internal_
     on a command's first use of it) reaches the command line as "ImportError: initialization
     failed" caused by it: exit 130 and the one interrupted line, not exit 1 with a traceback
     (seen once in CI, Ctrl-C 0.5 s into a train)."""
+    from bldc_propulsion import quiet_start
     from bldc_propulsion.commands import info
 
     def run(args: object) -> None:
         try:
-            raise KeyboardInterrupt
+            quiet_start.interrupt(signal.SIGINT, None)  # the handler main installs: records it, raises
         except KeyboardInterrupt as e:
             raise ImportError("initialization failed") from e
 
+    monkeypatch.setattr(quiet_start, "_INTERRUPTED", False)  # restored after the test
     monkeypatch.setattr(info, "run", run)
     assert cli.main(["info", str(BAGS / "staircase")]) == 130
     err = capsys.readouterr().err

@@ -553,6 +553,8 @@ class _Channel:
 _T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG = range(18)
 _S0 = 18  #: speed sensitivities (one per fault), then current sensitivities
 _ARMING, _ARMED, _NAMING, _REFINING = "arming", "armed", "naming", "refining"
+#: what a named change too small to be a fault is, after "below" or "could be below"
+_MIN_SIZE_NOTE = "the smallest change worth an alarm at two sigma (HealthConfig.min_size)"
 
 
 class HealthMonitor:
@@ -599,7 +601,7 @@ class HealthMonitor:
         self._buf = np.zeros((self.window_blocks + 1, self._cols))
         self.events: list[HealthEvent] = []
         #: changes that are no alarm: named ones below the config's min_size at two sigma (seen,
-        #: sized), and unnamed ones that did not hold (``_not_held``)
+        #: sized), and unnamed ones that did not hold (``_set_aside``)
         self.minor: list[HealthEvent] = []
         self.blocks = 0  #: blocks closed since the start
         self.evaluations = 0
@@ -1137,28 +1139,16 @@ class HealthMonitor:
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
             ev.statistic = float(row[best])
             if self._size_at(best, float(theta[o, best]), float(row[best]), 2.0) < self._min_size(best):
-                return self._set_aside(ev, "below")  # sure already: no need to wait
+                return self._set_aside(ev, f"below {_MIN_SIZE_NOTE}")  # sure already: no need to wait
             self.state = _REFINING
             return []
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
-            if ev.statistic < self.threshold:
-                return self._not_held(ev)
+            if ev.statistic < self.threshold:  # it did not hold: a fault (a static change) does
+                return self._set_aside(ev, f"did not hold: its statistic fell to {ev.statistic:.0f}, under the "
+                                           f"threshold {self.threshold:.0f}, by {self.config.name_within_s:g} s "
+                                           "after its onset", fresh_window=False)
             ev.note = self._why_unnamed(row, best, second, o)
             return [self._settle(ev)]
-        return []
-
-    def _not_held(self, ev: HealthEvent) -> list[HealthEvent]:
-        """An unnamed change whose statistic, over all of name_within_s after its onset, fell back
-        under the threshold: it did not hold, and a fault (a static change) does; kept in
-        ``minor``, never an alarm (a healthy flight's disturbance of a few seconds, found and then
-        gone, was the only false alarm in 10.4 h of flights on fresh benches). The window is kept:
-        nothing changed, and a fresh one would leave the monitor blind for its reference and
-        learn_s. Returns no event."""
-        ev.note = (f"did not hold: its statistic fell to {ev.statistic:.0f}, under the threshold "
-                   f"{self.threshold:.0f}, by {self.config.name_within_s:g} s after its onset")
-        self.minor.append(ev)
-        self._pending = None
-        self.state = _ARMING
         return []
 
     def _name_margin(self, best_statistic: float) -> float:
@@ -1198,15 +1188,20 @@ class HealthMonitor:
         sigma, be below the smallest worth an alarm (``HealthConfig.min_size``)."""
         return self._size_at(f, theta, statistic, -2.0) < self._min_size(f)
 
-    def _set_aside(self, ev: HealthEvent, how: str) -> list[HealthEvent]:
-        """A named change that is (``how``: "below") or could be ("could be below") too small
-        to be a fault: kept in ``minor``, and, as after a reported one, a fresh window (the
-        change is the new normal). Returns no event."""
-        ev.note = f"{how} the smallest change worth an alarm at two sigma (HealthConfig.min_size)"
+    def _set_aside(self, ev: HealthEvent, note: str, fresh_window: bool = True) -> list[HealthEvent]:
+        """A change that is no alarm, kept in ``minor`` with ``note``: a named one that is or
+        could be too small to be a fault, after which, as after a reported one, a fresh window
+        (the change is the new normal); or (``fresh_window`` False) an unnamed one whose statistic
+        fell back under the threshold by name_within_s after its onset: it did not hold, nothing
+        changed, and a fresh window would leave the monitor blind for its reference and learn_s
+        (such a disturbance of a few seconds was the only false alarm in 10.4 h of flights on
+        fresh benches). Returns no event."""
+        ev.note = note
         self.minor.append(ev)
         self._pending = None
         self.state = _ARMING
-        self._reset_window()
+        if fresh_window:
+            self._reset_window()
         return []
 
     def _size(self, f: int, theta: float) -> float:
@@ -1229,7 +1224,7 @@ class HealthMonitor:
             ev.statistic = max(ev.statistic, float(stat[o, f]))
         if self._post[o] + self.config.evaluate_every > self._name_blocks:
             if stat[o, f] > 0 and self._minor(f, float(theta[o, f]), float(stat[o, f])):
-                return self._set_aside(ev, "could be below")
+                return self._set_aside(ev, f"could be below {_MIN_SIZE_NOTE}")
             return [self._settle(ev)]
         return []
 
