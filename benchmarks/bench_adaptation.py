@@ -48,9 +48,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_health import fit_model, streams  # noqa: E402
-from results import check_record_path, write_record  # noqa: E402
+from results import check_record_path, pack_change, write_record  # noqa: E402
 
-from bldc_propulsion.core.adaptation import AdaptationConfig, adapter_for  # noqa: E402
+from bldc_propulsion.core.adaptation import ADAPTED, AdaptationConfig, adapter_for  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
 from bldc_propulsion.sim import PROFILES, simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
@@ -67,6 +67,8 @@ RECOVERY_WINDOW_S = 10.0
 GOAL_RATIO = 1.2
 GOAL_HEALTHY = 1.05
 GRID_HZ = 100.0
+#: The offline model's values in ADAPTED order (no loss, the friction's factor 1, its resistance unknown here)
+OFFLINE = [0.0, 1.0, math.nan]
 
 
 def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, adapt: bool = True, *,
@@ -100,7 +102,7 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
             out_t.append(t)
             out_w.append(p.speed_rad_s)
             out_f.append(math.nan if p.thrust_n is None else p.thrust_n)
-            theta.append([v for v, _ in est.adapter.values().values()] if est.adapter is not None else [0.0, 1.0])
+            theta.append([v for v, _ in est.adapter.values().values()] if est.adapter is not None else OFFLINE)
             if states:
                 state.append(est.adaptation_state())
     tt = np.asarray(out_t)
@@ -157,8 +159,8 @@ def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfi
                        "twin_ratio": twin_post / rmse(tw, o - PRE_S, o),
                        "recovery_vs_twin_s": recovery_s(run, o, lambda t0, t1, tw=tw: rmse(tw, t0, t1))}
         if adapt:
-            out["final"] = {"propeller_damage": float(run["theta"][-1, 0]),
-                            "bearing_friction": float(run["theta"][-1, 1])}
+            out["final"] = {n: float(v) for n, v in zip(ADAPTED, run["theta"][-1], strict=True)}
+            out["final_twin"] = {n: float(v) for n, v in zip(ADAPTED, tw["theta"][-1], strict=True)}
     return out
 
 
@@ -168,7 +170,7 @@ def healthy_ratio(model: Any, res: Any, config: AdaptationConfig | None = None) 
     t0, t1 = float(a["t"][0]) + 5.0, float(a["t"][-1]) + 1.0
     ra, ro = rmse(a, t0, t1), rmse(o, t0, t1)
     return {"adapted_rad_s": ra, "offline_rad_s": ro, "ratio": ra / ro,
-            "propeller_damage": float(a["theta"][-1, 0]), "bearing_friction": float(a["theta"][-1, 1])}
+            **{n: float(v) for n, v in zip(ADAPTED, a["theta"][-1], strict=True)}}
 
 
 def main() -> None:
@@ -247,7 +249,8 @@ def print_table(s: dict[str, Any]) -> None:
               f"{_range([r['adapted']['twin_ratio'] for r in rows])} | "
               f"{np.median([r['adapted']['thrust_post_n'] for r in rows]):.3f} / "
               f"{np.median([r['offline']['thrust_post_n'] for r in rows]):.3f} | "
-              f"propeller {finals['propeller_damage']:.3f}, friction x{finals['bearing_friction']:.2f} |")
+              f"propeller {finals['propeller_damage']:.3f}, friction x{finals['bearing_friction']:.2f}"
+              f"{pack_change(rows)} |")
     h = s["healthy"]
     ok = sum(r["ratio"] <= GOAL_HEALTHY for r in h)
     print(f"healthy: {len(h)} flights, adapted/offline RMSE median / worst {_spread([r['ratio'] for r in h])} "

@@ -779,6 +779,14 @@ def _median(xs: list[float], decimals: int = 2) -> str:
     return f"{statistics.median(xs):.{decimals}f}" if xs else "-"
 
 
+def pack_change(rows: list[dict[str, Any]]) -> str:
+    """The adapted pack resistance at the end over the twin's (median over the runs where both are
+    known), as a phrase to append; empty for a record from before the pack was adapted."""
+    pairs = [(r["final"]["pack_resistance"], r["final_twin"]["pack_resistance"]) for r in rows if "final_twin" in r]
+    ratios = [a / b for a, b in pairs if math.isfinite(a / b)]
+    return f", pack x{statistics.median(ratios):.2f} the twin's ({len(ratios)} known)" if ratios else ""
+
+
 def render_adaptation(f: dict[str, Any]) -> list[str]:
     """bench_adaptation.py: per fault the RMSE after the change over the same flight's without it
     (its twin) and over the seconds before the onset (adapted and offline), the recovery times, the
@@ -814,7 +822,7 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
                      f"{_median([r['offline']['post_rad_s'] for r in rows])} | "
                      f"{_median([r['adapted']['thrust_post_n'] for r in rows], 3)} / "
                      f"{_median([r['offline']['thrust_post_n'] for r in rows], 3)} | "
-                     f"propeller loss {prop:.3f}, friction x{fric:.2f} | "
+                     f"propeller loss {prop:.3f}, friction x{fric:.2f}{pack_change(rows)} | "
                      f"{min(twin):.2f} - {max(twin):.2f} |")
     h = f["healthy"]
     ok = sum(r["ratio"] <= goal_healthy for r in h)

@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from . import contract as c
 from .atomic import RECORDING, check_outputs
 from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, vehicle_topic
-from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for
+from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for, finite_or_none
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
 from .core.health import HealthEvent, HealthStream, require_physics
@@ -91,8 +91,8 @@ class BandWrittenJson(TypedDict):
 class AdaptedJson(TypedDict):
     """One adapted parameter at the end of a replay (``core.adaptation.UNITS``)."""
 
-    value: float
-    sigma: float
+    value: float | None  #: None: not known (the pack's, until the current has varied enough)
+    sigma: float | None
     unit: str
 
 
@@ -276,7 +276,8 @@ def _adaptation_json(est: ThrustEstimator, saved: str | os.PathLike[str] | None)
         return None
     return {"state": est.adaptation_state(), "updates": ad.updates, "frozen_samples": ad.frozen_samples,
             "in_use": ad.in_use,
-            "parameters": {n: {"value": v, "sigma": s, "unit": UNITS[n]} for n, (v, s) in ad.values().items()},
+            "parameters": {n: {"value": finite_or_none(v), "sigma": finite_or_none(s), "unit": UNITS[n]}
+                           for n, (v, s) in ad.values().items()},
             "saved": None if saved is None else str(saved)}
 
 
@@ -684,7 +685,8 @@ def summary_text(info: ReplaySummary) -> str:
             + ", so the " + " and ".join(stages[m][2] for m in measured) + " did not run")
     ad = info.get("adaptation")
     if ad:
-        vals = ", ".join(f"{n} {p['value']:.4g} +/- {p['sigma']:.2g} ({p['unit']})"
+        vals = ", ".join(f"{n} {p['value']:.4g} +/- {p['sigma']:.2g} ({p['unit']})" if p["value"] is not None
+                         else f"{n} not known (the voltage has not shown it)"
                          for n, p in ad["parameters"].items())
         lines.append(f"  adaptation ({ad['state']}; {ad['updates']} updates): {vals}"
                      + (f"; adapted model -> {ad['saved']}" if ad["saved"] else ""))

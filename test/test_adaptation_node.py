@@ -12,6 +12,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -91,15 +92,19 @@ def test_replay_adapt_follows_the_loss_and_writes_predicted_adapted(flight, repl
     t, values, msgs = adapted_messages(d / "adapted")
     # one message per measured speed the estimator took (all of them here), named in order
     assert len(msgs) == ad["updates"] + ad["frozen_samples"] == speeds
-    assert ADAPTED_LABEL == "propeller_damage,bearing_friction"
-    assert all([(x.label, x.size, x.stride) for x in m.layout.dim] == [(ADAPTED_LABEL, 2, 2)] for m in msgs)
-    assert values[-1].tolist() == [loss["value"], friction["value"]]
+    assert ADAPTED_LABEL == "propeller_damage,bearing_friction,pack_resistance"
+    assert all([(x.label, x.size, x.stride) for x in m.layout.dim] == [(ADAPTED_LABEL, 3, 3)] for m in msgs)
+    # the pack's resistance: 10 s of steps do not tell it (its sigma stays above a fifth of the
+    # model's): not known, null in the JSON, NaN on the topic (test_adaptation: a longer flight)
+    pack = ad["parameters"]["pack_resistance"]
+    assert pack == {"value": None, "sigma": None, "unit": "ohm"}
+    assert values[-1, :2].tolist() == [loss["value"], friction["value"]] and np.isnan(values[:, 2]).all()
     assert np.abs(values[t < ONSET_S, 0]).max() < 0.03  # healthy before the onset: nothing to adapt
     assert values[t > ONSET_S + 3.0, 0].min() > 0.75 * LOSS  # followed within 3 s
     # the bulk path and the reference (every message in turn) write the same values
     replay_bag(d / "faulted", d / "reference", model_path=d / "physics.npz", adapt=True, reference=True)
     t_ref, values_ref, _ = adapted_messages(d / "reference")
-    assert np.array_equal(t_ref, t) and np.array_equal(values_ref, values)
+    assert np.array_equal(t_ref, t) and np.array_equal(values_ref, values, equal_nan=True)
 
 
 def test_save_adapted_scales_the_propeller_by_the_adapted_loss(flight, replayed):
@@ -183,7 +188,8 @@ def test_node_adapts_publishes_predicted_adapted_as_replay_and_diagnoses(flight,
     # toward the truth: nothing before the onset, the injected loss at the end
     assert np.abs(live[t_ref < ONSET_S, 0]).max() < 0.03
     assert live[-1, 0] == pytest.approx(LOSS, abs=0.04)
-    err = np.abs(live - values_ref).max()
+    assert np.array_equal(np.isnan(live), np.isnan(values_ref))
+    err = np.nanmax(np.abs(live - values_ref))
     print(f"predicted/adapted live - replay: max {err:.2e}")
     # the same code on the same inputs; the times differ by float rounding (100 s + t), which the
     # RLS carries on (~2e-6 here): far below the loss's own sigma (~0.03)
@@ -214,3 +220,14 @@ def test_node_refuses_adapt_for_a_network_in_one_line(flight, context, capsys):
                    "-p", "adapt:=true"])
     err = capsys.readouterr().err.strip().splitlines()
     assert status == 2 and len(err) == 1 and "parameter adapt" in err[0], err
+
+
+def test_replay_adapt_prints_each_parameter_and_says_what_is_not_known(flight, tmp_path):
+    """The text summary: the speed's parameters with their sigma and unit; the pack's resistance,
+    which 10 s of steps do not tell, said not known instead of a number."""
+    proc = cli("replay", str(flight / "faulted"), "-o", str(tmp_path / "out"), "--model", str(flight / "physics.npz"),
+               "--adapt")
+    assert proc.returncode == 0, proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if "adaptation (" in x)
+    assert re.search(r"propeller_damage 0\.\d+ \+/- 0\.\d+ \(fraction\), bearing_friction \d\.\d+ \+/- ", line), line
+    assert "pack_resistance not known (the voltage has not shown it)" in line, line

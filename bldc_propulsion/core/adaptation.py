@@ -12,9 +12,18 @@ What is adapted (``ADAPTED``, the contract's fault names), and why only these:
 * ``bearing_friction``: a factor on the motor's friction torque (the no-load current).
 
 Both are identifiable from the speed alone once the rotor visits two operating points: the drag
-grows with w^2, the friction is constant. Left out: the pack's series resistance (the model is fed
-the measured battery voltage, sag included, so more resistance barely moves the predicted speed:
-not identifiable from speed; the health monitor sees it in the voltage); the winding's
+grows with w^2, the friction is constant. And from the voltage, not the speed:
+
+* ``pack_resistance``: the pack's series resistance (ohm). The model is fed the filtered battery
+  voltage and undoes the filter's lag with its series resistance (``physics.plant.Supply``): a
+  pack whose resistance rose sags more in every current step than the model adds back, so the
+  motor gets less voltage than the model thinks until the filter catches up (a 2 s battery filter:
+  seconds). In steady state the resistance cancels, so the speed barely tells it; the voltage
+  does: the filtered voltage against the model's supply current through the same filter is a
+  straight line of slope -R (``_Sag``: recursive least squares with forgetting, the offset fitted
+  along). Adapted whenever the model undoes a filter.
+
+Left out: the winding's
 resistance (``motor_heating``): in the steady torque balance it scales the drag and the friction
 torque alike, the same direction as a mix of the two adapted, so speed cannot tell it apart from
 them, and the two adapted absorb what it does to the speed.
@@ -35,7 +44,8 @@ adapted ones). theta is estimated by recursive least squares with exponential fo
   or below the ESC start (the speed carries nothing on the parameters there), and, as the
   estimator sees it, while no measured speed comes (``MEASURED_SPEED_MAX_AGE_S``).
 
-When theta has moved more than a lane's own step from theta_lin, the lanes are rebuilt at theta
+When theta has moved more than a lane's own step from theta_lin (or the resistance more than
+``pack_relinearise`` of itself), the lanes are rebuilt at theta
 (``_Lanes.rebase``, their states kept), so a large change stays right beyond the linear range.
 The prediction keeps the estimator's own offline speed (its stream, interpolated) and adds the
 lanes' difference ``w(theta) - w(0)``: a lane stepped at theta = 0 (``_ref``) gives w(0) once theta_lin
@@ -66,19 +76,25 @@ from ..errors import BadInputError
 from ..physics.params import PlantParams
 from ..physics.plant import REST_SPEED_RAD_S
 from ..physics.plant_model import PlantModel
-from .health import PhysicsTwins, require_physics
+from .health import PACK_REFERENCE_OHM, PhysicsTwins, require_physics
 
-#: The adapted parameters (the contract's fault names), in PhysicsTwins' lane order.
-ADAPTED: tuple[str, ...] = ("propeller_damage", "bearing_friction")
+#: The parameters adapted from the speed (the contract's fault names), in PhysicsTwins' lane order.
+SPEED_ADAPTED: tuple[str, ...] = ("propeller_damage", "bearing_friction")
+#: Everything adapted, in the order published: the speed's, then the pack's (from the voltage).
+ADAPTED: tuple[str, ...] = (*SPEED_ADAPTED, "pack_resistance")
 #: What a published value is: the propeller's fractional loss of CT and CP; the factor on the
-#: friction torque (1: the offline model's). Internally theta is the loss and the factor - 1.
-UNITS: dict[str, str] = {"propeller_damage": "fraction", "bearing_friction": "factor"}
+#: friction torque (1: the offline model's); the pack's series resistance. Internally theta is
+#: the loss and the factor - 1.
+UNITS: dict[str, str] = {"propeller_damage": "fraction", "bearing_friction": "factor", "pack_resistance": "ohm"}
 #: predicted/adapted's layout.dim[0].label (the node and replay publish ``values()`` in ADAPTED order)
 ADAPTED_LABEL = ",".join(ADAPTED)
 #: theta's physical bounds: a propeller between 30 % stronger and half gone (sim/faults.py
 #: injects up to 0.9, but half the thrust gone is no flight to adapt to); friction torque >= 0,
 #: at most 50x (the simulator's range).
 BOUNDS: tuple[tuple[float, float], ...] = ((-0.3, 0.5), (-1.0, 49.0))
+#: The series resistance's bounds, as factors on the model's (or, without one, on the nominal
+#: bench's 0.035 ohm): the health monitor's plausible range of a pack's sag per ampere.
+PACK_BOUNDS: tuple[float, float] = (0.2, 10.0)
 #: Most seconds of forgetting one update applies: a gap in the speed or a stop forgets no more.
 _MAX_FORGET_S = 0.1
 #: While theta_lin = 0 the reference lane is only stepped this often (s), to consume its inputs.
@@ -120,16 +136,30 @@ class AdaptationConfig:
     relinearise: tuple[float, float] = (0.05, 0.5)
     #: how far back a measured speed's stamp may lie behind the lanes (s)
     history_s: float = 0.5
+    #: the pack's resistance: forgetting time constant (s), the voltage's error per row (V: the
+    #: model's current is off by its own error; the sag of that), the prior's sigma as a share of
+    #: the model's resistance, the share it moves before the lanes are rebuilt, and a row's spacing
+    pack_memory_s: float = 5.0
+    pack_noise_v: float = 0.05
+    pack_prior: float = 1.0
+    pack_relinearise: float = 0.15
+    pack_row_s: float = 0.05
+    #: the pack's baseline: the estimate's mean over this long (s) once its sigma is below
+    #: ``pack_confident`` of the model's resistance; the model's resistance moves by the change from it
+    pack_baseline_s: float = 10.0
+    pack_confident: float = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("memory_s", "noise_fraction", "innovation_limit", "settle_s", "history_s", "timing_s"):
+        for name in ("memory_s", "noise_fraction", "innovation_limit", "settle_s", "history_s", "timing_s",
+                     "pack_memory_s", "pack_noise_v", "pack_prior", "pack_relinearise", "pack_row_s",
+                     "pack_baseline_s", "pack_confident"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0) and not (name in ("settle_s", "timing_s") and v == 0.0):
                 raise BadInputError(f"adaptation {name}: {v!r} must be a finite number > 0")
         for name in ("prior_sigma", "relinearise"):
             v = getattr(self, name)
-            if len(v) != len(ADAPTED) or not all(math.isfinite(x) and x > 0.0 for x in v):
-                raise BadInputError(f"adaptation {name}: {v!r} must be {len(ADAPTED)} finite numbers > 0")
+            if len(v) != len(SPEED_ADAPTED) or not all(math.isfinite(x) and x > 0.0 for x in v):
+                raise BadInputError(f"adaptation {name}: {v!r} must be {len(SPEED_ADAPTED)} finite numbers > 0")
         if not 0.0 <= self.min_speed_fraction < 1.0:
             raise BadInputError(f"adaptation min_speed_fraction: {self.min_speed_fraction!r} must be in [0, 1)")
 
@@ -143,13 +173,70 @@ def ct_factor(loss: float) -> float:
     return 1.0 - max(loss, 0.0)
 
 
-def adapted_params(params: PlantParams, theta: Sequence[float], friction_reference_a: float) -> PlantParams:
-    """``params`` with the propeller's CP reduced by theta[0], its CT by ``ct_factor``, and
-    friction_reference_a * theta[1] amperes of no-load current (friction) added (at least 0)."""
+def adapted_params(params: PlantParams, theta: Sequence[float], friction_reference_a: float,
+                   pack_ohm: float | None = None) -> PlantParams:
+    """``params`` with the propeller's CP reduced by theta[0], its CT by ``ct_factor``,
+    friction_reference_a * theta[1] amperes of no-load current (friction) added (at least 0) and,
+    given, the series resistance ``pack_ohm``."""
+    rs = params.battery_series_resistance_ohm if pack_ohm is None else pack_ohm
     return dataclasses.replace(params, propeller_ct=params.propeller_ct * ct_factor(theta[0]),
                                propeller_cp=params.propeller_cp * (1.0 - theta[0]),
                                motor_no_load_current_a=max(params.motor_no_load_current_a
-                                                           + friction_reference_a * theta[1], 0.0))
+                                                           + friction_reference_a * theta[1], 0.0),
+                               battery_series_resistance_ohm=rs)
+
+
+def finite_or_none(x: float) -> float | None:
+    """x, or None (JSON's null) for what is not known (NaN)."""
+    return x if math.isfinite(x) else None
+
+
+class _Sag:
+    """The pack's series resistance from the filtered voltage v and the model's supply current
+    through the same filter i: v = e - R i + noise, (e, R) by recursive least squares with
+    exponential forgetting in time, each variance capped at its prior (no windup while the current
+    holds still), innovations limited to ``limit`` sigmas. The open-circuit voltage and the pack's
+    slow polarisation (tens of seconds) move e over a memory of seconds; fitting the polarisation
+    as a third term (a 30 s lag of i) made it trade off against e, whose lag it nearly is over
+    such a memory, and a doubled resistance took twice as long to show. Plain floats, as
+    ``PhysicsAdapter._learn``: numpy's per-call overhead would cost more than the arithmetic."""
+
+    def __init__(self, r0: float, sigma_r: float, noise_v: float, memory_s: float, limit: float) -> None:
+        self.x = [math.nan, r0]  #: (e (V), R (ohm)); e from the first row
+        self._p_max = (1e4, sigma_r * sigma_r)  #: the prior's variances: e free (any pack)
+        self.P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+        self._r, self._memory, self._limit = noise_v * noise_v, memory_s, limit
+        self._t = math.nan
+
+    @property
+    def sigma_r(self) -> float:
+        """R's one sigma (ohm)."""
+        return math.sqrt(max(self.P[1][1], 0.0))
+
+    def add(self, t: float, volts: float, current_a: float) -> None:
+        """A row at t (s): the filtered voltage (V) and the model's filtered supply current (A)."""
+        x, P = self.x, self.P
+        dt = t - self._t if self._t == self._t else 0.0
+        self._t = t
+        if x[0] != x[0]:
+            x[0] = volts + x[1] * current_a
+        p00, p01, p11 = P[0][0], P[0][1], P[1][1]
+        if dt > 0.0:  # forgetting, each variance capped at its prior (D P D: P stays PSD)
+            grow = math.exp(min(dt, _MAX_FORGET_S) / self._memory)
+            p00, p01, p11 = p00 * grow, p01 * grow, p11 * grow
+            d0 = min(1.0, math.sqrt(self._p_max[0] / p00)) if p00 > 0.0 else 1.0
+            d1 = min(1.0, math.sqrt(self._p_max[1] / p11)) if p11 > 0.0 else 1.0
+            p00, p01, p11 = p00 * d0 * d0, p01 * d0 * d1, p11 * d1 * d1
+        s1 = -current_a  # the regressor (1, -i)
+        ps0, ps1 = p00 + p01 * s1, p01 + p11 * s1
+        den = self._r + ps0 + s1 * ps1
+        lim = self._limit * math.sqrt(den)
+        e = min(max(volts - x[0] - x[1] * s1, -lim), lim)
+        k0, k1 = ps0 / den, ps1 / den
+        x[0] += k0 * e
+        x[1] += k1 * e
+        P[0][0], P[0][1], P[1][1] = p00 - k0 * ps0, p01 - k0 * ps1, p11 - k1 * ps1
+        P[1][0] = P[0][1]
 
 
 class _Twins(PhysicsTwins):
@@ -167,14 +254,22 @@ class _Lanes(_Twins):
     """The adapted parameters' lanes (no voltage lane), which can be rebuilt at other constants."""
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float, tau_s: float) -> None:
-        super().__init__(params, effects, supply_v, tau_s, faults=ADAPTED, voltage_lane=False)
+        super().__init__(params, effects, supply_v, tau_s, faults=SPEED_ADAPTED, voltage_lane=False)
         self._build = (dict(effects), supply_v, tau_s)
+
+    def supply(self) -> tuple[float, float, float] | None:
+        """(the stamp of the filtered voltage the latest step took (s), that voltage (V), the
+        nominal lane's supply current through the battery filter after the step (A)); None
+        before a step."""
+        if self._t0 is None or self._k == 0 or not self._vv:
+            return None
+        return self._vt[self._vi], self._vv[self._vi], self._ib_lp[0]
 
     def rebase(self, params: PlantParams, moves: Sequence[float]) -> None:
         """Rebuild the lanes at ``params`` keeping their states: the nominal lane's state moves
         along the lanes' own sensitivities by ``moves`` (per lane, in its units before the
         rebase), each perturbed lane keeps its distance from it: no jump in the prediction."""
-        fresh = PhysicsTwins(params, *self._build, faults=ADAPTED, voltage_lane=False)
+        fresh = PhysicsTwins(params, *self._build, faults=SPEED_ADAPTED, voltage_lane=False)
         for x in (self._w, self._temp, self._ib_lp, self._vp, self._vp_lp, self._w_now):
             lift = sum(m * (x[j + 1] - x[0]) * self._inv[j + 1] for j, m in enumerate(moves))
             for j in range(len(x)):
@@ -204,13 +299,28 @@ class PhysicsAdapter:
     # --- state --------------------------------------------------------------------------------
     def reset(self) -> None:
         """Back to the offline model: theta = 0, the prior covariance, the lanes restarted."""
-        self.theta = [0.0] * len(ADAPTED)
+        self.theta = [0.0] * len(SPEED_ADAPTED)
         self._judged_t: float | None = None  #: the latest measured speed the guard scored
         self._sq_offline = self._sq_adapted = 0.0  #: the guard's forgotten squared errors
         self.in_use = True  #: whether the correction applies (the guard: it scores no worse)
-        sig = self.config.prior_sigma
+        cfg = self.config
+        sig = cfg.prior_sigma
         self._p_max = [s * s for s in sig]
         self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+        rs = self.plant.params.battery_series_resistance_ohm
+        self._pack_model = rs  #: the offline model's series resistance (ohm)
+        ref = rs if rs > 0.0 else PACK_REFERENCE_OHM
+        self._pack_bounds = (PACK_BOUNDS[0] * ref, PACK_BOUNDS[1] * ref)
+        #: the pack's estimator: only where the model undoes a battery filter (else R is not used)
+        self._sag = (_Sag(rs, cfg.pack_prior * ref, cfg.pack_noise_v, cfg.pack_memory_s, cfg.innovation_limit)
+                     if self._tau > 0.0 else None)
+        self._pack_lin = rs  #: the series resistance the lanes are built at (ohm)
+        self._pack_row_t = -math.inf
+        self._pack_ref = ref
+        #: the baseline's start (s), its rows' sum and count; its value once complete
+        self._base_t: float | None = None
+        self._base_sum, self._base_n = 0.0, 0
+        self.pack_baseline_ohm: float | None = None
         self.restart()
 
     def restart(self) -> None:
@@ -221,14 +331,15 @@ class PhysicsAdapter:
         self._lanes = _Lanes(p.params, p.effects, p.supply_v, self._tau)
         self.speed_scale_rad_s = self._lanes.speed_scale_rad_s
         self._friction_ref = self._lanes.friction_reference_a  #: A per unit of theta[1]
-        if any(self._lin):
-            self._lanes.rebase(adapted_params(p.params, self._lin, self._friction_ref), self._lin)
+        moved = any(self._lin) or self._pack_lin != self._pack_model
+        if moved:
+            self._lanes.rebase(adapted_params(p.params, self._lin, self._friction_ref, self._pack_lin), self._lin)
         self._units = self._lane_units()
         self._ref = _Twins(p.params, p.effects, p.supply_v, self._tau, faults=(), voltage_lane=False)
         #: the latest fresh row of ``_sample``: the row while neither the lanes nor (live) the
         #: reference take a step, as they would give it again; None after a rebuild
         self._row: tuple[float, float, float] | None = None
-        self._ref_live = any(self._lin)
+        self._ref_live = moved
         self._ref_t = -math.inf  #: the reference lane's latest sample while not live
         self._hist_t: list[float] = []  #: lanes' sample times
         #: (w(theta_lin) - w(0), S0, S1) there, at theta_lin when kept, and the lanes' rebuilds before it
@@ -271,6 +382,8 @@ class PhysicsAdapter:
             tw = self._lanes.sample(t)
             if tw is None:
                 return None
+            if self._sag is not None:
+                self._pack_row()
             dlin = 0.0
             if live:  # w(0) from the reference lane once theta_lin has moved
                 ref = self._ref.sample(t)
@@ -293,6 +406,43 @@ class PhysicsAdapter:
             del self._moves[:gone]
             self._move0 += gone
         return row
+
+    def _pack_row(self) -> None:
+        """The pack's estimator fed the lanes' latest step: a row per voltage sample (so none while
+        the voltage stops; the current is the lanes', a step or a measured speed's spacing after the
+        sample's stamp, far inside the filter's seconds), at most one per ``pack_row_s``."""
+        now = self._lanes.supply()
+        assert self._sag is not None
+        cfg = self.config
+        if now is None or now[0] < self._pack_row_t + cfg.pack_row_s:
+            return
+        self._pack_row_t = now[0]
+        self._sag.add(*now)
+        if self.pack_baseline_ohm is None:
+            if self._base_t is None and self._sag.sigma_r < cfg.pack_confident * self._pack_ref:
+                self._base_t = now[0]
+            if self._base_t is not None:
+                self._base_sum += self.pack_measured_ohm
+                self._base_n += 1
+                if now[0] - self._base_t >= cfg.pack_baseline_s:
+                    self.pack_baseline_ohm = self._base_sum / self._base_n
+
+    @property
+    def pack_measured_ohm(self) -> float:
+        """The pack's sag per ampere as the voltage shows it (ohm), within ``PACK_BOUNDS``."""
+        if self._sag is None:
+            return self._pack_model
+        lo, hi = self._pack_bounds
+        return min(max(self._sag.x[1], lo), hi)
+
+    @property
+    def pack_ohm(self) -> float:
+        """The adapted series resistance (ohm): the model's plus the change of the measured one
+        since its baseline, within ``PACK_BOUNDS``; the model's until the baseline is known."""
+        if self.pack_baseline_ohm is None:
+            return self._pack_model
+        lo, hi = self._pack_bounds
+        return min(max(self._pack_model + self.pack_measured_ohm - self.pack_baseline_ohm, lo), hi)
 
     def _now(self, row: tuple[float, float, float, int]) -> tuple[float, float, float]:
         """A history row moved to the present theta_lin along its S by each rebuild since it was
@@ -344,19 +494,23 @@ class PhysicsAdapter:
         return self.thrust_factor if self.in_use else 1.0
 
     def values(self) -> dict[str, tuple[float, float]]:
-        """name -> (adapted value in ``UNITS``, its one sigma)."""
+        """name -> (adapted value in ``UNITS``, its one sigma). The pack's is its sag per ampere as
+        the voltage shows it, NaN until the current has varied enough to tell it (its sigma below
+        ``pack_confident`` of the model's) and without a battery filter to undo."""
         P = self._P
         return {ADAPTED[0]: (self.theta[0], math.sqrt(max(P[0][0], 0.0))),
-                ADAPTED[1]: (1.0 + self.theta[1], math.sqrt(max(P[1][1], 0.0)))}
+                ADAPTED[1]: (1.0 + self.theta[1], math.sqrt(max(P[1][1], 0.0))),
+                ADAPTED[2]: ((self.pack_measured_ohm, self._sag.sigma_r) if self._sag is not None
+                             and self._base_t is not None else (math.nan, math.nan))}
 
     def adapted_plant(self) -> PlantModel:
         """The physics model with the adapted constants (b scaled by ``thrust_factor``); its
         metadata says what was adapted from what."""
         p = self.plant
         b = p.thrust_coefficient
-        meta = {**p.metadata, "adapted": {n: {"value": v, "sigma": s, "unit": UNITS[n]}
+        meta = {**p.metadata, "adapted": {n: {"value": finite_or_none(v), "sigma": finite_or_none(s), "unit": UNITS[n]}
                                           for n, (v, s) in self.values().items()}}
-        return dataclasses.replace(p, params=adapted_params(p.params, self.theta, self._friction_ref),
+        return dataclasses.replace(p, params=adapted_params(p.params, self.theta, self._friction_ref, self.pack_ohm),
                                    thrust_coefficient=None if b is None else b * self.thrust_factor,
                                    metadata=meta)
 
@@ -385,6 +539,8 @@ class PhysicsAdapter:
         if row is None:
             self.note = why
             self.frozen_samples += 1
+            if self._pack_moved():
+                self._rebase()
             return False
         slope = (offline_rad_s - prev[1]) / (t - prev[0]) if 0.0 < t - prev[0] <= _SLOPE_GAP_S else 0.0
         r = self._r + (cfg.timing_s * slope) ** 2
@@ -392,9 +548,14 @@ class PhysicsAdapter:
         self.note = "on"
         self.updates += 1
         th, lin, step = self.theta, self._lin, cfg.relinearise
-        if abs(th[0] - lin[0]) > step[0] or abs(th[1] - lin[1]) > step[1]:
+        if abs(th[0] - lin[0]) > step[0] or abs(th[1] - lin[1]) > step[1] or self._pack_moved():
             self._rebase()
         return True
+
+    def _pack_moved(self) -> bool:
+        """Whether the resistance moved more than ``pack_relinearise`` of the lanes' from it."""
+        lin = self._pack_lin
+        return abs(self.pack_ohm - lin) > self.config.pack_relinearise * max(lin, self._pack_bounds[0])
 
     def _judge(self, t: float, error_offline: float, e_adapted: float) -> None:
         """The guard: score both predictions on a measured speed (its error from the offline and
@@ -455,7 +616,8 @@ class PhysicsAdapter:
         if not self._ref_live and self._hist_t:
             self._ref.sample(self._hist_t[-1])  # the reference goes live: at the lanes' time
         self._ref_live = True
-        self._lanes.rebase(adapted_params(self.plant.params, new, self._friction_ref), moves)
+        self._pack_lin = self.pack_ohm
+        self._lanes.rebase(adapted_params(self.plant.params, new, self._friction_ref, self._pack_lin), moves)
         d = [a - b for a, b in zip(new, self._lin, strict=True)]
         self._moves.append((d[0], d[1]))  # the history's rows move when read (``_now``)
         self._rebuilds += 1

@@ -102,7 +102,7 @@ _COPPER_PER_K = 0.00393
 #: Friction reference when the model has none (A of no-load current): the nominal bench's.
 _FRICTION_REFERENCE_A = 0.4
 #: Series resistance reference when the model has none (ohm): the nominal bench's.
-_PACK_REFERENCE_OHM = 0.035
+PACK_REFERENCE_OHM = 0.035
 
 
 # --- the physics side: the model's speed, current and the faults' signatures ---------------------
@@ -141,7 +141,7 @@ class PhysicsTwins:
         self.params = params
         rs = params.battery_series_resistance_ohm
         #: the pack's series resistance the signatures are relative to (ohm)
-        self.pack_resistance_ohm = rs if rs > 0.0 else _PACK_REFERENCE_OHM
+        self.pack_resistance_ohm = rs if rs > 0.0 else PACK_REFERENCE_OHM
         i0 = params.motor_no_load_current_a
         #: the friction (no-load current, A) a factor is relative to
         self.friction_reference_a = i0 if i0 > 0.0 else _FRICTION_REFERENCE_A

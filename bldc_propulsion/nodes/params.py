@@ -105,7 +105,8 @@ THRUST_ESTIMATOR_PARAMS: tuple[Param, ...] = (
           "publishes no predicted/thrust unless this states it.", 0.0, 1.0, core=False),
     Param("adapt", False, "Online adaptation (physics or hybrid model): with rotor/speed "
           "coming, the propeller's loss and the friction factor follow the measured speed "
-          "(bounded RLS, frozen while the speed is stale or the rotor at rest), the prediction "
+          "(bounded RLS, frozen while the speed is stale or the rotor at rest), the pack's "
+          "resistance the battery voltage's sag, the prediction "
           "and thrust use them; published on predicted/adapted and diagnostics (adapted_*). "
           "A network model or the fallback is refused.", core=False),
     Param("health", False, "Health monitor (physics or hybrid model): with rotor/speed coming, "

@@ -37,9 +37,10 @@ model has a band (and, for the thrust's, a b); without one, diagnostics say why 
 
 adapt (parameter, default false; a physics or hybrid model, refused at start for another):
 the online adaptation (``core.adaptation``): each measured speed on rotor/speed updates the
-propeller's loss and the friction factor, which the prediction and the thrust then use. After
-each measured speed the estimator takes, predicted/adapted (Float64MultiArray, the project's
-addition: the values in ``ADAPTED`` order, propeller loss fraction and friction factor,
+propeller's loss and the friction factor, and the battery voltage the pack's series resistance,
+which the prediction and the thrust then use. After each measured speed the estimator takes,
+predicted/adapted (Float64MultiArray, the project's addition: the values in ``ADAPTED`` order,
+propeller loss fraction, friction factor and the pack's resistance in ohm (NaN until known),
 layout.dim[0].label the names comma-joined) is published; diagnostics carry ``adaptation`` (on,
 or why frozen) and each ``adapted_*`` value with its sigma. A model reload keeps adapt (a network
 is then refused like a file that does not load) and starts from the new model's constants.
