@@ -21,7 +21,10 @@ grows with w^2, the friction is constant. And from the voltage, not the speed:
   seconds). In steady state the resistance cancels, so the speed barely tells it; the voltage
   does: the filtered voltage against the model's supply current through the same filter is a
   straight line of slope -R (``_Sag``: recursive least squares with forgetting, the offset fitted
-  along). Adapted whenever the model undoes a filter.
+  along). Adapted whenever the model undoes a filter, as a change: the model's resistance moves
+  by the measured one's change from its baseline (its first ``pack_baseline_s`` of confident
+  estimates), as the model's own was fitted along with its other constants (or held at a
+  default), which setting the measured value in its place would undo.
 
 Left out: the winding's
 resistance (``motor_heating``): in the steady torque balance it scales the drag and the friction
@@ -53,7 +56,7 @@ is not 0. The lanes are sampled at prediction times and at the measured speeds' 
 them by a batch and half a revolution: a short history (``history_s``) aligns the two.
 
 A guard keeps the adaptation from costing accuracy where it learns the wrong thing (a change it
-cannot represent, such as a pack whose resistance rose, moves theta along the nearest direction it
+cannot represent, such as a winding running hot, moves theta along the nearest direction it
 has): at every measured speed the adapted and the offline predictions are both scored on it
 before theta learns from it (a priori errors, so the adapted one is not judged on what it just
 fitted), as squared errors forgotten over ``memory_s``, the adapter's own memory. The correction
@@ -616,6 +619,8 @@ class PhysicsAdapter:
         if not self._ref_live and self._hist_t:
             self._ref.sample(self._hist_t[-1])  # the reference goes live: at the lanes' time
         self._ref_live = True
+        # the resistance has no lane, so no move: the rows kept from before stand (a history of
+        # history_s, where the filter spreads what the resistance does over seconds)
         self._pack_lin = self.pack_ohm
         self._lanes.rebase(adapted_params(self.plant.params, new, self._friction_ref, self._pack_lin), moves)
         d = [a - b for a, b in zip(new, self._lin, strict=True)]
