@@ -387,3 +387,19 @@ def test_a_pack_whose_resistance_doubles_is_seen_in_the_voltage(model, pack_flig
     assert value == ad.pack_measured_ohm and 0.0 < sigma < 0.2 * value
     offline = run_flight(model, faulted, adapt=False)
     assert rmse(runs[0], *POST) <= 1.05 * rmse(offline, *POST), (rmse(runs[0], *POST), rmse(offline, *POST))
+
+
+def test_a_change_of_the_pack_counts_past_a_third_and_until_it_falls_under_a_sixth(model):
+    """By hand, baseline 0.04 ohm (pack_significant 0.35): the measured resistance's change moves the
+    model's only once it exceeds 35 % of the baseline, and keeps moving it until it falls back
+    under 17.5 % (a healthy flight's estimate swings +-20 %); the model's resistance is its own
+    plus the change while it counts."""
+    ad = PhysicsAdapter(model)
+    rs = model.params.battery_series_resistance_ohm
+    ad.pack_baseline_ohm = 0.04
+    for measured, counts in ((0.048, False), (0.0535, False), (0.055, True), (0.047, True), (0.0475, True),
+                             (0.0469, False), (0.05, False), (0.025, True), (0.0329, True), (0.0335, False)):
+        ad._sag.x[1] = measured
+        ad._count_pack_change()
+        assert ad.pack_changed is counts, measured
+        assert ad.pack_ohm == pytest.approx(rs + measured - 0.04 if counts else rs), measured

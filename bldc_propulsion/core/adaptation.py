@@ -24,7 +24,8 @@ grows with w^2, the friction is constant. And from the voltage, not the speed:
   along). Adapted whenever the model undoes a filter, as a change: the model's resistance moves
   by the measured one's change from its baseline (its first ``pack_baseline_s`` of confident
   estimates), as the model's own was fitted along with its other constants (or held at a
-  default), which setting the measured value in its place would undo.
+  default), which setting the measured value in its place would undo; and only once the change
+  is large (``pack_significant``), as the estimate carries the model's own current error.
 
 Left out: the winding's
 resistance (``motor_heating``): in the steady torque balance it scales the drag and the friction
@@ -151,11 +152,15 @@ class AdaptationConfig:
     #: ``pack_confident`` of the model's resistance; the model's resistance moves by the change from it
     pack_baseline_s: float = 10.0
     pack_confident: float = 0.2
+    #: the change counts (moves the model) once it exceeds this share of the baseline, and until it
+    #: falls back under half of it: the estimate swings +-20 % in a healthy flight (the model's
+    #: current is off by its own error), a pack's fault is a step of tens of percent
+    pack_significant: float = 0.35
 
     def __post_init__(self) -> None:
         for name in ("memory_s", "noise_fraction", "innovation_limit", "settle_s", "history_s", "timing_s",
                      "pack_memory_s", "pack_noise_v", "pack_prior", "pack_relinearise", "pack_row_s",
-                     "pack_baseline_s", "pack_confident"):
+                     "pack_baseline_s", "pack_confident", "pack_significant"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0) and not (name in ("settle_s", "timing_s") and v == 0.0):
                 raise BadInputError(f"adaptation {name}: {v!r} must be a finite number > 0")
@@ -324,6 +329,7 @@ class PhysicsAdapter:
         self._base_t: float | None = None
         self._base_sum, self._base_n = 0.0, 0
         self.pack_baseline_ohm: float | None = None
+        self.pack_changed = False  #: whether the measured resistance's change counts (hysteresis)
         self.restart()
 
     def restart(self) -> None:
@@ -429,6 +435,15 @@ class PhysicsAdapter:
                 self._base_n += 1
                 if now[0] - self._base_t >= cfg.pack_baseline_s:
                     self.pack_baseline_ohm = self._base_sum / self._base_n
+        else:
+            self._count_pack_change()
+
+    def _count_pack_change(self) -> None:
+        """Hysteresis on the measured resistance's change from its baseline: it counts from
+        ``pack_significant`` of the baseline on, until it falls back under half of that."""
+        assert self.pack_baseline_ohm is not None
+        share = abs(self.pack_measured_ohm - self.pack_baseline_ohm) / self.pack_baseline_ohm
+        self.pack_changed = share >= self.config.pack_significant * (0.5 if self.pack_changed else 1.0)
 
     @property
     def pack_measured_ohm(self) -> float:
@@ -441,8 +456,9 @@ class PhysicsAdapter:
     @property
     def pack_ohm(self) -> float:
         """The adapted series resistance (ohm): the model's plus the change of the measured one
-        since its baseline, within ``PACK_BOUNDS``; the model's until the baseline is known."""
-        if self.pack_baseline_ohm is None:
+        since its baseline, within ``PACK_BOUNDS``, while that change counts (``pack_significant``);
+        else the model's."""
+        if self.pack_baseline_ohm is None or not self.pack_changed:
             return self._pack_model
         lo, hi = self._pack_bounds
         return min(max(self._pack_model + self.pack_measured_ohm - self.pack_baseline_ohm, lo), hi)
