@@ -199,15 +199,46 @@ def finite_or_none(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _rls2_step(P: list[list[float]], p_max: Sequence[float], forget_s: float, memory_s: float,
+               s0: float, s1: float, e: float, r: float, limit: float) -> tuple[float, float]:
+    """One step of two-parameter recursive least squares, for the speed's parameters and the
+    pack's: P (its upper triangle kept, updated in place) first forgotten over ``forget_s`` of a
+    ``memory_s`` memory with each variance capped at its prior ``p_max`` (D P D keeps P positive
+    semidefinite), then updated on the regressor (s0, s1) with noise variance r. Returns the
+    parameters' increments for the innovation e, limited to ``limit`` of its expected sigma.
+    Plain floats: ~1 us, where numpy's per-call overhead on 2x2 arrays costs ~20 us."""
+    p0, p1 = P
+    p00, p01, p11 = p0[0], p0[1], p1[1]
+    if forget_s > 0.0:
+        grow = math.exp(forget_s / memory_s)
+        p00 *= grow
+        p01 *= grow
+        p11 *= grow
+        d0 = min(1.0, math.sqrt(p_max[0] / p00)) if p00 > 0.0 else 1.0
+        d1 = min(1.0, math.sqrt(p_max[1] / p11)) if p11 > 0.0 else 1.0
+        p00 *= d0 * d0
+        p01 *= d0 * d1
+        p11 *= d1 * d1
+    ps0 = p00 * s0 + p01 * s1
+    ps1 = p01 * s0 + p11 * s1
+    den = r + s0 * ps0 + s1 * ps1
+    lim = limit * math.sqrt(den)
+    e = min(max(e, -lim), lim)
+    k0, k1 = ps0 / den, ps1 / den
+    p0[0] = p00 - k0 * ps0
+    p0[1] = p01 - k0 * ps1
+    p1[1] = p11 - k1 * ps1
+    return k0 * e, k1 * e
+
+
 class _Sag:
     """The pack's series resistance from the filtered voltage v and the model's supply current
     through the same filter i: v = e - R i + noise, (e, R) by recursive least squares with
     exponential forgetting in time, each variance capped at its prior (no windup while the current
-    holds still), innovations limited to ``limit`` sigmas. The open-circuit voltage and the pack's
-    slow polarisation (tens of seconds) move e over a memory of seconds; fitting the polarisation
-    as a third term (a 30 s lag of i) made it trade off against e, whose lag it nearly is over
-    such a memory, and a doubled resistance took twice as long to show. Plain floats, as
-    ``PhysicsAdapter._learn``: numpy's per-call overhead would cost more than the arithmetic."""
+    holds still), innovations limited to ``limit`` sigmas (``_rls2_step``). The open-circuit
+    voltage and the pack's slow polarisation (tens of seconds) move e over a memory of seconds;
+    fitting the polarisation as a third term (a 30 s lag of i) made it trade off against e, whose
+    lag it nearly is over such a memory, and a doubled resistance took twice as long to show."""
 
     def __init__(self, r0: float, sigma_r: float, noise_v: float, memory_s: float, limit: float) -> None:
         self.x = [math.nan, r0]  #: (e (V), R (ohm)); e from the first row
@@ -223,28 +254,16 @@ class _Sag:
 
     def add(self, t: float, volts: float, current_a: float) -> None:
         """A row at t (s): the filtered voltage (V) and the model's filtered supply current (A)."""
-        x, P = self.x, self.P
+        x = self.x
         dt = t - self._t if self._t == self._t else 0.0
         self._t = t
         if x[0] != x[0]:
             x[0] = volts + x[1] * current_a
-        p00, p01, p11 = P[0][0], P[0][1], P[1][1]
-        if dt > 0.0:  # forgetting, each variance capped at its prior (D P D: P stays PSD)
-            grow = math.exp(min(dt, _MAX_FORGET_S) / self._memory)
-            p00, p01, p11 = p00 * grow, p01 * grow, p11 * grow
-            d0 = min(1.0, math.sqrt(self._p_max[0] / p00)) if p00 > 0.0 else 1.0
-            d1 = min(1.0, math.sqrt(self._p_max[1] / p11)) if p11 > 0.0 else 1.0
-            p00, p01, p11 = p00 * d0 * d0, p01 * d0 * d1, p11 * d1 * d1
-        s1 = -current_a  # the regressor (1, -i)
-        ps0, ps1 = p00 + p01 * s1, p01 + p11 * s1
-        den = self._r + ps0 + s1 * ps1
-        lim = self._limit * math.sqrt(den)
-        e = min(max(volts - x[0] - x[1] * s1, -lim), lim)
-        k0, k1 = ps0 / den, ps1 / den
-        x[0] += k0 * e
-        x[1] += k1 * e
-        P[0][0], P[0][1], P[1][1] = p00 - k0 * ps0, p01 - k0 * ps1, p11 - k1 * ps1
-        P[1][0] = P[0][1]
+        # the regressor (1, -i)
+        d0, d1 = _rls2_step(self.P, self._p_max, min(dt, _MAX_FORGET_S), self._memory, 1.0, -current_a,
+                            volts - x[0] + x[1] * current_a, self._r, self._limit)
+        x[0] += d0
+        x[1] += d1
 
 
 class _Twins(PhysicsTwins):
@@ -594,38 +613,18 @@ class PhysicsAdapter:
         return max(abs(row[1] * step[0]), abs(row[2] * step[1])) <= _LINEAR_SHARE * w
 
     def _learn(self, t: float, e: float, s0: float, s1: float, r: float) -> None:
-        """One RLS step on the innovation e with the regressor (s0, s1) and the sample's noise
-        variance r ((rad/s)^2). Two parameters in plain
-        floats: ~1 us, where numpy's per-call overhead on 2x2 arrays costs ~20 us."""
-        P = self._P  # (the upper triangle is kept)
-        p0, p1 = P
-        p00, p01, p11 = p0[0], p0[1], p1[1]
+        """One RLS step (``_rls2_step``) on the innovation e with the regressor (s0, s1) and the
+        sample's noise variance r ((rad/s)^2), forgetting over the excited time since the last
+        update; theta then clamped to ``BOUNDS``."""
         last = self._last_update_t
         self._last_update_t = t
-        if last is not None and t > last:  # forgetting over the excited time since the last update
-            grow = math.exp(min(t - last, _MAX_FORGET_S) / self.config.memory_s)
-            p00 *= grow
-            p01 *= grow
-            p11 *= grow
-            pm = self._p_max
-            d0 = min(1.0, math.sqrt(pm[0] / p00)) if p00 > 0.0 else 1.0
-            d1 = min(1.0, math.sqrt(pm[1] / p11)) if p11 > 0.0 else 1.0
-            p00 *= d0 * d0  # D P D keeps P positive semidefinite, each variance <= its prior
-            p01 *= d0 * d1
-            p11 *= d1 * d1
-        ps0 = p00 * s0 + p01 * s1
-        ps1 = p01 * s0 + p11 * s1
-        den = r + s0 * ps0 + s1 * ps1
-        lim = self.config.innovation_limit * math.sqrt(den)
-        e = min(max(e, -lim), lim)
-        k0, k1 = ps0 / den, ps1 / den
+        forget = min(t - last, _MAX_FORGET_S) if last is not None and t > last else 0.0
+        d0, d1 = _rls2_step(self._P, self._p_max, forget, self.config.memory_s, s0, s1, e, r,
+                            self.config.innovation_limit)
         th = self.theta
         (lo0, hi0), (lo1, hi1) = BOUNDS
-        th[0] = min(max(th[0] + k0 * e, lo0), hi0)
-        th[1] = min(max(th[1] + k1 * e, lo1), hi1)
-        p0[0] = p00 - k0 * ps0
-        p0[1] = p01 - k0 * ps1
-        p1[1] = p11 - k1 * ps1
+        th[0] = min(max(th[0] + d0, lo0), hi0)
+        th[1] = min(max(th[1] + d1, lo1), hi1)
 
     def _rebase(self) -> None:
         """The lanes rebuilt at theta (their states kept); the history moved to the new point
