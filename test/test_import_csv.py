@@ -292,6 +292,37 @@ def test_real_coastdown_log(tmp_path: Path) -> None:
     assert w[after][0] > 0.5 * plateau
 
 
+# --- the thrust's check of the speed ---------------------------------------------------------
+def _probe_log(path: Path, probe: list[float]) -> Path:
+    """1 s of rest, then 1500 us with the rotor at 1000 rad/s and 5 N (b = 5e-6), 10 rows a second,
+    and 1200 us with the rotor at 400 rad/s (0.8 N); ``probe`` replaces the speed column's
+    readings of the 1200 us rows, as a probe that misses the rotor would read them."""
+    rows = [f"{0.1 * k:.1f},1000,16,0.1,0,0" for k in range(10)]
+    rows += [f"{1 + 0.1 * k:.1f},1500,16,5,5.0,{1000 / RPM:.3f}" for k in range(20)]
+    rows += [f"{3 + 0.1 * k:.1f},1200,16,1,0.8,{w / RPM:.3f}" for k, w in enumerate(probe)]
+    return write_csv(path, "Time (s),ESC signal (µs),Voltage (V),Current (A),Thrust (N),Motor Optical Speed (RPM)",
+                     rows)
+
+
+def test_a_speed_the_thrust_contradicts_is_named_hand_computed(tmp_path: Path) -> None:
+    info = import_csv(_probe_log(tmp_path / "p.csv", [400.0] * 3 + [0.0] * 8 + [400.0] * 3), tmp_path / "p.bag")
+    # b = 5 / 1000^2; 0.8 N -> sqrt(0.8 / 5e-6) = 400 rad/s; the probe reads 0 over 3.3-4.0 s
+    assert info["speed_contradicted_by_thrust_s"] == [[pytest.approx(3.3), pytest.approx(4.0)]]
+    [warning] = info["warnings"]
+    assert warning.startswith(f"{tmp_path / 'p.csv'}: the thrust contradicts the speed column for 0.7 s")
+    assert "3.3-4.0 s reads 0 rad/s where the thrust says about 400" in warning and "b = 5e-06" in warning
+    assert "\n" not in warning
+    _, w = read(tmp_path / "p.bag", "rotor/speed")
+    assert np.count_nonzero(w == 0.0) == 10 + 8, "written as read"
+
+
+@pytest.mark.parametrize("probe", [[400.0] * 14, [400.0] * 5 + [0.0] * 4 + [400.0] * 5, [440.0, 210.0] * 7])
+def test_a_speed_the_thrust_agrees_with_or_a_short_dropout_is_not_named(tmp_path: Path, probe: list[float]) -> None:
+    """Agreement; a dropout shorter than THRUST_CHECK_MIN_S (0.3 s); readings within half the implied speed."""
+    info = import_csv(_probe_log(tmp_path / "p.csv", probe), tmp_path / "p.bag")
+    assert info["warnings"] == [] and info["speed_contradicted_by_thrust_s"] == []
+
+
 # --- thrust units ----------------------------------------------------------------------------
 @pytest.mark.parametrize("unit,factor", [("N", 1.0), ("kgf", 9.80665), ("gf", 9.80665e-3),
                                          ("lbf", 4.4482216152605)])
@@ -541,7 +572,12 @@ def test_esc_test_logs_without_a_command_say_so(name: str, tmp_path: Path) -> No
 @pytest.mark.skipif(not (ESC_TEST / "Log_2019-11-09_181347.csv").is_file(), reason="esc_test logs not available")
 def test_esc_test_f80_log_with_its_own_pwm_steps(tmp_path: Path) -> None:
     info = import_csv(ESC_TEST / "Log_2019-11-09_181347.csv", tmp_path / "f80.bag")
-    assert info["rows"] == 15684 and info["warnings"] == []
+    assert info["rows"] == 15684
+    # the last 1100 us hold (after 1300 us): the electrical probe reads 0 while the load cell reads
+    # 23-24 gf (the rotor at ~230 rad/s) and the current stays 0.12 A above the stopped ESC's
+    [warning] = info["warnings"]
+    assert "the thrust contradicts the speed column" in warning and "106.0-111.6 s reads 0 rad/s" in warning
+    assert [round(x, 1) for x in info["speed_contradicted_by_thrust_s"][-1]] == [106.0, 111.6]
     assert info["esc_us_levels"] == [1000.0 + 50 * k for k in range(20)]  # 1050 -> 1950 us steps, 1000 stop
     assert info["speed_check_power_over_torque_ratio"] == pytest.approx(1.0, abs=1e-3)  # shaft RPM already
     assert info["thrust_unit_in_log"] == "gf" and info["command"]["column"] == "ESC signal (µs)"
@@ -568,7 +604,11 @@ def test_esc_test_f40_with_the_autoquad_log(f40) -> None:
     assert al["correlation"] > 0.998 and al["speed_rms_share_of_range"] < 0.03
     assert all(abs(x) < 0.05 for x in al["local_offsets_s"])
     assert al["speed_ratio_other_over_log"] == pytest.approx(1.0, abs=0.02)
-    assert info["warnings"] == [] and info["thrust_unit_in_log"] == "gf"
+    assert info["thrust_unit_in_log"] == "gf"
+    # after the run, the load cell rises 8 -> 67 gf in a second with the probe at 0 and the current
+    # at rest's: not the rotor (a hand on the stand?), which the warning leaves open
+    [warning] = info["warnings"]
+    assert "124.1-125.0 s reads 0 rad/s" in warning and "a hand on the stand" in warning
     # the duty steps of 5 % from 10 to 100 % (and 0 = stop), as PWM levels 0.05 + 0.05 x duty
     t, pwm = read(d / "f40.bag", "pwm")
     held = {round(float(lv), 6) for lv in np.unique(pwm) if np.count_nonzero(pwm == lv) >= 50}  # >= 1 s

@@ -19,7 +19,9 @@ frequency to shaft RPM with the pole count entered in its setup, so the column i
 already mechanical RPM (checked on real logs: its own ``Mechanical Power (W)`` equals
 ``Torque (N·m)`` x that column). ``pole_pairs`` is only for logs that hold raw electrical RPM
 (commutation RPM = shaft RPM x pole pairs); the returned dict says which source and which
-assumption were used, and warns when the speed disagrees with mechanical power / torque.
+assumption were used, and warns when the speed disagrees with mechanical power / torque, and
+when it reads far below what the thrust column says for half a second or more (a probe that
+misses the rotor at low speed: ``_contradicted_spans``; written as read, so the user decides).
 
 The command: the ``ESC signal (µs)`` column, unless the ESC's own tool set it (the column is
 then empty, and the error says so): ``command_column`` names another column of the log (us,
@@ -70,6 +72,14 @@ RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 ESC_MIN_US, ESC_MAX_US = UNIT_RANGE["us"]  #: outside: the column is not an ESC pulse width
 #: Relative disagreement between the written speed and mechanical power / torque that warns.
 SPEED_CHECK_TOLERANCE = 0.10
+#: The thrust's check of the speed (``_contradicted_spans``): a row's speed is contradicted when it
+#: is off by more than this share of the speed its thrust implies (T = b w^2)...
+THRUST_CHECK_SHARE = 0.5
+#: ... where that thrust is a load the cell plainly reads: above this share of the log's largest
+#: (a tare drift of a few grams-force stays below it) and ten times the cell's row-to-row noise,
+THRUST_CHECK_MIN_SHARE = 0.01
+#: ... for at least this long (s): a step's lag in the load cell, or one glitch, is no span.
+THRUST_CHECK_MIN_S = 0.5
 
 COL_TIME = "Time (s)"
 COL_ESC = "ESC signal (µs)"
@@ -331,6 +341,60 @@ def _speed_check(table: _Table, rpm: np.ndarray | None) -> float | None:
     return float(np.median(ratio[ok]))
 
 
+@dataclass(frozen=True)
+class _Contradiction:
+    """Rows of a log (its own clock, s) whose speed column the thrust column contradicts."""
+
+    start_s: float
+    stop_s: float
+    speed_rad_s: float  #: the column's median there
+    implied_rad_s: float  #: the thrust's median implied speed there
+
+
+def _contradicted_spans(t: np.ndarray, rpm: np.ndarray | None,
+                        thrust_n: np.ndarray | None) -> tuple[list[_Contradiction], float | None]:
+    """Spans where the thrust says the rotor turns at a speed the speed column does not read, and
+    the b the implied speed came from (None: no check, the log lacks a column or fast rows).
+
+    A stand's speed probe (optical, or the electrical probe on a phase wire) can miss the rotor at
+    low speed and read 0 or flicker while the load cell plainly reads a thrust; training and
+    evaluate would take that reading as the rotor's speed. b is the median T / w^2 over the rows
+    above half the log's top speed, where a probe reads; the propeller's b varies some per cent
+    with speed, far inside THRUST_CHECK_SHARE."""
+    if rpm is None or thrust_n is None:
+        return [], None
+    ok = np.isfinite(rpm) & np.isfinite(thrust_n)
+    t, w, thrust = t[ok], rpm[ok] * RPM_TO_RAD_S, thrust_n[ok]
+    if len(t) < 10 or not np.any(w > 0):
+        return [], None
+    fast = w >= 0.5 * w.max()
+    b = float(np.median(thrust[fast] / w[fast] ** 2))
+    if not b > 0:
+        return [], None
+    step = np.diff(thrust)
+    noise = 1.4826 * float(np.median(np.abs(step - np.median(step)))) / math.sqrt(2.0)
+    implied = np.sqrt(np.clip(thrust, 0.0, None) / b)
+    loaded = thrust > max(10.0 * noise, THRUST_CHECK_MIN_SHARE * float(thrust.max()))
+    bad = loaded & (np.abs(w - implied) > THRUST_CHECK_SHARE * implied)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
+    spans = [_Contradiction(float(t[i]), float(t[j - 1]), float(np.median(w[i:j])), float(np.median(implied[i:j])))
+             for i, j in zip(edges[::2], edges[1::2], strict=True) if t[j - 1] - t[i] >= THRUST_CHECK_MIN_S]
+    return spans, b
+
+
+def _contradiction_warning(src: Path, spans: list[_Contradiction], b: float | None) -> list[str]:
+    """One line naming every span where the thrust contradicts the speed column (none: no line)."""
+    if not spans or b is None:
+        return []
+    where = "; ".join(f"{s.start_s:.1f}-{s.stop_s:.1f} s reads {s.speed_rad_s:.0f} rad/s where the thrust says "
+                      f"about {s.implied_rad_s:.0f}" for s in spans)
+    total = sum(s.stop_s - s.start_s for s in spans)
+    return [f"{src}: the thrust contradicts the speed column for {total:.1f} s (log time {where}; "
+            f"T = b w^2 with b = {b:.3g} N s^2/rad^2 from the rows above half the top speed): the speed probe "
+            f"misses the rotor there, or the load cell reads something else (a drifted zero, a hand on the "
+            f"stand); /rotor/speed is written as read, and training and evaluate take it as the rotor's speed"]
+
+
 def _sha256(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
@@ -436,6 +500,8 @@ def import_csv(
                     if not role.startswith("rpm_") or role == f"rpm_{source}"}
     ratio = _speed_check(table, rpm)
     warnings = _data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs)
+    contradicted, b_check = _contradicted_spans(t, rpm, None if thrust is None else thrust * thrust_factor)
+    warnings += _contradiction_warning(src, contradicted, b_check)
     warnings += _command_warnings(src, command, table, cmd.unit, cmd.alignment)
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
     other_info = cmd.other_info
@@ -457,6 +523,7 @@ def import_csv(
         "speed_assumption": speed_note,
         "pole_pairs": pole_pairs,
         "speed_check_power_over_torque_ratio": ratio,
+        "speed_contradicted_by_thrust_s": [[sp.start_s, sp.stop_s] for sp in contradicted],
         **_signal_ranges(frames, pwm, cols, cmd.unit, rpm),
         "topics": counts,
         "added_topics": ["/" + TOPIC_BATTERY_CURRENT] if "/" + TOPIC_BATTERY_CURRENT in counts else [],
