@@ -116,6 +116,12 @@ def read_rows(path: Path) -> tuple[list[str], list[list[str]], np.ndarray]:
     return header, data, t
 
 
+def contradicted_spans(d: Path, log: Path) -> list[list[float]]:
+    """The spans (the log's own time, s) where ``import-csv`` finds the speed column contradicted
+    by the thrust: a probe missing the rotor, on which the splits' models are scored and trained."""
+    return cli_json("import-csv", str(log), "-o", str(d / "as_logged"), "--force")["speed_contradicted_by_thrust_s"]
+
+
 def write_piece(d: Path, name: str, header: list[str], data: list[list[str]], keep: np.ndarray) -> Path:
     """The rows ``keep`` as a CSV of the log's format, imported into a bag; the bag's path."""
     csv_path = d / f"{name}.csv"
@@ -247,7 +253,7 @@ def monitor_whole_log(d: Path, log: Path, rows: list[dict]) -> list[dict]:
     there is that, anything else a false alarm. The first 25 s are the monitor's reference."""
     header, data, t = read_rows(log)
     whole = write_piece(d, "whole", header, data, np.isfinite(t))
-    out = []
+    out: list[dict] = []
     for r in rows:
         if r["kind"] not in ("physics", "hybrid") or "refused" in r:
             continue
@@ -412,6 +418,7 @@ def main() -> int:
             rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=priors), jobs))
         log_range, law_range_n = ranges([p["test"] for p in parts])
         health = monitor_whole_log(d, src, rows)
+        contradicted = contradicted_spans(d, src)
         revisited = revisited_levels(d / "whole", args.splits)
         add_efficiency(src, revisited)
         for r in rows:
@@ -458,6 +465,9 @@ def main() -> int:
         for w in r["warnings"]:
             print(f"      warning: {w}")
     print("every goal met" if ok else "some goal missed")
+    if contradicted:
+        print("import-csv: the thrust contradicts the speed column (a probe missing the rotor?) at "
+              + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in contradicted) + " of the log; scored and trained as read")
     print(f"health monitor over the whole log (the stand unchanged{spec.health_note}):")
     for h in health:
         said = "; ".join(map(str, h["events"])) or "no change"
@@ -477,6 +487,7 @@ def main() -> int:
         write_record(args.json, {"thrust_law": law, "log": log.name, "log_range_rad_s": log_range,
                                  "log_thrust_range_n": law_range_n,
                                  "rated_kv": spec.rated_kv, "splits": rows, "health": health,
+                                 "speed_contradicted_s": contradicted,
                                  "revisited": revisited},
                      seconds=time.perf_counter() - t_start)
     return 0 if ok else 1

@@ -577,6 +577,11 @@ def render_real(f: dict[str, Any]) -> list[str]:
                       if r.get("thrust_rmse_n") is not None and f.get("log_thrust_range_n") else None)
             lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
                          f"{num(trained, 3)}, {num(ratio, 3)} | {num(thrust)} % |")
+        if spans := f.get("speed_contradicted_s"):
+            lines += ["", "`import-csv` finds the log's speed column contradicted by its thrust at "
+                      + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in spans)
+                      + " (the log's time; the probe reads far below what the load cell says): the models are "
+                      "scored and trained on those rows as read."]
     if revisited := f.get("revisited"):
         lines += ["", "The same command on the staircase's way up and on its way down (settled medians of the log, "
                   "no model):", "",
