@@ -382,17 +382,21 @@ def _contradicted_spans(t: np.ndarray, rpm: np.ndarray | None,
     return spans, b
 
 
-def _contradiction_warning(src: Path, spans: list[_Contradiction], b: float | None) -> list[str]:
-    """One line naming every span where the thrust contradicts the speed column (none: no line)."""
+def _thrust_check(src: Path, t: np.ndarray, rpm: np.ndarray | None,
+                  thrust_n: np.ndarray | None) -> tuple[list[_Contradiction], list[str]]:
+    """The spans where the thrust contradicts the speed column (``_contradicted_spans``) and one
+    warning line naming them all (none: no line)."""
+    spans, b = _contradicted_spans(t, rpm, thrust_n)
     if not spans or b is None:
-        return []
+        return spans, []
     where = "; ".join(f"{s.start_s:.1f}-{s.stop_s:.1f} s reads {s.speed_rad_s:.0f} rad/s where the thrust says "
                       f"about {s.implied_rad_s:.0f}" for s in spans)
     total = sum(s.stop_s - s.start_s for s in spans)
-    return [f"{src}: the thrust contradicts the speed column for {total:.1f} s (log time {where}; "
-            f"T = b w^2 with b = {b:.3g} N s^2/rad^2 from the rows above half the top speed): the speed probe "
-            f"misses the rotor there, or the load cell reads something else (a drifted zero, a hand on the "
-            f"stand); /rotor/speed is written as read, and training and evaluate take it as the rotor's speed"]
+    return spans, [f"{src}: the thrust contradicts the speed column for {total:.1f} s (log time {where}; "
+                   f"T = b w^2 with b = {b:.3g} N s^2/rad^2 from the rows above half the top speed): the speed "
+                   f"probe misses the rotor there, or the load cell reads something else (a drifted zero, a hand "
+                   f"on the stand); /rotor/speed is written as read, and training and evaluate take it as the "
+                   f"rotor's speed"]
 
 
 def _sha256(text: str) -> str:
@@ -487,22 +491,16 @@ def import_csv(
     thrust = cols.get("thrust")  # (in the log's unit; present only when "thrust" is used)
     streams = _streams(t, cols, frames, pwm, rpm, None if thrust is None else thrust * thrust_factor)
 
-    first_t = min(float(s[1].min()) for s in streams)
-    with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
-        whence = ("" if cmd.alignment is None or other_src is None
-                  else f" from {Path(other_src).name}'s Duty, shifted {cmd.alignment.offset_s:+.3f} s")
-        bag.write_import_source(f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command ({cmd.unit}{whence}) "
-                                f"-> pwm level, held on 50 Hz frames; speed: {speed_note}", first_t)
-        bag.write_merged(streams)
-        written = bag.messages_written
+    written = _write_bag(out, force, streams, f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command "
+                         f"({cmd.unit}{_whence(cmd, other_src)}) -> pwm level, held on 50 Hz frames; "
+                         f"speed: {speed_note}")
 
     columns_used = {role: name for role, name in used.items()
                     if not role.startswith("rpm_") or role == f"rpm_{source}"}
     ratio = _speed_check(table, rpm)
-    warnings = _data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs)
-    contradicted, b_check = _contradicted_spans(t, rpm, None if thrust is None else thrust * thrust_factor)
-    warnings += _contradiction_warning(src, contradicted, b_check)
-    warnings += _command_warnings(src, command, table, cmd.unit, cmd.alignment)
+    contradicted, thrust_lines = _thrust_check(src, t, rpm, None if thrust is None else thrust * thrust_factor)
+    warnings = (_data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs) + thrust_lines
+                + _command_warnings(src, command, table, cmd.unit, cmd.alignment))
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
     other_info = cmd.other_info
     return {
@@ -530,6 +528,22 @@ def import_csv(
         "messages": int(written),
         "warnings": warnings,
     }
+
+
+def _write_bag(out: Path, force: bool, streams: list[tuple[str, np.ndarray, np.ndarray]], source: str) -> int:
+    """The streams merged in time order into the bag at ``out``, after ``/import/source``; the
+    number of messages written."""
+    first_t = min(float(s[1].min()) for s in streams)
+    with BagWriter(out, force=force, t0_ns=SIM_EPOCH_NS) as bag:
+        bag.write_import_source(source, first_t)
+        bag.write_merged(streams)
+        return int(bag.messages_written)
+
+
+def _whence(cmd: _CommandSource, other_src: Path | None) -> str:
+    """Where the command came from, when not the log's own column (for ``/import/source``)."""
+    return ("" if cmd.alignment is None or other_src is None
+            else f" from {Path(other_src).name}'s Duty, shifted {cmd.alignment.offset_s:+.3f} s")
 
 
 @dataclass
