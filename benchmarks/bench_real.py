@@ -116,22 +116,20 @@ def read_rows(path: Path) -> tuple[list[str], list[list[str]], np.ndarray]:
     return header, data, t
 
 
-def contradicted_spans(d: Path, log: Path) -> list[list[float]]:
-    """The spans (the log's own time, s) where ``import-csv`` finds the speed column contradicted
-    by the thrust: a probe missing the rotor, on which the splits' models are scored and trained."""
-    return cli_json("import-csv", str(log), "-o", str(d / "as_logged"), "--force")["speed_contradicted_by_thrust_s"]
-
-
-def write_piece(d: Path, name: str, header: list[str], data: list[list[str]], keep: np.ndarray) -> Path:
-    """The rows ``keep`` as a CSV of the log's format, imported into a bag; the bag's path."""
+def import_piece(d: Path, name: str, header: list[str], data: list[list[str]], keep: np.ndarray) -> dict:
+    """The rows ``keep`` as a CSV of the log's format, imported into the bag ``d / name``; what
+    ``import-csv --json`` said (its ``path``, its warnings' figures)."""
     csv_path = d / f"{name}.csv"
     with open(csv_path, "w", encoding="utf-8", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         w.writerows(r for r, k in zip(data, keep, strict=True) if k)
-    bag = d / name
-    cli_json("import-csv", str(csv_path), "-o", str(bag), "--force")
-    return bag
+    return cli_json("import-csv", str(csv_path), "-o", str(d / name), "--force")
+
+
+def write_piece(d: Path, name: str, header: list[str], data: list[list[str]], keep: np.ndarray) -> Path:
+    """``import_piece``'s bag path."""
+    return Path(import_piece(d, name, header, data, keep)["path"])
 
 
 def pieces(d: Path, log: Path, splits: int) -> list[dict[str, Path]]:
@@ -245,14 +243,13 @@ def run_split(d: Path, parts: list[dict[str, Path]], k: int, kind: str, priors: 
             "seconds": seconds, "warnings": tr.get("warnings", [])}
 
 
-def monitor_whole_log(d: Path, log: Path, rows: list[dict]) -> list[dict]:
+def monitor_whole_log(d: Path, whole: Path, rows: list[dict]) -> list[dict]:
     """The health monitor over the whole log with each split's physics and hybrid model (issue 34's
     goal on real logs: no alarm where nothing changed). Nobody changed the stand during the log,
     but its supply did change: at 90 s (1950 us) the voltage falls 14.45 -> 13.60 V for 1.5 A more
     (39.6 -> 41.1 A), a current limit, where every step before sagged ~0.13 V for 3.5 A; an event
-    there is that, anything else a false alarm. The first 25 s are the monitor's reference."""
-    header, data, t = read_rows(log)
-    whole = write_piece(d, "whole", header, data, np.isfinite(t))
+    there is that, anything else a false alarm. The first 25 s are the monitor's reference.
+    ``whole``: the whole log's bag."""
     out: list[dict] = []
     for r in rows:
         if r["kind"] not in ("physics", "hybrid") or "refused" in r:
@@ -417,9 +414,12 @@ def main() -> int:
         with ThreadPoolExecutor(max(1, args.jobs)) as pool:
             rows = list(pool.map(lambda job: run_split(d, parts, *job, priors=priors), jobs))
         log_range, law_range_n = ranges([p["test"] for p in parts])
-        health = monitor_whole_log(d, src, rows)
-        contradicted = contradicted_spans(d, src)
-        revisited = revisited_levels(d / "whole", args.splits)
+        header, data, t = read_rows(src)
+        whole = import_piece(d, "whole", header, data, np.isfinite(t))
+        # where the thrust contradicts the speed: a probe missing the rotor, scored and trained on as read
+        contradicted = whole["speed_contradicted_by_thrust_s"]
+        health = monitor_whole_log(d, Path(whole["path"]), rows)
+        revisited = revisited_levels(Path(whole["path"]), args.splits)
         add_efficiency(src, revisited)
         for r in rows:
             if "refused" not in r:

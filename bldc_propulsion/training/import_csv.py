@@ -489,7 +489,8 @@ def import_csv(
     frames, pwm = _pwm_frames(t, cmd.t, cmd.level)
     thrust_unit, thrust_factor = THRUST_COLUMNS[used["thrust"]] if "thrust" in used else (None, None)
     thrust = cols.get("thrust")  # (in the log's unit; present only when "thrust" is used)
-    streams = _streams(t, cols, frames, pwm, rpm, None if thrust is None else thrust * thrust_factor)
+    thrust_n = None if thrust is None else thrust * thrust_factor
+    streams = _streams(t, cols, frames, pwm, rpm, thrust_n)
 
     written = _write_bag(out, force, streams, f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command "
                          f"({cmd.unit}{_whence(cmd, other_src)}) -> pwm level, held on 50 Hz frames; "
@@ -498,7 +499,7 @@ def import_csv(
     columns_used = {role: name for role, name in used.items()
                     if not role.startswith("rpm_") or role == f"rpm_{source}"}
     ratio = _speed_check(table, rpm)
-    contradicted, thrust_lines = _thrust_check(src, t, rpm, None if thrust is None else thrust * thrust_factor)
+    contradicted, thrust_lines = _thrust_check(src, t, rpm, thrust_n)
     warnings = (_data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs) + thrust_lines
                 + _command_warnings(src, command, table, cmd.unit, cmd.alignment))
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
