@@ -78,7 +78,7 @@ class _InfoCore(TypedDict):
     pwm: dict[str, float] | None  #: min, max
     battery_voltage_v: dict[str, float | str] | None  #: min, max (where valid), source
     tachometer: TachometerInfo | None
-    speed_rad_s: dict[str, float | str] | None  #: min, max (where valid), source
+    speed_rad_s: dict[str, float | str] | None  #: min, max (where valid), source, gaps (count), gaps_s (s)
     import_source: list[str]
     sample_interval_s: dict[str, float | None]  #: speed, command: where sampled (not sent on change)
 
@@ -96,7 +96,7 @@ class RecordingInfo(_InfoCore, total=False):
 
 def recording_info(path: str, namespace: str | None = None) -> RecordingInfo:
     """Everything ``info --json`` says of one recording (see the module's docstring)."""
-    from .recordings import decode_speed, read_speed, read_voltage
+    from .recordings import decode_speed, read_speed, read_speed_gaps, read_voltage
 
     with open_recording(path, namespace) as rec:
         stats = rec.topic_stats()
@@ -144,7 +144,9 @@ def recording_info(path: str, namespace: str | None = None) -> RecordingInfo:
 
         def speed() -> None:
             t, v, source = read_speed(rec)
-            out["speed_rad_s"] = {**(_range(v) or {}), "source": source}
+            gaps = read_speed_gaps(rec, t)
+            out["speed_rad_s"] = {**(_range(v) or {}), "source": source, "gaps": len(gaps),
+                                  "gaps_s": sum(b - a for a, b in gaps)}
             if rec.has(c.TOPIC_ROTOR_SPEED):  # decoded tachometer speeds come once per revolution
                 out["sample_interval_s"]["speed"] = _interval(t)
 
@@ -221,7 +223,8 @@ def summary_text(info: RecordingInfo) -> str:
         lines.append("Tachometer:       " + (f"decodes: {tach['speeds']} speeds, up to {tach['max_rad_s']:.0f} rad/s"
                                               if tach["decodes"] else "does NOT decode (no speed from the edges)"))
     if sp and "min" in sp:
-        lines.append(f"Measured speed:   {sp['min']:.0f} .. {sp['max']:.0f} rad/s ({sp['source']})")
+        gaps = f"; {sp['gaps']} gap(s), {sp['gaps_s']:.2f} s not measured" if sp.get("gaps") else ""
+        lines.append(f"Measured speed:   {sp['min']:.0f} .. {sp['max']:.0f} rad/s ({sp['source']}){gaps}")
     if info.get("resolution"):
         lines.append(f"Sampling:         {info['resolution']}")
     lines.append(f"Usable for:       {', '.join(info['usable_for']) or 'nothing'}")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import contract as c
-from .bagio import Recording, open_recording
+from .bagio import GAP_FACTOR, MIN_GAP_S, Recording, open_recording
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.features import zero_order_hold
 from .core.tach_output import revolution_middle
@@ -54,6 +54,9 @@ class Signals:
     voltage_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
     #: the measured speed as measured (times, rad/s), before the grid interpolated it: its noise
     speed_events: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(0), np.zeros(0)))
+    #: (last sample before, first after) of each gap in the measured speed (``speed_gaps``): NaN
+    #: in ``speed`` between them, so training and scoring skip what was not measured
+    speed_gaps: tuple[tuple[float, float], ...] = ()
 
     @property
     def key(self) -> tuple[str, str | None]:
@@ -180,6 +183,56 @@ def read_speed(rec: Recording, tachometer: TachometerConfig | None = None) -> tu
     return speed_t, speed, "tachometer/adc through the tachometer decoder"
 
 
+#: A measured speed's samples further apart than ``bagio.GAP_FACTOR`` times their median interval
+#: and a floor leave the speed between them unknown (a telemetry dropout, a tachometer that lost
+#: the blades). A recorded speed's floor is ``bagio.MIN_GAP_S``, so that ``info``'s gaps of
+#: /rotor/speed are these. A speed decoded from the tachometer's is ``DECODED_SPEED_GAP_S``: a slow
+#: spin-up's first revolution follows the last 0 by up to ~0.55 s on the bundled bags, and the
+#: straight line between them is the decoder's intended estimate (``SPIN_UP_MARGIN_REVOLUTIONS``).
+RECORDED_SPEED_GAP_S = MIN_GAP_S
+DECODED_SPEED_GAP_S = 1.0
+
+
+def speed_gaps(t: np.ndarray, min_gap_s: float) -> list[tuple[float, float]]:
+    """(before, after) of each pair of consecutive speed samples further apart than ``min_gap_s``
+    and ``GAP_FACTOR`` median intervals: the rotor's speed between them is unknown. Interpolating
+    across one would train and score on a straight line drawn through, say, a punch-out."""
+    if len(t) < 3:
+        return []
+    dt = np.diff(t)
+    limit = max(min_gap_s, GAP_FACTOR * float(np.median(dt)))
+    k = np.flatnonzero(dt > limit)
+    return [(float(t[i]), float(t[i + 1])) for i in k]
+
+
+def read_speed_gaps(rec: Recording, t: np.ndarray) -> list[tuple[float, float]]:
+    """``speed_gaps`` of ``read_speed``'s times ``t``, at the floor of its source (recorded or decoded)."""
+    return speed_gaps(t, RECORDED_SPEED_GAP_S if rec.has(c.TOPIC_ROTOR_SPEED) else DECODED_SPEED_GAP_S)
+
+
+def speed_on_grid(grid: np.ndarray, t: np.ndarray, v: np.ndarray, gaps: Sequence[tuple[float, float]]
+                  ) -> np.ndarray:
+    """The measured speed interpolated on ``grid``, NaN strictly inside each of ``gaps``."""
+    out = np.interp(grid, t, v)
+    for before, after in gaps:
+        out[(grid > before) & (grid < after)] = np.nan
+    return out
+
+
+def gap_warnings(signals: Sequence[Signals]) -> list[str]:
+    """One line per recording whose measured speed has gaps: how many, how long, where (the
+    grid's clock), and that they are left out."""
+    lines = []
+    for s in signals:
+        if s.speed_gaps:
+            total = sum(b - a for a, b in s.speed_gaps)
+            a, b = max(s.speed_gaps, key=lambda g: g[1] - g[0])
+            lines.append(f"{s.path}: the measured speed ({s.speed_source}) has {len(s.speed_gaps)} gap(s), "
+                         f"{total:.2f} s in all, the longest {b - a:.2f} s from {a:.2f} s: left out "
+                         "(no speed there to train or score on)")
+    return lines
+
+
 def load_signals(
     path: str | os.PathLike[str],
     *,
@@ -205,9 +258,11 @@ def load_signals(
             raise BagError(f"{path}: battery voltage has fewer than 2 valid samples")
         speed_t: np.ndarray | None = None  # the values below are read only where their times are not None
         speed = np.zeros(0)
+        gaps: list[tuple[float, float]] = []
         speed_source = ""
         if rec.has(c.TOPIC_ROTOR_SPEED) or rec.has(c.TOPIC_TACH_ADC) or need_speed:
             speed_t, speed, speed_source = read_speed(rec, tachometer)
+            gaps = read_speed_gaps(rec, speed_t)
         thrust_t: np.ndarray | None = None
         thrust = np.zeros(0)
         if rec.has(c.TOPIC_THRUST_MEASURED):
@@ -233,7 +288,7 @@ def load_signals(
         t=grid,
         pwm=zero_order_hold(pwm_t, pwm, grid),
         voltage=np.interp(grid, volt_t, volt),
-        speed=np.interp(grid, speed_t, speed) if speed_t is not None else np.full(len(grid), np.nan),
+        speed=speed_on_grid(grid, speed_t, speed, gaps) if speed_t is not None else np.full(len(grid), np.nan),
         thrust=np.interp(grid, thrust_t, thrust) if thrust_t is not None and len(thrust_t) > 1 else None,
         current=np.interp(grid, current_t, current) if current_t is not None and len(current_t) > 1 else None,
         speed_source=speed_source,
@@ -242,6 +297,7 @@ def load_signals(
         pwm_events=(pwm_t, pwm),
         voltage_events=(volt_t, volt),
         speed_events=(speed_t, speed) if speed_t is not None else (np.zeros(0), np.zeros(0)),
+        speed_gaps=tuple(gaps),
     )
 
 

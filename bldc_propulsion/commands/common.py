@@ -7,6 +7,7 @@ and ``cli`` import it without a cycle.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -23,6 +24,15 @@ class CommandResult:
     text: str = ""
     exit_code: int = 0
     warnings: list[str] = field(default_factory=list)
+
+
+def with_warnings(result: CommandResult, lines: Sequence[str]) -> CommandResult:
+    """``result`` with ``lines`` first among its warnings (printed and in --json's ``warnings``):
+    for what the inputs said before the command's own work (a recording's speed gaps)."""
+    if not lines:
+        return result
+    warnings = [*lines, *result.warnings]
+    return dataclasses.replace(result, data={**result.data, "warnings": warnings}, warnings=warnings)
 
 
 def progress(message: str) -> None:

@@ -150,6 +150,7 @@ def run(args: argparse.Namespace) -> CommandResult:
     from ..discrepancy.workflow import Options, check_effect_names, run_workflow
     from ..model import MODEL, load_model, save_model
     from ..physics.config import CONFIG
+    from ..recordings import gap_warnings
     from ..training.evaluate import input_range
 
     check_effect_names(args.effects)
@@ -180,6 +181,7 @@ def run(args: argparse.Namespace) -> CommandResult:
             warnings.append(f"{len(missing)} of the model's training recordings not found "
                             f"(e.g. {missing[0]}); give --reference")
     measured, reference, holdout = _recordings(args, ref_paths)
+    warnings += gap_warnings([*measured, *reference, *holdout])
     ranges = [input_range(model, s) for s in [*measured, *holdout]]
     warnings += [w for r in ranges if (w := r.warning())]
     opts = Options(max_effects=args.max_effects, restrict=args.effects, hidden=args.hidden,
@@ -213,6 +215,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Model | N
     from ..model import save_model
     from ..physics.config import save_config, supply_tau_s
     from ..physics.plant_model import PlantModel
+    from ..recordings import gap_warnings
 
     where = "--physics" if loaded is None else f"the {loaded.kind} model {args.model}"
     for flag, value in (("--hidden", args.hidden), ("--max-epochs", args.max_epochs), ("--seed", args.seed)):
@@ -231,6 +234,7 @@ def run_physics(args: argparse.Namespace, priors: MotorPriors, loaded: Model | N
             warnings.append(f"--model {args.model}: a hybrid: its physics part is checked, without the "
                             f"network's correction{out}")
     measured, reference, holdout = _recordings(args, list(args.reference or []))
+    warnings += gap_warnings([*measured, *reference, *holdout])
     if loaded is None and not _is_npz(args.physics):
         # the start: the stated motor under the CONFIG (which wins where both give a constant), sized
         # at the measured recordings' voltage; neither given: the nominal bench

@@ -190,7 +190,7 @@ def _check_distinct(paths: list[str]) -> None:
 
 def run(args: argparse.Namespace) -> CommandResult:
     from ..model import load_model
-    from ..recordings import load_signals
+    from ..recordings import gap_warnings, load_signals
     from ..training.evaluate import evaluate
 
     check_outputs([(args.report, REPORT, "--report")], force=args.force,
@@ -218,8 +218,9 @@ def run(args: argparse.Namespace) -> CommandResult:
     if args.report:
         data["report"] = write_evaluation_report(Path(args.report), signals, evals, rows, force=args.force)
         lines.append(f"  figures in {data['report']}")
-    warnings = [(f"{e.path}: " if len(evals) > 1 else "") + w
-                for e in evals for s in e.scores if s.out_of_range and (w := s.out_of_range.warning())]
+    warnings = gap_warnings(signals) + [(f"{e.path}: " if len(evals) > 1 else "") + w
+                                        for e in evals for s in e.scores
+                                        if s.out_of_range and (w := s.out_of_range.warning())]
     data["warnings"] = warnings
     return CommandResult(data, "\n".join(lines), warnings=warnings)
 

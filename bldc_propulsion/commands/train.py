@@ -12,7 +12,7 @@ from .. import contract as c
 from ..atomic import REPORT, check_outputs, report_output
 from ..errors import BadInputError
 from ..priors import MotorPriors, add_prior_arguments, priors_from_args
-from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress
+from .common import EPOCHS, HIDDEN, SEED, CommandResult, add_namespace_argument, number, progress, with_warnings
 
 if TYPE_CHECKING:  # imported where used, so that `--help` does not load numpy, scipy and rosbags
     import numpy as np
@@ -131,7 +131,7 @@ PHYSICS_PRIORS = ("motor_kv", "pole_count", "cells", "prop_pitch_in")
 
 def run(args: argparse.Namespace) -> CommandResult:
     from ..model import MODEL, save_model
-    from ..recordings import load_all
+    from ..recordings import gap_warnings, load_all
     from ..training.train import stated_thrust
 
     _network_options(args)
@@ -155,13 +155,14 @@ def run(args: argparse.Namespace) -> CommandResult:
     stated = stated_thrust(priors, train)  # b the user stated (hover: from the training recordings)
     progress(f"read {len(train)} training and {len(validation)} validation recordings")
 
+    gap_lines = gap_warnings([*train, *validation])
     if args.kind == "physics":
-        return _run_physics(args, out, train, validation, stated, priors)
+        return with_warnings(_run_physics(args, out, train, validation, stated, priors), gap_lines)
     hybrid = args.kind == "hybrid"
     inputs = [c.INPUT_PHYSICS_SPEED, *args.inputs] if hybrid else list(args.inputs)
     outcome, physics_warnings = _train_network(args, train, validation, stated, priors)
     meta = outcome.model.metadata
-    warnings = _run_warnings(meta, hybrid, out)
+    warnings = [*gap_lines, *_run_warnings(meta, hybrid, out)]
     warnings += physics_warnings  # the physics part's start and fit flags
     thrust_line, thrust_warnings = _thrust_summary(outcome.thrust)
     warnings += thrust_warnings
