@@ -28,7 +28,7 @@ PACKAGE = "bldc_propulsion"
 #: component below the package (a module or a subpackage); ``""`` is the package's __init__.
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     # shared leaves: errors, the contract, names of recordings, the output rule, the user's priors
-    ("base", ("", "errors", "contract", "specs", "atomic", "priors", "quiet_start")),
+    ("base", ("", "errors", "contract", "specs", "atomic", "priors", "quiet_start", "runs")),
     ("physics", ("physics",)),  # the bench physics: equations, CONFIG, model-file form, fits
     ("core", ("core",)),  # the nodes' decisions, ROS-free
     # recordings, model files, the simulator, and the stamped outputs replay writes through bagio

@@ -73,6 +73,7 @@ from ..physics.plant import (
     make_step,
     throttle,
 )
+from ..runs import true_run_pairs
 from .status import ERROR, OK, WARN, CoreStatus, counters
 
 if TYPE_CHECKING:
@@ -518,12 +519,6 @@ def _change_beside(x: np.ndarray) -> np.ndarray:
     return np.maximum(np.abs(np.diff(x)), np.abs(np.diff(np.append(x[1:], x[-1]))))
 
 
-def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
-    """[start, end) of every run of True in ``flags``."""
-    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
-    return list(zip(np.nonzero(edges == 1)[0].tolist(), np.nonzero(edges == -1)[0].tolist(), strict=True))
-
-
 @dataclass(frozen=True)
 class _Channel:
     """One measured quantity over the window's blocks: what is tested on it."""
@@ -937,7 +932,7 @@ class HealthMonitor:
         N = ch.nuisance
         empty = np.zeros(tests.shape[::2])
         if ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS, 4 * N.shape[1]) \
-                or len(_runs(ch.valid[:self._ref_blocks] > 0)) < ch.min_stretches:
+                or len(true_run_pairs(ch.valid[:self._ref_blocks] > 0)) < ch.min_stretches:
             return empty, empty
         if not learn and ch.name not in self.noise:
             return empty, empty
@@ -975,7 +970,7 @@ class HealthMonitor:
         # at their size, so they enter divided by that scale
         scale = kappa * self.config.noise_inflation
         w = ch.valid / (np.maximum(a + b * ch.level**2, ch.floor / scale) + ch.extra / scale)
-        runs = _runs(ch.valid > 0)
+        runs = true_run_pairs(ch.valid > 0)
         P = np.zeros((len(runs), len(w)))
         for j, (i, k) in enumerate(runs):
             P[j, i:k] = 1.0
@@ -1008,7 +1003,7 @@ class HealthMonitor:
         if valid.sum() < 20:
             return
         r, lv = res[ref], ch.level[ref]
-        runs = _runs(valid)
+        runs = true_run_pairs(valid)
         dev = np.zeros(len(r))
         means: list[tuple[float, int, float]] = []
         for i, j in runs:
@@ -1042,7 +1037,7 @@ class HealthMonitor:
         dof = 0.0
         if len(means) >= 3:  # the stretches' means scatter by the visit error plus their own noise
             # (the nuisance took n_nuisance of the window's stretches' freedom: about its share)
-            dof = max(len(means) - n_nuisance * len(means) / max(len(_runs(ch.valid > 0)), len(means)), 1.0)
+            dof = max(len(means) - n_nuisance * len(means) / max(len(true_run_pairs(ch.valid > 0)), len(means)), 1.0)
             visit = max(sum(mu * mu - kappa * (a + b * l2) / k for mu, k, l2 in means) / dof, 0.0)
         # the visit error's prior stands in only until a reference shows enough stretches for an
         # estimate; then the flight's own estimate is taken whole, as a, b and kappa are. Blended
@@ -1133,7 +1128,7 @@ class HealthMonitor:
         # what the name leaves unexplained must be small beside the change itself: the model's
         # signature is never exact, so a large change always leaves a little
         left = max(self.threshold, _UNEXPLAINED_SHARE * float(row[best]))
-        if clear and len(_runs(post)) >= _NAME_STRETCHES and self._unexplained(o, best) < left:
+        if clear and len(true_run_pairs(post)) >= _NAME_STRETCHES and self._unexplained(o, best) < left:
             ev.name = FAULTS[best]
             ev.named_s = t_now
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]

@@ -76,6 +76,7 @@ from typing import Literal, TypeAlias, overload
 import numpy as np
 
 from ..errors import BadInputError
+from ..runs import true_runs
 from .status import ERROR, OK, WARN, CoreStatus, counters
 from .tachometer_parts import TWO_PI, EdgeDetector, RowPlan, SampleClock, SpeedGate, TachCounters, TachOutput
 
@@ -353,8 +354,7 @@ class TachometerDecoder:
             fin = np.isfinite(x)
             self.counts.nonfinite_samples += int(n - np.count_nonzero(fin))
             # runs of finite samples: [starts[i], stops[i])
-            d = np.diff(np.concatenate(([0], fin.astype(np.int8), [0])))
-            starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+            starts, stops = true_runs(fin)
             if len(starts) == 0 or starts[0] > 0:
                 self._nonfinite_gap(out)
             for k, (a, b) in enumerate(zip(starts.tolist(), stops.tolist(), strict=True)):

@@ -18,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from .. import contract as c
+from ..runs import true_run_pairs
 
 #: Decimation of the 100 Hz residual for the whiteness/cross-correlation tests (-> 10 Hz).
 TEST_DECIMATION = 10
@@ -169,10 +170,8 @@ def find_windows(path: str, t: np.ndarray, r: np.ndarray, pwm: np.ndarray, volta
     a = moving_average(np.abs(r), max(1, int(round(SMOOTH_S / dt))))
     above = a > threshold
     # merge gaps shorter than MERGE_GAP_S, drop windows shorter than MIN_WINDOW_S
-    idx = np.flatnonzero(np.diff(np.concatenate([[0], above.astype(int), [0]])))
-    spans = [[s, e] for s, e in zip(idx[::2], idx[1::2], strict=True)]
     merged: list[list[int]] = []
-    for s, e in spans:
+    for s, e in true_run_pairs(above):
         if merged and (t[s] - t[merged[-1][1] - 1]) < MERGE_GAP_S:
             merged[-1][1] = e
         else:

@@ -48,6 +48,7 @@ from .. import contract as c
 from ..atomic import RECORDING, check_output
 from ..bagio import SIM_EPOCH_NS, BagWriter
 from ..errors import BadInputError
+from ..runs import true_run_pairs
 from .csv_command import (
     UNIT_RANGE,
     Alignment,
@@ -376,9 +377,8 @@ def _contradicted_spans(t: np.ndarray, rpm: np.ndarray | None,
     implied = np.sqrt(np.clip(thrust, 0.0, None) / b)
     loaded = thrust > max(10.0 * noise, THRUST_CHECK_MIN_SHARE * float(thrust.max()))
     bad = loaded & (np.abs(w - implied) > THRUST_CHECK_SHARE * implied)
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], bad.astype(np.int8), [0]])))
     spans = [_Contradiction(float(t[i]), float(t[j - 1]), float(np.median(w[i:j])), float(np.median(implied[i:j])))
-             for i, j in zip(edges[::2], edges[1::2], strict=True) if t[j - 1] - t[i] >= THRUST_CHECK_MIN_S]
+             for i, j in true_run_pairs(bad) if t[j - 1] - t[i] >= THRUST_CHECK_MIN_S]
     return spans, b
 
 
