@@ -879,8 +879,8 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
     Group("foreign_physics", "Discrepancy on a bench written by someone else, physics path",
           "python benchmarks/bench_foreign.py --first-seed 100 --seeds 3 --jobs 2 --path physics "
           "--json docs/results/foreign_physics.json", lambda f: render_foreign(f, "physics"),
-          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about 80 minutes on 2 cores). Its "
-          "esc_deadband rows predate the experiment from rest: the next group has that case."),
+          "`benchmarks/foreign_bench/`'s randomized benches, no CONFIG (about an hour on 2 cores); "
+          "esc_deadband recorded from rest, as in the next group, which has six more benches of that case."),
     Group("foreign_deadband", "A start level from rest on a bench written by someone else, both paths",
           "python benchmarks/bench_foreign.py --first-seed 103 --seeds 6 --jobs 2 --path both --effects esc_deadband "
           "--json docs/results/foreign_deadband.json",
