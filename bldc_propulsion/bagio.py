@@ -399,8 +399,7 @@ class Recording:
             t = (np.asarray(ts, dtype=np.int64) - self.t0_ns) * 1e-9
             dt = np.diff(t)
             span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
-            period = float(np.median(dt)) if len(dt) else math.nan
-            big = dt > max(GAP_FACTOR * period, MIN_GAP_S) if len(dt) else np.zeros(0, dtype=bool)
+            big = pauses(t)
             out.append(TopicStats(
                 topic="/" + name, msgtype=self._conns[name][0].msgtype, count=len(t),
                 first_s=float(t[0]) if len(t) else math.nan, last_s=float(t[-1]) if len(t) else math.nan,
@@ -614,6 +613,16 @@ def _mcap_rows(storage: McapReader, ids: dict[int, int], start_ns: int | None, s
 #: GAP_FACTOR x the topic's median period and MIN_GAP_S (PWM is sent on change: 50 Hz typical).
 GAP_FACTOR = 5.0
 MIN_GAP_S = 0.1
+
+
+def pauses(t: np.ndarray, min_gap_s: float = MIN_GAP_S) -> np.ndarray:
+    """Per interval of the sorted times ``t``: True where it is a gap, longer than GAP_FACTOR x
+    the median interval and ``min_gap_s`` (``topic_stats``' gaps; ``recordings.speed_gaps``'
+    with a floor of its own for a decoded speed)."""
+    dt = np.diff(t)
+    if not len(dt):
+        return np.zeros(0, dtype=bool)
+    return dt > max(GAP_FACTOR * float(np.median(dt)), min_gap_s)
 
 
 @dataclass

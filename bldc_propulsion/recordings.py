@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import contract as c
-from .bagio import GAP_FACTOR, MIN_GAP_S, Recording, open_recording
+from .bagio import MIN_GAP_S, Recording, open_recording, pauses
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.features import zero_order_hold
 from .core.tach_output import revolution_middle
@@ -197,12 +197,7 @@ def speed_gaps(t: np.ndarray, min_gap_s: float) -> list[tuple[float, float]]:
     """(before, after) of each pair of consecutive speed samples further apart than ``min_gap_s``
     and ``GAP_FACTOR`` median intervals: the rotor's speed between them is unknown. Interpolating
     across one would train and score on a straight line drawn through, say, a punch-out."""
-    if len(t) < 3:
-        return []
-    dt = np.diff(t)
-    limit = max(min_gap_s, GAP_FACTOR * float(np.median(dt)))
-    k = np.flatnonzero(dt > limit)
-    return [(float(t[i]), float(t[i + 1])) for i in k]
+    return [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(pauses(t, min_gap_s))]
 
 
 def read_speed_gaps(rec: Recording, t: np.ndarray) -> list[tuple[float, float]]:
