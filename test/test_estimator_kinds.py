@@ -156,10 +156,11 @@ def test_cli_train_kind_physics_recovers_the_bench(bench_bags, tmp_path):
         by_esc.setdefault(esc, {})[shape] = d["train_rmse_rad_s"]
     assert len(by_esc) == 2 and all(set(v) == {"straight", "bent"} for v in by_esc.values()), by_esc
     assert all(v["bent"] <= v["straight"] + 1e-6 for v in by_esc.values()), by_esc
-    # kept by validation: the list in its order (a straight map's two fits can tie: the bent one
-    # starts at exponent 1, optimal)
+    # kept by validation (the kept one first, the rest in its order), a bent map only when it
+    # validates 1 % better than its straight fit: the bench's map is straight
     val = [d["validation_rmse_rad_s"] for d in data["candidates"]]
-    assert val == sorted(val)
+    assert val[1:] == sorted(val[1:]) and val[0] <= 1.01 * min(val), val
+    assert data["candidates"][0]["fit"].endswith("throttle map straight"), data["candidates"]
     # a braking ESC is kept: the braking candidate, or a coasting one whose spin-down strength went to
     # 0 (the braking ESC reached from the other start; the two then tie to a few per mille)
     best_braking = min(d["validation_rmse_rad_s"] for d in data["candidates"] if d["fit"].startswith("ESC braking"))
@@ -272,3 +273,39 @@ def test_cli_evaluate_side_by_side_text_and_refusals(bench_bags, tmp_path):
     proc = cli("evaluate", "--model", str(phys), "--model", str(phys), chirp)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert f"--model {phys}: given twice" in proc.stderr
+
+
+def _candidate(fit: str, extends: str | None, validation: float, refused: bool = False) -> dict:
+    return {"fit": fit, "extends": extends, "validation_rmse_rad_s": validation,
+            "refused": ["Kv at a bound"] if refused else []}
+
+
+@pytest.mark.parametrize("bent, origin, kept", [
+    (1.99, 3.0, "straight"),  # 0.5 % better: within the margin, the straight map is kept
+    (1.97, 3.0, "bent"),  # 1.5 % better: the bent map
+    (1.99, 1.95, "origin"),  # the origin freed from the straight fit, 2.5 % better than it
+    (1.90, 1.99, "bent"),  # the least error, and better than the straight by more than the margin
+])
+def test_a_fit_with_a_constant_more_is_kept_only_when_it_validates_a_margin_better(bent, origin, kept):
+    """``fit_physics.prefer``: hand-made candidates, the straight map's at 2.0 rad/s."""
+    from bldc_propulsion.training import fit_physics as fp
+
+    assert fp.EXTENSION_MARGIN == 0.01
+    cands = [_candidate("straight", None, 2.0), _candidate("bent", "straight", bent),
+             _candidate("origin", "straight", origin), _candidate("coast", None, 2.5)]
+    order = fp.prefer(cands)
+    assert order[0]["fit"] == kept and sorted(d["fit"] for d in order) == sorted(d["fit"] for d in cands)
+    rest = [d["validation_rmse_rad_s"] for d in order[1:]]
+    assert rest == sorted(rest)
+
+
+def test_a_fit_that_contradicts_the_motor_is_not_preferred_for_its_simplicity():
+    """The straight fit refused (Kv at a bound): the bent one within the margin is kept all the
+    same; every fit refused: the least error's chain is followed as usual."""
+    from bldc_propulsion.training import fit_physics as fp
+
+    order = fp.prefer([_candidate("straight", None, 2.0, refused=True), _candidate("bent", "straight", 1.99)])
+    assert order[0]["fit"] == "bent"
+    order = fp.prefer([_candidate("straight", None, 2.0, refused=True),
+                       _candidate("bent", "straight", 1.99, refused=True)])
+    assert order[0]["fit"] == "straight"

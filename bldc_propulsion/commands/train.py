@@ -293,7 +293,7 @@ def _run_physics(args: argparse.Namespace, out: Path, train: list[Signals], vali
     warnings = [*outcome.warnings, *thrust_warnings]  # the start's, and the kept fit's flags
     refused = sum(1 for d in outcome.candidates if d["refused"])  # contradicted the stated motor
     text = "\n".join([
-        f"fitted the bench physics ({m.metadata['fit']}, the least validation error of "
+        f"fitted the bench physics ({m.metadata['fit']}, kept by the validation recordings among "
         f"{len(outcome.candidates) - refused} fits"
         + (f"; {refused} more contradicted the stated motor" if refused else "") + f"): {consts}",
         f"  effect strengths: {strengths}",
