@@ -29,8 +29,15 @@ grows with w^2, the friction is constant. And from the voltage, not the speed:
 
 Left out: the winding's
 resistance (``motor_heating``): in the steady torque balance it scales the drag and the friction
-torque alike, the same direction as a mix of the two adapted, so speed cannot tell it apart from
-them, and the two adapted absorb what it does to the speed.
+torque alike, close to a mix of the two adapted, which absorb most of what it does to the speed;
+not all of it (its share grows with the current and the duty, the ESC's and the pack's resistance
+do not warm): on tuning benches 1 and 2, four flights with a 30 K rise, the best mix left 1.3-2.6
+rad/s RMS of the 6-9 rad/s the rise did, where the winding's own direction left 0.1-0.2 rad/s. A
+third parameter along it was tried (prior sigma 30 K, then 10 K) and cost more than it gained:
+with the model's own error the three wander along the direction the mix nearly shares (a healthy
+flight read a propeller 41 % gone, friction x5 and the winding 85 K hotter, the speed still right
+and the thrust not), and on benches 1-3 the runs back within 1.2x of the healthy twin's RMSE from
+10 s on fell, propeller 6/6 -> 3/6 and 4/6, heating 5/6 -> 4/6 and 0/6.
 
 How: the model's speed is linear in theta near a linearisation point theta_lin,
 w(theta) = w(theta_lin) + S (theta - theta_lin), with S = d speed / d theta from the physics
