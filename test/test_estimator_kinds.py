@@ -20,6 +20,7 @@ from bldc_propulsion.physics.plant_model import PlantModel
 from bldc_propulsion.recordings import Signals, load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.record import write_sim_bag
+from bldc_propulsion.training import fit_physics as fp
 from bldc_propulsion.training.evaluate import evaluate, predict_speed
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -292,8 +293,6 @@ def _candidate(fit: str, extends: str | None, validation: float, refused: bool =
 ])
 def test_a_fit_with_a_constant_more_is_kept_only_when_it_validates_a_margin_better(bent, origin, kept):
     """``fit_physics.prefer``: hand-made candidates, the straight map's at 2.0 rad/s."""
-    from bldc_propulsion.training import fit_physics as fp
-
     assert fp.EXTENSION_MARGIN == 0.01
     cands = [_candidate("straight", None, 2.0), _candidate("bent", "straight", bent),
              _candidate("origin", "straight", origin), _candidate("coast", None, 2.5)]
@@ -306,8 +305,6 @@ def test_a_fit_with_a_constant_more_is_kept_only_when_it_validates_a_margin_bett
 def test_a_fit_that_contradicts_the_motor_is_not_preferred_for_its_simplicity():
     """The straight fit refused (Kv at a bound): the bent one within the margin is kept all the
     same; every fit refused: the least error's chain is followed as usual."""
-    from bldc_propulsion.training import fit_physics as fp
-
     order = fp.prefer([_candidate("straight", None, 2.0, refused=True), _candidate("bent", "straight", 1.99)])
     assert order[0]["fit"] == "bent"
     order = fp.prefer([_candidate("straight", None, 2.0, refused=True),
