@@ -903,9 +903,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "Eight benches drawn by `sim.random_bench` (the seeds below, never tuned on), a physics model fitted on "
           "each from random steps on the bench; per bench 2 flights of a multirotor's motor with each fault "
           "(propeller_damage 0.1, pack_resistance 2x, motor_heating 30 K) and about 1.3 h of healthy flight, "
-          "10.4 h in all (about 15 minutes on two cores). The spread between bench sets: eight more fresh "
-          "benches (`--first-seed 850`, measured at 9e52286) gave propeller_damage 11/16, pack_resistance 15/16, "
-          "motor_heating 11/16 detected within 5 s and named right first, and no false alarm in 10.39 h."),
+          "10.4 h in all (about 15 minutes on two cores). The spread between bench sets, detected within 5 s and "
+          "named right first: eight more fresh benches (`--first-seed 850`, measured at 9e52286, when a name "
+          "waited at most 15 s) gave propeller_damage 11/16, pack_resistance 15/16, motor_heating 11/16, and no "
+          "false alarm in 10.39 h; eight more (`--first-seed 860`, measured at 8fb8faa) 13/16, 15/16 and 15/16 "
+          "(14/16 with the 15 s wait: bench 867's heating, unnamed at 15 s, named right at 22.6 s), and no false "
+          "alarm in 10.39 h."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
