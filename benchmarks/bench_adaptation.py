@@ -52,6 +52,7 @@ from results import check_record_path, pack_change, write_record  # noqa: E402
 
 from bldc_propulsion.core.adaptation import ADAPTED, AdaptationConfig, adapter_for  # noqa: E402
 from bldc_propulsion.core.estimator import ThrustEstimator  # noqa: E402
+from bldc_propulsion.core.health import HealthStream  # noqa: E402
 from bldc_propulsion.sim import PROFILES, simulate  # noqa: E402
 from bldc_propulsion.sim.faults import Fault  # noqa: E402
 from bldc_propulsion.sim.random_bench import draw_bench  # noqa: E402
@@ -73,12 +74,14 @@ OFFLINE = [0.0, 1.0, math.nan]
 
 def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, adapt: bool = True, *,
                speed: Callable[[float, float], float | None] | None = None, states: bool = False,
-               keep: bool = False) -> dict[str, Any]:
+               keep: bool = False, health: bool = False) -> dict[str, Any]:
     """A simulated flight's streams through the estimator (adapting or not), merged in time
     order as a node receives them, predicting on a GRID_HZ grid: the grid times, the predicted
     and true speeds and thrusts there (NaN: no thrust), and the adapted parameters' values after
     each prediction (with ``states``, the adaptation's state too; with ``keep``, the estimator).
-    ``speed``: what the tachometer says, given the time and the decoded speed (None: no sample)."""
+    ``speed``: what the tachometer says, given the time and the decoded speed (None: no sample).
+    ``health``: the health monitor watches the same inputs (``core.health.HealthStream``), and a
+    change it names is passed to the adapter; its events are returned too."""
     pwm, volt, measured = streams(res)
     if speed is not None:
         pairs = [(t, speed(t, w)) for t, w in zip(measured[0].tolist(), measured[1].tolist(), strict=True)]
@@ -93,9 +96,14 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
     order = np.lexsort((k_all, t_all))
     out_t, out_w, out_f, theta, state = [], [], [], [], []
     feed = (est.update_pwm, est.update_voltage, est.update_speed)
+    monitor = HealthStream(est) if health else None
+    watch = (None, None, None) if monitor is None else (monitor.update_pwm, monitor.update_voltage,
+                                                         monitor.update_speed)
     for t, kind, x in zip(t_all[order].tolist(), k_all[order].tolist(), x_all[order].tolist(), strict=True):
         if kind < 3.0:
-            feed[int(kind)](t, x)
+            then = watch[int(kind)]
+            if feed[int(kind)](t, x) and then is not None:
+                then(t, x)
             continue
         p = est.predict(t)
         if p.ready:
@@ -111,6 +119,9 @@ def run_flight(model: Any, res: Any, config: AdaptationConfig | None = None, ada
                            "truth_thrust": np.interp(tt, res.truth_t, res.truth_thrust)}
     if states:
         out["states"] = state
+    if monitor is not None:
+        monitor.finish()
+        out["events"] = [e.as_dict() for e in monitor.events]
     if keep:
         out["estimator"] = est
     return out
@@ -140,20 +151,21 @@ def recovery_s(run: dict[str, Any], onset: float, level: Callable[[float, float]
     return None
 
 
-def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfig | None = None) -> dict[str, Any]:
+def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfig | None = None,
+          health: bool = False) -> dict[str, Any]:
     """One faulted flight: RMSE after the change over the twin's (``twin``: the same flight
     without the fault) and over the seconds before the onset, adapted and offline, with their
     recovery times; the thrust's RMSE after the change; the adapted parameters at the end."""
     out: dict[str, Any] = {}
     o = fault.onset_s
     for label, adapt in (("adapted", True), ("offline", False)):
-        run = run_flight(model, res, config, adapt)
+        run = run_flight(model, res, config, adapt, health=health and adapt)
         pre = rmse(run, o - PRE_S, o)
         post = rmse(run, o + POST_S[0], o + POST_S[1])
         out[label] = {"pre_rad_s": pre, "post_rad_s": post, "ratio": post / pre,
                       "recovery_s": recovery_s(run, o, lambda t0, t1, pre=pre: pre),
                       "thrust_post_n": thrust_rmse(run, o + POST_S[0], o + POST_S[1])}
-        tw = run_flight(model, twin, config, adapt)
+        tw = run_flight(model, twin, config, adapt, health=health and adapt)
         twin_post = rmse(tw, o + POST_S[0], o + POST_S[1])
         out[label] |= {"twin_post_rad_s": twin_post, "vs_twin": post / twin_post,
                        "twin_ratio": twin_post / rmse(tw, o - PRE_S, o),
@@ -161,16 +173,20 @@ def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfi
         if adapt:
             out["final"] = {n: float(v) for n, v in zip(ADAPTED, run["theta"][-1], strict=True)}
             out["final_twin"] = {n: float(v) for n, v in zip(ADAPTED, tw["theta"][-1], strict=True)}
+            if health:
+                out["events"], out["events_twin"] = run["events"], tw["events"]
     return out
 
 
-def healthy_ratio(model: Any, res: Any, config: AdaptationConfig | None = None) -> dict[str, float]:
+def healthy_ratio(model: Any, res: Any, config: AdaptationConfig | None = None,
+                  health: bool = False) -> dict[str, Any]:
     """A healthy flight: adapted and offline RMSE over the flight (after the first 5 s) and their ratio."""
-    a, o = (run_flight(model, res, config, adapt) for adapt in (True, False))
+    a, o = (run_flight(model, res, config, adapt, health=health and adapt) for adapt in (True, False))
     t0, t1 = float(a["t"][0]) + 5.0, float(a["t"][-1]) + 1.0
     ra, ro = rmse(a, t0, t1), rmse(o, t0, t1)
     return {"adapted_rad_s": ra, "offline_rad_s": ro, "ratio": ra / ro,
-            **{n: float(v) for n, v in zip(ADAPTED, a["theta"][-1], strict=True)}}
+            **{n: float(v) for n, v in zip(ADAPTED, a["theta"][-1], strict=True)},
+            **({"events": a["events"]} if health else {})}
 
 
 def main() -> None:
@@ -181,6 +197,9 @@ def main() -> None:
     ap.add_argument("--profile", choices=sorted(PROFILES), default="flight",
                     help="the flights' command profile (default flight: a multirotor's motor, never stopped; "
                          "random_steps: a bench's experiment over the whole range)")
+    ap.add_argument("--health", action="store_true",
+                    help="the health monitor watches too and a change it names is passed to the adapter "
+                         "(replay --adapt --health, the node with both on)")
     ap.add_argument("--json", metavar="PATH", help="also write the figures to PATH")
     args = ap.parse_args()
     check_record_path(args.json)
@@ -202,14 +221,15 @@ def main() -> None:
                     res = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=soc, faults=[fault])
                     twin = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=soc)
                     r = {"bench": bench_seed, "seed": seed, "onset_s": fault.onset_s,
-                         **judge(model, res, fault, twin)}
+                         **judge(model, res, fault, twin, health=args.health)}
                     runs[name].append(r)
                     print(f"  {fault.spec}: {json.dumps(r, default=float)}", file=sys.stderr)
                 seed = 10_000 * bench_seed + 5000 + k
                 res = simulate(args.profile, FLIGHT_S, seed, params=bench, soc=float(rng.uniform(0.5, 1.0)))
-                healthy.append({"bench": bench_seed, "seed": seed, **healthy_ratio(model, res)})
+                healthy.append({"bench": bench_seed, "seed": seed, **healthy_ratio(model, res, health=args.health)})
                 print(f"  healthy: {healthy[-1]}", file=sys.stderr)
     summary = {"benches": benches, "tuning_benches": TUNING_BENCHES, "profile": args.profile, "faults": FAULTS,
+               "health": args.health, "flight_s": FLIGHT_S,
                "runs": runs, "healthy": healthy, "seconds": time.perf_counter() - t_start}
     print_table(summary)
     if args.json:

@@ -833,7 +833,28 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
     ok = sum(r["ratio"] <= goal_healthy for r in h)
     lines += ["", f"Healthy flights: {len(h)}; adapted / offline RMSE median / worst "
               f"{_median_worst([r['ratio'] for r in h])}; within {goal_healthy}x: {ok}/{len(h)}."]
+    if f.get("health"):
+        lines += ["", *_monitor_lines(f)]
     return lines
+
+
+def _monitor_lines(f: dict[str, Any]) -> list[str]:
+    """With ``--health``: what the monitor named (its first change after the onset, per fault) and
+    what it reported on the flights without a change (the twins and the healthy flights)."""
+    named = []
+    for name, rows in f["runs"].items():
+        first = [next((e for e in r["events"] if e["onset_s"] >= r["onset_s"] - 5.0), None) for r in rows]
+        right = sum(e is not None and e["name"] == name for e in first)
+        named.append(f"{name} {right}/{len(rows)}")
+    clean = [r["events_twin"] for rows in f["runs"].values() for r in rows] + [r["events"] for r in f["healthy"]]
+    false = [e for events in clean for e in events]
+    hours = len(clean) * f["flight_s"] / 3600.0
+    return [f"With the health monitor watching (`--health`; a change it names is passed to the adapter, "
+            f"`PhysicsAdapter.take_named`): the first change after the onset named right, {', '.join(named)}; "
+            f"on the {len(clean)} flights without a change ({hours:.2f} h), {len(false)} change(s) reported"
+            + (": " + "; ".join(f"{e['name']} {e['size']:.3g} {e['unit']} at {e['onset_s']:.1f} s" if e["size"]
+                                is not None else f"{e['name']} at {e['onset_s']:.1f} s" for e in false)
+               if false else "") + "."]
 
 
 @dataclass(frozen=True)
@@ -935,6 +956,18 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           render_adaptation,
           "As above on the same benches, the flights random steps over the whole range, the motor stopped at "
           "times (a bench's experiment)."),
+    Group("adaptation_health", "Online adaptation with the health monitor, in flight (issue 34)",
+          "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --health "
+          "--json docs/results/adaptation_health.json",
+          render_adaptation,
+          "The flights of the adaptation in flight above, the health monitor watching too (`replay --adapt "
+          "--health`, the node with both on): a hot winding it names is taken into the adapted model "
+          "(`PhysicsAdapter.take_named`), the other names are not (about 10 minutes on one core)."),
+    Group("adaptation_health_steps", "Online adaptation with the health monitor, on random steps (issue 34)",
+          "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
+          "--health --json docs/results/adaptation_health_steps.json",
+          render_adaptation,
+          "The random steps of the adaptation on random steps above, the health monitor watching too."),
 ]}
 
 

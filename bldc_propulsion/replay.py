@@ -104,6 +104,9 @@ class AdaptationJson(TypedDict):
     frozen_samples: int  #: measured speeds that did not
     in_use: bool  #: whether the prediction used the adapted parameters at the end (the guard)
     parameters: dict[str, AdaptedJson]
+    #: the changes the health monitor named that were taken into the model (--health: a hot
+    #: winding, ``PhysicsAdapter.take_named``): name, size (its unit) and onset (s)
+    named_changes_taken: list[dict[str, object]]
     saved: str | None  #: --save-adapted's model file
 
 
@@ -278,6 +281,7 @@ def _adaptation_json(est: ThrustEstimator, saved: str | os.PathLike[str] | None)
             "in_use": ad.in_use,
             "parameters": {n: {"value": finite_or_none(v), "sigma": finite_or_none(s), "unit": UNITS[n]}
                            for n, (v, s) in ad.values().items()},
+            "named_changes_taken": [{"name": n, "size": v, "onset_s": o} for n, v, o in ad.taken],
             "saved": None if saved is None else str(saved)}
 
 

@@ -12,7 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bldc_propulsion.core.adaptation import ADAPTED, BOUNDS, AdaptationConfig, PhysicsAdapter, adapter_for
+from bldc_propulsion.core.adaptation import (
+    ADAPTED,
+    BOUNDS,
+    HEATING_BOUNDS_K,
+    AdaptationConfig,
+    PhysicsAdapter,
+    adapter_for,
+)
 from bldc_propulsion.core.estimator import MEASURED_SPEED_MAX_AGE_S, ThrustEstimator
 from bldc_propulsion.errors import BadInputError
 from bldc_propulsion.sim import simulate
@@ -403,3 +410,85 @@ def test_a_change_of_the_pack_counts_past_a_third_and_until_it_falls_under_a_six
         ad._count_pack_change()
         assert ad.pack_changed is counts, measured
         assert ad.pack_ohm == pytest.approx(rs + measured - 0.04 if counts else rs), measured
+
+
+# --- a change the health monitor names, taken into the model -------------------------------------------
+@pytest.fixture(scope="module")
+def hot_flight():
+    """100 s of a multirotor's motor on the bench, the winding 30 K hotter from 50 s (the health
+    monitor needs its healthy reference first), and the same flight without it."""
+    kw = {"params": draw_bench(BENCH), "soc": 0.8}
+    return (simulate("flight", 100.0, 2204, faults=[Fault("motor_heating", 30.0, 50.0)], **kw),
+            simulate("flight", 100.0, 2204, **kw))
+
+
+def test_a_heating_the_monitor_names_is_taken_and_the_speed_comes_back(model, hot_flight):
+    """Alone, the adapter has no parameter for a hot winding and stands the propeller's and the
+    friction's in for it (the loss goes negative): 10-50 s after the rise its RMSE stays 1.2x and
+    more of the same flight without the rise (1.24 against 0.74 rad/s). With the health monitor
+    watching, the monitor names the heating with its size and the adapter takes it: the winding's
+    rise in the model within 30 % of the truth, the propeller's loss back near its value before,
+    the RMSE within 1.2x of the healthy flight's, and the winding's resistance in the adapted model."""
+    faulted, twin = hot_flight
+    post = (60.0, 100.0)
+    alone = run_flight(model, faulted, adapt=True)
+    watched = run_flight(model, faulted, adapt=True, health=True, keep=True)
+    healthy = run_flight(model, twin, adapt=True, health=True)
+    assert rmse(alone, *post) > 1.2 * rmse(healthy, *post), (rmse(alone, *post), rmse(healthy, *post))
+    assert alone["theta"][-1, 0] < -0.03  # the premise: the propeller stands in for the heating
+    assert [e["name"] for e in watched["events"]] == ["motor_heating"] and healthy["events"] == []
+    ad = watched["estimator"].adapter
+    assert ad.heating_k == pytest.approx(30.0, rel=0.3) and ad.taken[0][0] == "motor_heating"
+    assert abs(ad.theta[0]) < 0.03, ad.theta
+    assert rmse(watched, *post) <= 1.2 * rmse(healthy, *post), (rmse(watched, *post), rmse(healthy, *post))
+    from bldc_propulsion.core.health import heated
+
+    assert ad.adapted_plant().params.winding_resistance_ohm == pytest.approx(
+        heated(model.params, ad.heating_k).winding_resistance_ohm)
+    assert ad.adapted_plant().metadata["named_changes_taken"][0]["name"] == "motor_heating"
+
+
+def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight):
+    """By hand on an adapter that has flown: a named heating takes theta back to its value 5 s
+    before the onset (``_BEFORE_ONSET_S``) and sets the winding's rise; the same change's refined
+    size moves the rise (the lanes rebuilt only past 2 K), another heating adds to the rise before
+    it; what the adapter has a parameter for (a propeller's loss, a bearing's friction, the pack's
+    resistance) and a size that is not a number are not taken, and the bound holds."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    before, now = ad.theta_at(75.0), list(ad.theta)
+    assert before != ad.theta_at(95.0)  # theta moved over the flight: the history matters
+    for name, size in (("propeller_damage", 0.1), ("bearing_friction", 3.0), ("pack_resistance", 2.0),
+                       ("motor_heating", math.nan)):
+        assert not ad.take_named(name, size, 80.0)
+    assert ad.theta == now and ad.heating_k == 0.0 and ad.taken == []
+    assert ad.take_named("motor_heating", 20.0, 80.0) and ad.heating_k == 20.0
+    assert ad.theta == before and ad.theta_at(200.0) == before  # the history's latest value too
+    rebuilt = ad.relinearisations
+    assert ad.take_named("motor_heating", 26.0, 80.0) and ad.heating_k == 26.0  # refined
+    assert not ad.take_named("motor_heating", 27.0, 80.0) and ad.heating_k == 27.0  # within 2 K of the lanes'
+    assert ad.relinearisations == rebuilt + 1
+    assert ad.take_named("motor_heating", 10.0, 90.0) and ad.heating_k == 37.0  # another rise
+    assert ad.take_named("motor_heating", 500.0, 95.0) and ad.heating_k == HEATING_BOUNDS_K[1]
+    assert [n for n, _, _ in ad.taken] == ["motor_heating"] * 3
+
+
+def test_replay_with_both_on_takes_the_named_heating(model, hot_flight, tmp_path):
+    """``replay --adapt --health`` (the API the command runs; the node shares ``HealthStream``):
+    the summary lists the heating the monitor named as taken, the estimator's status carries the
+    rise, and --save-adapted writes the hotter winding."""
+    from bldc_propulsion.core.health import heated
+    from bldc_propulsion.model import load_model, save_model
+    from bldc_propulsion.replay import replay_bag
+    from bldc_propulsion.sim.record import write_sim_bag
+
+    save_model(model, tmp_path / "m.npz")
+    write_sim_bag(hot_flight[0], tmp_path / "hot")
+    out = replay_bag(tmp_path / "hot", tmp_path / "out", model_path=tmp_path / "m.npz", adapt=True, health=True,
+                     save_adapted=tmp_path / "adapted.npz")
+    taken = out["adaptation"]["named_changes_taken"]
+    assert [e["name"] for e in out["health"]["events"]] == ["motor_heating"]
+    assert [t["name"] for t in taken] == ["motor_heating"] and taken[0]["size"] == pytest.approx(30.0, rel=0.3)
+    assert taken[0]["onset_s"] == out["health"]["events"][0]["onset_s"]
+    saved = load_model(tmp_path / "adapted.npz")
+    assert saved.params.winding_resistance_ohm == pytest.approx(
+        heated(model.params, taken[0]["size"]).winding_resistance_ohm, rel=0.02)

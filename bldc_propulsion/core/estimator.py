@@ -83,6 +83,7 @@ class Adapter(Protocol):
 
     note: str  #: "on", or why the latest measured speed did not update it
     in_use: bool  #: whether ``correction`` applies (else the offline model scores better lately)
+    heating_k: float  #: the winding's rise a named change set (K; ``take_named``), 0 without
 
     @property
     def applied_thrust_factor(self) -> float: ...
@@ -91,6 +92,7 @@ class Adapter(Protocol):
     def update(self, t: float, measured_rad_s: float, offline_rad_s: float) -> bool: ...
     def correction(self, t: float) -> tuple[float, float]: ...
     def values(self) -> dict[str, tuple[float, float]]: ...
+    def take_named(self, name: str, size: float, onset_s: float) -> bool: ...
     def reset(self) -> None: ...
     def restart(self) -> None: ...
 
@@ -439,13 +441,15 @@ class ThrustEstimator:
         return self.adapter.note
 
     def _adaptation_values(self) -> dict[str, object]:
-        """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma."""
+        """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma, the
+        winding's rise a named heating set (K)."""
         assert self.adapter is not None
         out: dict[str, object] = {"adaptation": self.adaptation_state(),
                                   "adapted_in_use": self.adapter.in_use}
         for name, (value, sigma) in self.adapter.values().items():
             out[f"adapted_{name}"] = value
             out[f"adapted_{name}_sigma"] = sigma
+        out["adapted_motor_heating"] = self.adapter.heating_k  # set by a name only (health on)
         return out
 
     def status(self) -> list[CoreStatus]:

@@ -106,6 +106,13 @@ _FRICTION_REFERENCE_A = 0.4
 PACK_REFERENCE_OHM = 0.035
 
 
+def heated(params: PlantParams, kelvin: float) -> PlantParams:
+    """``params`` with the winding ``kelvin`` hotter: its resistance scaled by copper's (or the
+    model's) temperature coefficient; what a ``motor_heating`` fault of that size is."""
+    alpha = params.copper_temperature_coefficient_per_k or _COPPER_PER_K
+    return dataclasses.replace(params, winding_resistance_ohm=params.winding_resistance_ohm * (1.0 + alpha * kelvin))
+
+
 # --- the physics side: the model's speed, current and the faults' signatures ---------------------
 @dataclass(frozen=True)
 class TwinSample:
@@ -147,7 +154,6 @@ class PhysicsTwins:
         #: the friction (no-load current, A) a factor is relative to
         self.friction_reference_a = i0 if i0 > 0.0 else _FRICTION_REFERENCE_A
         self._scale_of = (eff, supply_v)  # speed_scale_rad_s's
-        alpha = params.copper_temperature_coefficient_per_k or _COPPER_PER_K
         d_pack = _PACK_STEP * self.pack_resistance_ohm
         per_fault = {
             "propeller_damage": (dataclasses.replace(
@@ -156,8 +162,7 @@ class PhysicsTwins:
             "pack_resistance": (dataclasses.replace(params, battery_series_resistance_ohm=rs + d_pack), d_pack),
             "bearing_friction": (dataclasses.replace(
                 params, motor_no_load_current_a=i0 + _FRICTION_STEP * self.friction_reference_a), _FRICTION_STEP),
-            "motor_heating": (dataclasses.replace(params, winding_resistance_ohm=params.winding_resistance_ohm
-                                                  * (1.0 + alpha * _HEATING_STEP_K)), _HEATING_STEP_K),
+            "motor_heating": (heated(params, _HEATING_STEP_K), _HEATING_STEP_K),
         }
         unknown = sorted(set(faults) - set(FAULTS))
         if unknown:
@@ -1301,7 +1306,12 @@ class HealthStream:
     ``ThrustEstimator.update_pwm`` returned True, and so on). The prediction tested is the
     estimator's OFFLINE model at each measured speed's time (``ThrustEstimator.offline_speed``):
     an online adaptation, if on, follows the very change the monitor is there to name. Times are
-    the caller's clock (the node's, or seconds from a recording's start), and so are the events'."""
+    the caller's clock (the node's, or seconds from a recording's start), and so are the events'.
+
+    With the estimator adapting (``estimator.adapter``), a change named is passed to the adapter
+    (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined: the
+    monitor names a fault seconds after it from every fault's own signature, where the adapter
+    would learn it over its memory, or, for one it has no parameter for, only in part."""
 
     def __init__(self, estimator: ThrustEstimator, config: HealthConfig | None = None) -> None:
         """BadInputError for a model without physics (a network, the first-principles fallback):
@@ -1319,6 +1329,8 @@ class HealthStream:
                                      source_resistance_ohm=self.twins.source_resistance_ohm)
         self.first_s = math.nan  #: the first measured speed the monitor took (s)
         self.last_s = math.nan  #: the latest
+        #: per named change passed to the adapter (by its detection time), the size passed
+        self._passed: dict[float, float] = {}
 
     def _twins(self) -> PhysicsTwins:
         p = self._plant
@@ -1349,7 +1361,15 @@ class HealthStream:
         if self.first_s != self.first_s:
             self.first_s = t
         self.last_s = t
-        return self.monitor.update(HealthSample(t, measured_rad_s, predicted, self._last_voltage[1], tw))
+        events = self.monitor.update(HealthSample(t, measured_rad_s, predicted, self._last_voltage[1], tw))
+        adapter = self.estimator.adapter
+        if adapter is not None:
+            for ev in (*events, self.monitor.pending):
+                if ev is not None and ev.name != UNNAMED and ev.size is not None \
+                        and self._passed.get(ev.detected_s) != ev.size:
+                    self._passed[ev.detected_s] = ev.size
+                    adapter.take_named(ev.name, ev.size, ev.onset_s)
+        return events
 
     def restart_physics(self) -> None:
         """The twins start again at the next command (the estimator's ``restart_physics``: after a
