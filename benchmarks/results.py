@@ -846,11 +846,15 @@ def _monitor_lines(f: dict[str, Any]) -> list[str]:
         first = [next((e for e in r["events"] if e["onset_s"] >= r["onset_s"] - 5.0), None) for r in rows]
         right = sum(e is not None and e["name"] == name for e in first)
         named.append(f"{name} {right}/{len(rows)}")
+    wrong = [f"{name} (bench {r['bench']}: {e['size']:.1f} K)" for name, rows in f["runs"].items()
+             if name != "motor_heating" for r in rows for e in r["events"]
+             if e["name"] == "motor_heating" and e["size"] is not None]
     clean = [r["events_twin"] for rows in f["runs"].values() for r in rows] + [r["events"] for r in f["healthy"]]
     false = [e for events in clean for e in events]
     hours = len(clean) * f["flight_s"] / 3600.0
     return [f"With the health monitor watching (`--health`; a change it names is passed to the adapter, "
             f"`PhysicsAdapter.take_named`): the first change after the onset named right, {', '.join(named)}; "
+            f"a heating named, and so taken, in a run of another fault: {', '.join(wrong) if wrong else 'none'}; "
             f"on the {len(clean)} flights without a change ({hours:.2f} h), {len(false)} change(s) reported"
             + (": " + "; ".join(f"{e['name']} {e['size']:.3g} {e['unit']} at {e['onset_s']:.1f} s" if e["size"]
                                 is not None else f"{e['name']} at {e['onset_s']:.1f} s" for e in false)
