@@ -4,13 +4,14 @@
 # start node processes and judge wall time, alone (conftest.SERIAL_FILES: a second worker's
 # load would falsify their timing).
 export WITH_ROS=1
+source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
+# (before the thread limits below: nproc reports OMP_NUM_THREADS when it is set)
+cores=$(nproc 2>/dev/null || echo 2)
+workers=$(( cores < 4 ? cores : 4 ))  # conftest.MAX_WORKERS: each worker its own ROS domain
 # One BLAS thread per process: OpenBLAS starts a thread per core in every worker and its threads
 # spin while they wait, so two workers on two cores ran 1.4x slower (the parallel part 815 s ->
 # 599 s with this, results identical)
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
-source "$(dirname "${BASH_SOURCE[0]}")/venv.sh"
-cores=$(nproc 2>/dev/null || echo 2)
-workers=$(( cores < 4 ? cores : 4 ))  # conftest.MAX_WORKERS: each worker its own ROS domain
 set +e
 .venv/bin/python -m pytest -q --durations=10 -n "$workers" --dist loadfile -m "not serial" "$@" test
 parallel=$?
