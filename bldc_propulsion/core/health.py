@@ -1309,9 +1309,9 @@ class HealthStream:
     the caller's clock (the node's, or seconds from a recording's start), and so are the events'.
 
     With the estimator adapting (``estimator.adapter``), a change named is passed to the adapter
-    (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined: the
-    monitor names a fault seconds after it from every fault's own signature, where the adapter
-    would learn it over its memory, or, for one it has no parameter for, only in part."""
+    (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined; the
+    adapter takes what it has no parameter for (a hot winding), which it would otherwise learn
+    only in part, in its other parameters' place."""
 
     def __init__(self, estimator: ThrustEstimator, config: HealthConfig | None = None) -> None:
         """BadInputError for a model without physics (a network, the first-principles fallback):
