@@ -281,7 +281,7 @@ def _adaptation_json(est: ThrustEstimator, saved: str | os.PathLike[str] | None)
             "in_use": ad.in_use,
             "parameters": {n: {"value": finite_or_none(v), "sigma": finite_or_none(s), "unit": UNITS[n]}
                            for n, (v, s) in ad.values().items()},
-            "named_changes_taken": [{"name": n, "size": v, "onset_s": o} for n, v, o in ad.taken],
+            "named_changes_taken": ad.named_changes(),
             "saved": None if saved is None else str(saved)}
 
 

@@ -576,6 +576,11 @@ class PhysicsAdapter:
                 ADAPTED[2]: ((self.pack_measured_ohm, self._sag.sigma_r) if self._sag is not None
                              and self._base_t is not None else (math.nan, math.nan))}
 
+    def named_changes(self) -> list[dict[str, object]]:
+        """The named changes taken (``take_named``), as the saved model's metadata and replay's JSON
+        give them: name, size (its unit) and onset (s)."""
+        return [{"name": n, "size": v, "onset_s": o} for n, v, o in self.taken]
+
     def adapted_plant(self) -> PlantModel:
         """The physics model with the adapted constants (b scaled by ``thrust_factor``); its
         metadata says what was adapted from what."""
@@ -584,7 +589,7 @@ class PhysicsAdapter:
         meta = {**p.metadata, "adapted": {n: {"value": finite_or_none(v), "sigma": finite_or_none(s), "unit": UNITS[n]}
                                           for n, (v, s) in self.values().items()}}
         if self.taken:
-            meta["named_changes_taken"] = [{"name": n, "size": v, "onset_s": o} for n, v, o in self.taken]
+            meta["named_changes_taken"] = self.named_changes()
             meta["adapted"]["motor_heating"] = {"value": self.heating_k, "sigma": None, "unit": "K"}
         return dataclasses.replace(p, params=adapted_params(p.params, self.theta, self._friction_ref, self.pack_ohm,
                                                             self.heating_k),
@@ -663,8 +668,8 @@ class PhysicsAdapter:
         the rise. Returns whether the model moved.
 
         Why only the heating: theta learns a change it has a parameter for over its memory, and
-        the monitor's size of such a change is no better than theta's (a bearing three times as
-        stiff named 1.81x and 1.65x on tuning benches 1 and 3, the first dated 14 s late): taking a
+        the monitor's size of such a change is no better than theta's (a bearing's friction tripled,
+        named 1.81x and 1.65x on tuning benches 1 and 3, the first dated 14 s late): taking a
         propeller's loss and a bearing's friction from the monitor left tuning benches 1-3 as they
         were (propeller 6/6 within 1.2x of the healthy twin's RMSE from 10 s on) or worse (friction,
         the RMSE after the change 1.07 -> 1.19x the twin's on bench 1). A heating it cannot learn: it stands
