@@ -22,11 +22,13 @@ from bldc_propulsion.core.health import (
     HealthConfig,
     HealthMonitor,
     HealthSample,
+    PhysicsTwins,
     TwinSample,
     chi2_1_isf,
     run_health,
 )
 from bldc_propulsion.model import save_model
+from bldc_propulsion.physics import config as pc
 from bldc_propulsion.recordings import load_signals
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.faults import Fault
@@ -98,6 +100,63 @@ def test_a_slow_spin_down_in_a_dithered_flight_is_a_transient():
     assert all(v == 1.0 for t, v in steady.items() if 63.0 < t < 65.9), steady
 
 
+@pytest.mark.parametrize("coasting", [1.0, 0.0])
+def test_the_twins_static_sensitivity_is_where_the_rotor_settles(coasting):
+    """The nominal bench with a rotor's inertia, held at PWM 0.09, then 0.06 (an ESC that coasts,
+    or one that brakes): once a hold has settled, each fault's speed sensitivity along the flight
+    equals the derivative of the steady speed (the static one, solved without inertia); while
+    the rotor comes down to the low hold, the propeller's is several times it (the twin with less
+    drag coasts slower): what makes such a block no test of a fault."""
+    cfg = pc.load_config(None)
+    eff = {**cfg.effects, "rotor_lag": 1.0, "spin_down_asymmetry": coasting}
+    twins = PhysicsTwins(cfg.params, eff, 11.5, 2.0, static=True)
+    assert PhysicsTwins(cfg.params, eff, 11.5, 2.0).sample(0.0) is None  # no command, no voltage yet
+    twins.update_voltage(0.0, 11.5)
+    got = {}
+    for k in range(1000):
+        t = 0.01 * k
+        twins.update_pwm(t, 0.09 if t < 4.0 else 0.06)
+        got[k] = twins.sample(t)
+    for k in (399, 999):  # the end of each hold
+        s = got[k]
+        assert len(s.static_sensitivity) == len(FAULTS)
+        assert s.speed_sensitivity == pytest.approx(s.static_sensitivity, rel=1e-3, abs=1e-6), k
+    p = FAULTS.index("propeller_damage")
+    coast = got[420]
+    assert coast.speed_sensitivity[p] > 3.0 * coast.static_sensitivity[p] > 0.0
+    plain = PhysicsTwins(cfg.params, eff, 11.5, 2.0)
+    plain.update_voltage(0.0, 11.5)
+    plain.update_pwm(0.0, 0.09)
+    assert plain.sample(0.5).static_sensitivity == ()
+
+
+def test_a_block_whose_propeller_twin_has_not_settled_is_a_transient():
+    """60 s of holds, then a hold at 100 rad/s whose propeller twin is still coming down to it:
+    its sensitivity 10x the static one, decaying with 2 s, while the predicted speed stands
+    still. Blocks until it is within _SETTLED_SHARE + _SETTLED_FLOOR of the static (2.2 s in)
+    carry no speed test, the later ones do; without a static sensitivity the rule asks nothing."""
+    def flight(with_static: bool) -> HealthMonitor:
+        samples = synthetic_flight(60.0, 4)
+        for k in range(600):
+            t = 60.0 + 0.01 * k
+            static = 60.0 * (100.0 / 600.0) ** 2
+            dynamic = static * (1.0 + 9.0 * math.exp(-(t - 60.0) / 2.0))
+            cur = 12.0 * (100.0 / 600.0) ** 2
+            samples.append(HealthSample(t, 100.0, 100.0, 11.5, TwinSample(
+                t, 100.0, cur, (dynamic, 0.0, 0.0, 0.0), (0.0,) * 4, 40.0,
+                (static, 0.0, 0.0, 0.0) if with_static else ())))
+        return monitor_over(samples)
+
+    def steady(mon: HealthMonitor) -> dict[float, float]:
+        rows = mon._buf[np.argsort(mon._buf[:, _T])]
+        return {round(float(r[_T]), 2): float(r[_STEADY]) for r in rows if r[_T] > 60.5}
+
+    settling = steady(flight(True))
+    assert all(v == 0.0 for t, v in settling.items() if t < 62.2), sorted(settling.items())
+    assert all(v == 1.0 for t, v in settling.items() if 63.0 < t < 65.9), settling
+    assert all(v == 1.0 for t, v in steady(flight(False)).items() if t < 65.9)
+
+
 def _stopped_before(onset_s: float, seed: int) -> list[HealthSample]:
     """Holds at any speed, then 20 s with the rotor nearly stopped (below min_speed_fraction: no
     speed test), then high speeds from 3 s before a 10 % propeller loss at ``onset_s``."""
@@ -147,6 +206,26 @@ def test_a_change_that_could_be_below_the_smallest_worth_an_alarm_is_no_alarm():
     mon = monitor_over(samples, HealthConfig(min_size=tuple(sizes.items())))
     assert mon.events == [] and [e.name for e in mon.minor] == ["propeller_damage"], [e.as_dict() for e in mon.minor]
     assert "below the smallest change worth an alarm at two sigma" in mon.minor[0].note
+
+
+def test_a_change_the_data_end_or_stop_on_while_it_is_sized_is_judged_as_at_its_end():
+    """The flight above cut 6 s after the loss's onset (named, still being sized: it would be
+    reported 15 s after it), or stopping there for 2 s (a gap restarts the window): reported as it
+    stands, an alarm with the default smallest size, and set aside as minor, never an alarm, with
+    the smallest at the reported size (it could, at two sigma, be below it), as a change sized to
+    its end is."""
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    (alarm,) = monitor_over(samples, HealthConfig()).events
+    sizes = dict(HealthConfig().min_size) | {"propeller_damage": alarm.size}
+    strict = HealthConfig(min_size=tuple(sizes.items()))
+    cut = [s for s in samples if s.t < 106.0]
+    gap = [s for s in samples if not 106.0 <= s.t < 108.0]
+    for flight in (cut, gap):
+        (e,) = monitor_over(flight, HealthConfig()).events
+        assert e.name == "propeller_damage" and abs(e.onset_s - 100.0) <= 0.5
+        mon = monitor_over(flight, strict)
+        assert mon.events == [], [e.as_dict() for e in mon.events]
+        assert [m.name for m in mon.minor] == ["propeller_damage"] and "could be below" in mon.minor[0].note
 
 
 def test_minor_is_decided_at_two_sigma_in_each_faults_unit():

@@ -125,6 +125,9 @@ class TwinSample:
     speed_sensitivity: tuple[float, ...]  #: d speed / d theta per fault (FAULTS order)
     current_sensitivity: tuple[float, ...]  #: d supply current / d theta per fault
     voltage_sensitivity: float = 0.0  #: d speed / d supply voltage (rad/s per V)
+    #: per fault, d steady speed / d theta at this command and voltage: what speed_sensitivity
+    #: comes to once the rotors settle (empty unless PhysicsTwins was asked for it)
+    static_sensitivity: tuple[float, ...] = ()
 
 
 class PhysicsTwins:
@@ -140,11 +143,14 @@ class PhysicsTwins:
     the friction torque's added share of the model's (factor - 1) and the winding's added
     temperature (K). ``faults``: the lanes stepped (FAULTS order kept; the sensitivities come in
     that order) and ``voltage_lane``: whether d speed / d volt is stepped too (0 without it); an
-    online adapter steps only what it adapts, each lane costing a plant step.
+    online adapter steps only what it adapts, each lane costing a plant step. ``static``: each
+    sample also says what the speed sensitivities come to once the rotors settle (a steady
+    solve per lane; the monitor's test of a settled block).
     """
 
     def __init__(self, params: PlantParams, effects: Mapping[str, float], supply_v: float,
-                 supply_tau_s: float, faults: Sequence[str] = FAULTS, voltage_lane: bool = True) -> None:
+                 supply_tau_s: float, faults: Sequence[str] = FAULTS, voltage_lane: bool = True,
+                 static: bool = False) -> None:
         eff = resolve_effects(effects)
         self.params = params
         rs = params.battery_series_resistance_ohm
@@ -175,6 +181,8 @@ class PhysicsTwins:
         if not voltage_lane:
             del lanes[-1], self._lift[-1]
         self._steps: list[Step] = []
+        #: per lane, its plant without the rotor's inertia: the steady speed it settles at
+        self._equilibria: list[Step] = []
         self._rs: list[float] = []
         self._rp: list[float] = []  #: per lane, the polarisation's s R_p and its gain per step
         self._gp: list[float] = []
@@ -182,6 +190,8 @@ class PhysicsTwins:
         for p, delta in lanes:
             sp = Supply.of(p, eff, supply_v, supply_tau_s)
             self._steps.append(make_step(p, eff, sp.source_resistance_ohm))
+            if static:
+                self._equilibria.append(make_step(p, {**eff, "rotor_lag": 0.0}, sp.source_resistance_ohm))
             self._rs.append(sp.source_resistance_ohm)
             self._rp.append(sp.polarisation_ohm)
             self._gp.append(sp.polarisation_gain)
@@ -203,6 +213,7 @@ class PhysicsTwins:
         self._k = 0
         self._level = PWM_STOP
         self._duty = throttle(PWM_STOP, *self._map)
+        self._source = math.nan  #: the supply's scaled voltage at the latest step (V)
         n = len(lanes)
         self._w = [0.0] * n
         self._temp = [params.ambient_temperature_c] * n
@@ -238,6 +249,7 @@ class PhysicsTwins:
             return None
         dt, lead = self._dt, self._delay
         k_end = int((t - t0) / dt + 1e-9) + 1
+        source = self._source
         pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
         pi, vi, k = self._pi, self._vi, self._k
         level, duty = self._level, self._duty
@@ -269,7 +281,7 @@ class PhysicsTwins:
                     vp_lp[j] += a_lp * (vp[j] - vp_lp[j])
                     vp[j] += gp[j] * (rp[j] * ib[j] - vp[j])
             k += 1
-        self._k, self._level, self._duty = k, level, duty
+        self._k, self._level, self._duty, self._source = k, level, duty, source
         if pi > 64:  # inputs consumed: dropped in batches (amortised)
             del pt[:pi], pv[:pi]
             pi = 0
@@ -279,10 +291,15 @@ class PhysicsTwins:
         self._pi, self._vi = pi, vi
         inv = self._inv
         nf = len(self.faults)  # the nominal lane, a lane per fault, the voltage lane (if stepped)
+        static: tuple[float, ...] = ()
+        if self._equilibria and source == source:
+            eq = [self._equilibria[j](0.0, temp[j], duty, source + lift[j] + rs[j] * ib_lp[j] + (vp_lp[j] - vp[j]))[0]
+                  for j in range(nf + 1)]
+            static = tuple((eq[j] - eq[0]) * inv[j] for j in range(1, nf + 1))
         return TwinSample(float(t), w_now[0], ib[0],
                           tuple((w_now[j] - w_now[0]) * inv[j] for j in range(1, nf + 1)),
                           tuple((ib[j] - ib[0]) * inv[j] for j in range(1, nf + 1)),
-                          (w_now[-1] - w_now[0]) * inv[-1] if len(steps) > nf + 1 else 0.0)
+                          (w_now[-1] - w_now[0]) * inv[-1] if len(steps) > nf + 1 else 0.0, static)
 
 
 # --- the statistics side -------------------------------------------------------------------------
@@ -469,6 +486,17 @@ _DITHER_BLOCKS = 200
 #: (dither does not add up over blocks, a spin-down does; tuning bench 7: a spin-down to idle
 #: passed for a 9 % propeller loss).
 _DRIFT_BLOCKS = 4
+#: A block is steady only once the model's rotor and its propeller twin have settled: the twin's
+#: speed sensitivity (d speed / d propeller loss along the flight) within _SETTLED_SHARE of its
+#: static value (the same derivative of the steady speed at the block's command and voltage) plus
+#: _SETTLED_FLOOR of the speed scale. Why: a rotor coasting down to a low command slows slowly
+#: (drag and friction alone brake it at low speed), each block's change within the flight's
+#: dither, and there a model whose spin-down is off by a little looks just like a lighter
+#: propeller (its twin coasts slower too): on tuning bench 3 two healthy 100 s flights were named
+#: propeller_damage 4.3 % and 6.2 % from the tails of such coasts (sensitivity 39.7 rad/s per unit
+#: loss where the settled one is 5.1); on tuning benches 1-9 no detection moved.
+_SETTLED_SHARE = 1.0
+_SETTLED_FLOOR = 0.005
 #: The share of a block the model's timing of a dithered speed may be off by: a speed block
 #: carries this share of its predicted change as extra noise (the voltage's is _TIMING_SHARE).
 _SPEED_TIMING_SHARE = 0.1
@@ -560,9 +588,10 @@ class _Channel:
 # last and its time, its mean and samples, steady, the residual less the learned error, known
 # speed, d speed / d volt, the residual mean's own variance (from its samples' scatter), the model
 # current squared lagged (_current_squared), the current's polarisation lags and its filter lag
-# less itself (_current_lags)
-_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG = range(18)
-_S0 = 18  #: speed sensitivities (one per fault), then current sensitivities
+# less itself (_current_lags), the propeller twin's static sensitivity (_SETTLED_SHARE)
+_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG, _SPS = range(19)
+_S0 = 19  #: speed sensitivities (one per fault), then current sensitivities
+_PROPELLER = FAULTS.index("propeller_damage")
 _ARMING, _ARMED, _NAMING, _REFINING = "arming", "armed", "naming", "refining"
 #: what a named change too small to be a fault is, after "below" or "could be below"
 _MIN_SIZE_NOTE = "the smallest change worth an alarm at two sigma (HealthConfig.min_size)"
@@ -633,6 +662,9 @@ class HealthMonitor:
         self._last_t: float | None = None
         self._pending: HealthEvent | None = None
         self._pending_onset_block = 0
+        #: the named pending change's latest (statistic, theta) of its fault: what decides, when
+        #: it is reported, whether it could be below the smallest worth an alarm (None: not sized)
+        self._named_fit: tuple[float, float] | None = None
         self._t_origin: float | None = None
         self._lags: tuple[float, float, float, float] | None = None  #: (_current_lags' lags, their time)
 
@@ -677,13 +709,16 @@ class HealthMonitor:
             b[_S0 + j] += tw.speed_sensitivity[j]
             b[_S0 + nf + j] += tw.current_sensitivity[j]
         b[_SV] += tw.voltage_sensitivity
+        b[_SPS] += tw.static_sensitivity[_PROPELLER] if tw.static_sensitivity else math.nan
         return out
 
     def finish(self) -> list[HealthEvent]:
-        """The end of the data: close the open block and report a change still being named."""
+        """The end of the data (or a gap): close the open block and report a change still being
+        named or sized as it stands, unless it is named and could be too small to be a fault
+        (the same rule as at the end of its sizing: flights end, and data stop, mid-change)."""
         out = self._close_block()
         if self._pending is not None:
-            out.append(self._settle(self._pending))
+            out += self._report_named() if self.state == _REFINING else [self._settle(self._pending)]
         return out
 
     @property
@@ -718,7 +753,7 @@ class HealthMonitor:
             return []
         n = b[_N]
         row = np.array(b)
-        for j in (_T, _R, _W, _IB, _SV, *range(_S0, self._cols)):
+        for j in (_T, _R, _W, _IB, _SV, _SPS, *range(_S0, self._cols)):
             row[j] /= n
         row[_VMEAN] /= b[_NV]
         # the block mean's own noise from the samples' scatter about it (the tachometer's noise at
@@ -740,7 +775,10 @@ class HealthMonitor:
         if jump and self._filled:  # the step began in the block before: its mean is part transient
             self._buf[(self._row - 1) % len(self._buf), _STEADY] = 0.0
         turning = row[_W] >= self.config.min_speed_fraction * self.speed_scale
-        row[_STEADY] = float(self._since_jump > _SETTLE_BLOCKS and turning)
+        sps = row[_SPS]  # NaN: the twins give no static sensitivity, so no settling is asked
+        settled = sps != sps or \
+            abs(row[_S0 + _PROPELLER] - sps) <= _SETTLED_SHARE * abs(sps) + _SETTLED_FLOOR * self.speed_scale
+        row[_STEADY] = float(self._since_jump > _SETTLE_BLOCKS and turning and settled)
         lo, hi = self._learned_span()
         margin = _ERROR_MARGIN * self.speed_scale
         row[_KNOWN] = float(self._error_n >= _ERROR_MIN_BLOCKS and lo - margin <= row[_W] <= hi + margin)
@@ -1151,6 +1189,7 @@ class HealthMonitor:
             ev.named_s = t_now
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
             ev.statistic = float(row[best])
+            self._named_fit = (float(row[best]), float(theta[o, best]))
             if self._size_at(best, float(theta[o, best]), float(row[best]), 2.0) < self._min_size(best):
                 return self._set_aside(ev, f"below {_MIN_SIZE_NOTE}")  # sure already: no need to wait
             self.state = _REFINING
@@ -1232,14 +1271,24 @@ class HealthMonitor:
         assert ev is not None
         stat, theta, _, _ = self._last
         f = FAULTS.index(ev.name)
+        self._named_fit = None
         if stat[o, f] > 0:
             ev.size = self._size(f, float(theta[o, f]))
             ev.statistic = max(ev.statistic, float(stat[o, f]))
+            self._named_fit = (float(stat[o, f]), float(theta[o, f]))
         if self._post[o] + self.config.evaluate_every > self._refine_blocks:
-            if stat[o, f] > 0 and self._minor(f, float(theta[o, f]), float(stat[o, f])):
-                return self._set_aside(ev, f"could be below {_MIN_SIZE_NOTE}")
-            return [self._settle(ev)]
+            return self._report_named()
         return []
+
+    def _report_named(self) -> list[HealthEvent]:
+        """The named pending change reported, or set aside as minor if its size could, at two
+        sigma, be below the smallest worth an alarm (by its latest fit)."""
+        ev = self._pending
+        assert ev is not None and ev.name in FAULTS
+        fit = self._named_fit
+        if fit is not None and self._minor(FAULTS.index(ev.name), fit[1], fit[0]):
+            return self._set_aside(ev, f"could be below {_MIN_SIZE_NOTE}")
+        return [self._settle(ev)]
 
     def _settle(self, ev: HealthEvent) -> HealthEvent:
         """Report ``ev`` and start a fresh window after it (the change is the new normal)."""
@@ -1335,7 +1384,7 @@ class HealthStream:
     def _twins(self) -> PhysicsTwins:
         p = self._plant
         assert p.supply_tau_s is not None
-        return PhysicsTwins(p.params, p.effects, p.supply_v, float(p.supply_tau_s))
+        return PhysicsTwins(p.params, p.effects, p.supply_v, float(p.supply_tau_s), static=True)
 
     @property
     def events(self) -> list[HealthEvent]:
@@ -1380,7 +1429,8 @@ class HealthStream:
             self.twins.update_voltage(*self._last_voltage)
 
     def finish(self) -> list[HealthEvent]:
-        """The end of the data: a change still being named is reported as it stands."""
+        """The end of the data: a change still being named is reported as it stands (a named one
+        that could be too small to be a fault kept as minor: ``HealthMonitor.finish``)."""
         return self.monitor.finish()
 
     def run(self) -> HealthRun:
