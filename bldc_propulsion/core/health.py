@@ -213,7 +213,6 @@ class PhysicsTwins:
         self._k = 0
         self._level = PWM_STOP
         self._duty = throttle(PWM_STOP, *self._map)
-        self._source = math.nan  #: the supply's scaled voltage at the latest step (V)
         n = len(lanes)
         self._w = [0.0] * n
         self._temp = [params.ambient_temperature_c] * n
@@ -249,7 +248,6 @@ class PhysicsTwins:
             return None
         dt, lead = self._dt, self._delay
         k_end = int((t - t0) / dt + 1e-9) + 1
-        source = self._source
         pt, pv, vt, vv = self._pt, self._pv, self._vt, self._vv
         pi, vi, k = self._pi, self._vi, self._k
         level, duty = self._level, self._duty
@@ -281,7 +279,7 @@ class PhysicsTwins:
                     vp_lp[j] += a_lp * (vp[j] - vp_lp[j])
                     vp[j] += gp[j] * (rp[j] * ib[j] - vp[j])
             k += 1
-        self._k, self._level, self._duty, self._source = k, level, duty, source
+        self._k, self._level, self._duty = k, level, duty
         if pi > 64:  # inputs consumed: dropped in batches (amortised)
             del pt[:pi], pv[:pi]
             pi = 0
@@ -292,7 +290,8 @@ class PhysicsTwins:
         inv = self._inv
         nf = len(self.faults)  # the nominal lane, a lane per fault, the voltage lane (if stepped)
         static: tuple[float, ...] = ()
-        if self._equilibria and source == source:
+        if self._equilibria:  # at the latest step's inputs (vv[vi]: its voltage, kept by the trim above)
+            source = v_ref + sbv * (vv[vi] - v_ref)
             eq = [self._equilibria[j](0.0, temp[j], duty, source + lift[j] + rs[j] * ib_lp[j] + (vp_lp[j] - vp[j]))[0]
                   for j in range(nf + 1)]
             static = tuple((eq[j] - eq[0]) * inv[j] for j in range(1, nf + 1))
