@@ -13,23 +13,27 @@ from bldc_propulsion.core.health import HealthConfig, HealthEvent, HealthMonitor
 TAU_S = 2.0  #: the battery filter's time constant in the hand-made data
 
 
-def synthetic_flight(duration_s: float, seed: int, change: tuple[float, np.ndarray, float, float] | None = None, *,
+Change = tuple[float, np.ndarray, float, float]  #: (theta, speed signature weights, dv ohm, onset s)
+
+
+def synthetic_flight(duration_s: float, seed: int, change: Change | list[Change] | None = None, *,
                      speeds: Callable[[float], tuple[float, float]] = lambda t: (150.0, 600.0),
                      noise_rad_s: Callable[[float], float] = lambda level: 1.0,
                      dither_rad_s: float = 0.0) -> list[HealthSample]:
     """A flight of holds at random speeds, 100 speed samples a second: measured = predicted +
     noise (one-sigma ``noise_rad_s(speed)``; + ``change``: from onset t0, theta * the speed
-    signature and dv volts of extra sag per ampere), the terminal voltage 12 V - 0.04 ohm * i
-    through a first-order filter of TAU_S. Each hold (1-4 s) is at a speed drawn from
-    ``speeds(t)``. The signatures: each fault's speed change per unit grows with the speed, in its
-    own way. ``dither_rad_s``: the predicted speed also moves by a new N(0, dither) every 20 ms
-    frame, as a multirotor's motor does under its attitude loop (the model follows it exactly)."""
+    signature and dv volts of extra sag per ampere; a list of changes adds up, each from its own
+    onset), the terminal voltage 12 V - 0.04 ohm * i through a first-order filter of TAU_S. Each
+    hold (1-4 s) is at a speed drawn from ``speeds(t)``. The signatures: each fault's speed change
+    per unit grows with the speed, in its own way. ``dither_rad_s``: the predicted speed also
+    moves by a new N(0, dither) every 20 ms frame, as a multirotor's motor does under its
+    attitude loop (the model follows it exactly)."""
     rng = np.random.default_rng(seed)
     out = []
     level, hold_end, dt = 300.0, 0.0, 0.01
     v_f = None
     wobble = 0.0
-    theta, shape, dv, t0 = change if change is not None else (0.0, np.zeros(4), 0.0, math.inf)
+    changes = [] if change is None else change if isinstance(change, list) else [change]
     for k in range(int(duration_s / dt)):
         t = k * dt
         if t >= hold_end:
@@ -42,11 +46,11 @@ def synthetic_flight(duration_s: float, seed: int, change: tuple[float, np.ndarr
         current = 12.0 * u**2
         sens = (60.0 * u**2, -400.0 * u**2 * current / 12.0, -20.0 * (1.2 - u), -0.6 * u**2)
         dcur = (-1.0 * u**2, 0.0, 0.8, -0.02 * u**2)
-        after = t >= t0
-        v_term = 12.0 - 0.04 * current - (dv * current if after else 0.0) + rng.normal(0.0, 0.02)
+        on = [c for c in changes if t >= c[3]]
+        v_term = 12.0 - 0.04 * current - sum(dv * current for _, _, dv, _ in on) + rng.normal(0.0, 0.02)
         v_f = v_term if v_f is None else v_f + (1.0 - math.exp(-dt / TAU_S)) * (v_term - v_f)
         measured = (speed + rng.normal(0.0, noise_rad_s(speed))
-                    + (theta * float(np.dot(shape, sens)) if after else 0.0))
+                    + sum(theta * float(np.dot(shape, sens)) for theta, shape, _, _ in on))
         out.append(HealthSample(t, measured, speed, v_f, TwinSample(t, speed, current, sens, dcur, 40.0)))
     return out
 

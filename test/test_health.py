@@ -24,12 +24,14 @@ from bldc_propulsion.core.health import (
     HealthSample,
     PhysicsTwins,
     TwinSample,
+    _Channel,
     chi2_1_isf,
     run_health,
 )
 from bldc_propulsion.model import save_model
 from bldc_propulsion.physics import config as pc
 from bldc_propulsion.recordings import load_signals
+from bldc_propulsion.runs import true_run_pairs
 from bldc_propulsion.sim import simulate
 from bldc_propulsion.sim.faults import Fault
 from bldc_propulsion.sim.record import write_sim_bag
@@ -226,6 +228,24 @@ def test_a_change_the_data_end_or_stop_on_while_it_is_sized_is_judged_as_at_its_
         mon = monitor_over(flight, strict)
         assert mon.events == [], [e.as_dict() for e in mon.events]
         assert [m.name for m in mon.minor] == ["propeller_damage"] and "could be below" in mon.minor[0].note
+
+
+def test_after_a_change_the_watch_resumes_a_window_after_its_onset_not_after_its_settling():
+    """The propeller loss above set aside as minor (it could be below the smallest worth an alarm,
+    which it knows only once sized, 15 s after its onset), then the pack's resistance doubles at
+    140 s: the new window keeps the blocks from the loss's onset on, so the monitor watches again
+    35 s after that onset (its reference, window and learn_s) and names the pack within 5 s; a
+    window started empty when the loss was settled would still be learning until about 150 s."""
+    loss = (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0)
+    (alarm,) = monitor_over(synthetic_flight(150.0, 2, loss), HealthConfig()).events
+    sizes = dict(HealthConfig().min_size) | {"propeller_damage": alarm.size}
+    mon = monitor_over(synthetic_flight(170.0, 2, [loss, (0.0, np.zeros(4), 0.04, 140.0)]),
+                       HealthConfig(min_size=tuple(sizes.items())))
+    assert [m.name for m in mon.minor] == ["propeller_damage"], [m.as_dict() for m in mon.minor]
+    assert mon.minor[0].note.startswith("could be below")  # decided once sized, at 115 s
+    assert [e.name for e in mon.events] == ["pack_resistance"], [e.as_dict() for e in mon.events]
+    e = mon.events[0]
+    assert abs(e.onset_s - 140.0) <= 0.5 and e.detected_s <= 145.0 and e.size == pytest.approx(2.0, rel=0.2)
 
 
 def test_minor_is_decided_at_two_sigma_in_each_faults_unit():
@@ -524,3 +544,51 @@ def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
     assert turning_after(slow, 0.0) == pytest.approx(2.0, abs=0.002)
     out = judge([], Fault("propeller_damage", 0.1, 1.0), turning_after(res, 1.0))
     assert out["turning_s"] == pytest.approx(3.0, abs=0.002) and out["name"] is None
+
+
+def test_the_bending_prior_gives_the_glr_against_the_nuisance_marginalised_over_it():
+    """Hand-computed with dense matrices: with the speed's drift and curvature given a Gaussian
+    prior (the flight's mean square of their coefficients), the monitor's statistic is the GLR
+    of a step along a signature against the covariance S + N_b diag(tau^2) N_b' (S: each block's
+    noise plus the visit error shared within a steady stretch, times kappa and the inflation),
+    the offset still free; without the prior it is the GLR with all three free, and smaller
+    where the curvature can take part of the step."""
+    rng = np.random.default_rng(7)
+    m = 120
+    mon = HealthMonitor(2.0, speed_scale_rad_s=600.0, pack_resistance_ohm=0.04)
+    a, b, visit, kappa = 0.3, 1e-6, 0.5, 1.5
+    mon.noise["speed"] = (a, b, visit, kappa)
+    mon._ref_blocks = 80
+    valid = np.ones(m)
+    valid[[10, 11, 40, 41, 42, 90]] = 0.0  # transients split the blocks into steady stretches
+    level = rng.uniform(150.0, 550.0, m)
+    t = np.linspace(-1.0, 0.0, m)
+    N = np.column_stack([np.ones(m), t, t**2])
+    z = np.where(np.arange(m) >= 100, -level / 100.0, 0.0)  # a step along a signature at block 100
+    y = 0.8 * z + 2.0 * t**2 + rng.normal(0.0, 0.6, m)
+    extra = rng.uniform(0.0, 0.2, m)
+    ch = _Channel("speed", y, valid, level, np.full(m, 0.01), extra, N, z[None, :, None])
+    free = mon._stats(ch, ch.tests)
+    tau2 = np.array([4.0, 1.5])
+    mon._bending["speed"] = (tau2, 10_000)
+    prior = mon._stats(ch, ch.tests)
+
+    scale = kappa * mon.config.noise_inflation
+    keep = valid > 0
+    D = np.maximum(a + b * level**2, 0.01 / scale) + extra / scale
+    S = np.diag(D)
+    for i, k in true_run_pairs(keep):
+        S[i:k, i:k] += visit / kappa
+    S = scale * S[np.ix_(keep, keep)]
+    Nk, yk, zk = N[keep], y[keep], z[keep]
+
+    def glr(cov: np.ndarray, flat: np.ndarray) -> tuple[float, float]:
+        ci = np.linalg.inv(cov)
+        M = ci - ci @ flat @ np.linalg.inv(flat.T @ ci @ flat) @ flat.T @ ci
+        return float(zk @ M @ yk), float(zk @ M @ zk)
+
+    num, den = glr(S, Nk)
+    assert free[0][0, 0] == pytest.approx(num, rel=1e-6) and free[1][0, 0] == pytest.approx(den, rel=1e-6)
+    num_p, den_p = glr(S + Nk[:, 1:] @ np.diag(tau2) @ Nk[:, 1:].T, Nk[:, :1])
+    assert prior[0][0, 0] == pytest.approx(num_p, rel=1e-6) and prior[1][0, 0] == pytest.approx(den_p, rel=1e-6)
+    assert num_p**2 / den_p > num**2 / den

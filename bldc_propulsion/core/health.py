@@ -22,7 +22,9 @@ speed residual alone:
   static relation: terminal voltage = open-circuit part - R * model current;
 * a fitted model is never exact: its error along a fault's direction, a slow drift (discharge,
   warming, polarisation) and an offset are NUISANCE, fitted on the whole window (reference
-  seconds before the onset plus the seconds after it), so only a change AT the onset counts;
+  seconds before the onset plus the seconds after it), so only a change AT the onset counts; the
+  speed's drift and its curvature carry a Gaussian prior of the size the flight's windows show
+  (empirical Bayes), so a step in the window's last seconds is not taken for bending;
 * the residuals are autocorrelated (a model error lasts as long as the operating point), so the
   noise's variance and its correlation time (the variance of a sum of n blocks is
   n * sigma^2 * kappa) are estimated per channel from the reference part of the window; what is
@@ -546,6 +548,12 @@ _UNEXPLAINED_SHARE = 0.1
 #: flight has shown it: a share of the speed scale (a physics fit's error is ~0.5-1 % of its
 #: range), volts. Replaced by the flight's first estimate, then followed with the noise's memory.
 _VISIT_PRIOR = {"speed": 0.01, "voltage": 0.02}
+#: The nuisance columns whose coefficients get a prior (per channel): the speed's drift and
+#: curvature in time (columns 1 and 2 of its nuisance), with the flight's own typical size
+#: (_learn_bending). Free, the curvature takes part of a step in the window's last seconds for
+#: bending (a 30 K winding rise on tuning bench 1: statistic 67 against the offset alone, 45 with
+#: the drift, 21 with the curvature, under the threshold 34: never found).
+_BENDING_COLUMNS = {"speed": (1, 2)}
 
 
 def _lag_of_blocks(t: np.ndarray, values: np.ndarray, tau_s: float) -> np.ndarray:
@@ -651,10 +659,13 @@ class HealthMonitor:
         #: the model's error from one steady stretch to the next, the short correlation factor
         self.noise: dict[str, tuple[float, float, float, float]] = {}
         self._visit_learned: set[str] = set()  #: channels whose visit error the flight has shown
+        #: channel -> (mean square of its bending coefficients, evaluations seen): _learn_bending
+        self._bending: dict[str, tuple[np.ndarray, int]] = {}
         self._since_jump = 0  #: blocks since the predicted speed last jumped
         #: the predicted speed's latest block-to-block changes (rad/s), a ring: the flight's dither
         self._dither = np.zeros(_DITHER_BLOCKS)
         self._dither_n = 0
+        self._row = 0  #: blocks written to the ring since the start (a row's index is this mod its length)
         self._reset_window()
         self._block: list[float] | None = None
         self._block_index = 0
@@ -728,10 +739,9 @@ class HealthMonitor:
 
     # --- blocks ----------------------------------------------------------------------------
     def _reset_window(self) -> None:
-        """Forget the window and the model's learned error (after a gap, or a change: the new
-        normal is learned afresh)."""
+        """Forget the window and the model's learned error (after a gap; after a change,
+        ``_restart_from`` keeps what followed its onset)."""
         self._filled = 0  #: blocks in the window since the last restart
-        self._row = 0
         #: the model's speed error as a cubic in the predicted speed, learned (least squares with
         #: a memory of _ERROR_MEMORY_S) from steady blocks older than the test window: what is known
         #: of the model before a change can have entered it; known between the slowest and the
@@ -778,19 +788,44 @@ class HealthMonitor:
         settled = sps != sps or \
             abs(row[_S0 + _PROPELLER] - sps) <= _SETTLED_SHARE * abs(sps) + _SETTLED_FLOOR * self.speed_scale
         row[_STEADY] = float(self._since_jump > _SETTLE_BLOCKS and turning and settled)
-        lo, hi = self._learned_span()
-        margin = _ERROR_MARGIN * self.speed_scale
-        row[_KNOWN] = float(self._error_n >= _ERROR_MIN_BLOCKS and lo - margin <= row[_W] <= hi + margin)
-        row[_RC] = row[_R] - float(self._terms(row[_W]) @ self._error_coef)
+        self._against_learned(row)
         self._buf[self._row % len(self._buf)] = row
         self._row += 1
         self._filled += 1
         self.blocks += 1
-        self._learn_error()
+        if self.state not in (_NAMING, _REFINING):
+            self._learn_error()
         if (self._filled > self._detect_blocks or self._pending is not None) \
                 and self.blocks % self.config.evaluate_every == 0:
             return self._evaluate()
         return []
+
+    def _against_learned(self, row: np.ndarray) -> None:
+        """Set a block's residual less the learned error (_RC) and whether its speed is known."""
+        lo, hi = self._learned_span()
+        margin = _ERROR_MARGIN * self.speed_scale
+        row[_KNOWN] = float(self._error_n >= _ERROR_MIN_BLOCKS and lo - margin <= row[_W] <= hi + margin)
+        row[_RC] = row[_R] - float(self._terms(row[_W]) @ self._error_coef)
+
+    def _restart_from(self, onset_block: int) -> None:
+        """A fresh window after a change that began at ``onset_block`` (the change is the new
+        normal): the blocks since the onset are kept as the new window's first, and the model's
+        error is learned again over them as if the window had started there; the noise estimates
+        are kept. Why: a window started empty when the change was settled (up to name_within_s
+        after its onset) left the monitor blind for its whole reference and learn_s after that,
+        up to 55 s after the onset; on tuning bench 3 a healthy flight's 1.16x pack resistance,
+        set aside as minor 13 s after its onset, hid a 10 % propeller loss 8 s later."""
+        keep = min(max(self._row - onset_block, 0), self._filled)
+        self._reset_window()
+        start = self._row - keep
+        back = int(self._detect_post[-1]) + 1
+        n = len(self._buf)
+        for q in range(start, self._row):
+            self._filled = q - start + 1
+            self._against_learned(self._buf[q % n])
+            if self._filled > back:
+                self._learn_block(self._buf[(q + 1 - back) % n])
+        self._filled = keep
 
     def _speed_bin(self, w: float) -> int:
         """The learned-error histogram's bin of speed w."""
@@ -861,11 +896,13 @@ class HealthMonitor:
 
     def _learn_error(self) -> None:
         """Add the block that just left the test window (older than window_s) to the model's
-        learned error, if steady and no change is being named."""
+        learned error (the caller: if no change is being named)."""
         back = int(self._detect_post[-1]) + 1
-        if self._filled <= back or self.state in (_NAMING, _REFINING):
-            return
-        old = self._buf[(self._row - back) % len(self._buf)]
+        if self._filled > back:
+            self._learn_block(self._buf[(self._row - back) % len(self._buf)])
+
+    def _learn_block(self, old: np.ndarray) -> None:
+        """Add one block to the model's learned error if it is steady."""
         if old[_STEADY] <= 0:
             return
         keep = math.exp(-self.config.block_s / _ERROR_MEMORY_S)
@@ -992,11 +1029,13 @@ class HealthMonitor:
         if not learn and ch.name not in self.noise:
             return empty, empty
         if learn:
-            self._learn_noise(ch, self._fit(ch, N)[3], N.shape[1])
+            flat = self._fit(ch, N)
+            self._learn_noise(ch, flat[3], N.shape[1])
             if ch.name not in self.noise:  # too few quiet blocks to learn it from: nothing tested yet
                 return empty, empty
-        w, P, c, res, Ginv, PWN = self._fit(ch, N)
+            self._learn_bending(ch.name, flat[6])
         kappa = self.noise[ch.name][3] * self.config.noise_inflation
+        w, P, c, res, Ginv, PWN, _ = self._fit(ch, N, self._bending_precision(ch.name, N.shape[1], kappa))
         Zw = tests * w[None, :, None]
         PZw = np.einsum("jm,omf->ojf", P, Zw)
         zr = np.einsum("omf,m->of", Zw, res) - np.einsum("ojf,j->of", PZw, c * (P @ (w * res)))
@@ -1009,8 +1048,38 @@ class HealthMonitor:
         """The visit error's variance before the flight has shown it (_VISIT_PRIOR)."""
         return (_VISIT_PRIOR[name] * (self.speed_scale if name == "speed" else 1.0)) ** 2
 
-    def _fit(self, ch: _Channel, N: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                         np.ndarray, np.ndarray]:
+    def _learn_bending(self, name: str, beta: np.ndarray) -> None:
+        """The flight's typical drift and curvature of the model's error over a window: the mean
+        square of the channel's nuisance coefficients (fitted without a prior) with the noise's
+        memory, the first taken whole (only the channels with a prior: _BENDING_COLUMNS)."""
+        cols = _BENDING_COLUMNS.get(name)
+        if cols is None:
+            return
+        sq = np.asarray(beta)[list(cols)] ** 2
+        old = self._bending.get(name)
+        if old is None:
+            self._bending[name] = (sq, 1)
+            return
+        g = min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
+        self._bending[name] = (old[0] + g * (sq - old[0]), old[1] + 1)
+
+    def _bending_precision(self, name: str, n_columns: int, kappa: float) -> np.ndarray | None:
+        """The prior precision of each nuisance column in the fit's unscaled units (the fit's S is
+        scaled by ``kappa`` afterwards): kappa / the typical square of its coefficient for the
+        bending columns once the flight has shown it for learn_s, 0 (free) for the others; None
+        before then (every column free)."""
+        cols = _BENDING_COLUMNS.get(name)
+        seen = self._bending.get(name)
+        if cols is None or seen is None \
+                or seen[1] * self.config.block_s * self.config.evaluate_every < self.config.learn_s:
+            return None
+        lam = np.zeros(n_columns)
+        floor = (_SPEED_NOISE_FLOOR * self.speed_scale) ** 2
+        lam[list(cols)] = kappa / np.maximum(seen[0], floor)
+        return lam
+
+    def _fit(self, ch: _Channel, N: np.ndarray, precision: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The nuisance fitted by generalised least squares. The covariance of a steady stretch's
         blocks is D + visit 11' (D: their own noise), whose inverse is D^-1 - c (D^-1 1)(D^-1 1)'
         with c = visit / (1 + visit 1'D^-1 1): so x'S^-1 y = sum(w x y) - sum over stretches of
@@ -1018,7 +1087,10 @@ class HealthMonitor:
         (N'S^-1 N)^-1, stretch sums of w N). The caller scales S by kappa (and the inflation);
         the visit error is a stretch MEAN's variance beyond its own noise, learned net of kappa
         (_learn_noise), so it enters here divided by kappa: scaled by kappa again it would count
-        the blocks' short correlation twice."""
+        the blocks' short correlation twice. ``precision``: a Gaussian prior's precision per
+        nuisance column (0: free), added to N'S^-1 N: the GLR then tests against the nuisance
+        marginalised over its prior (S + N Lambda^-1 N'), and the returned inverse and residual
+        are the prior's; also returned: the coefficients (of the prior's fit)."""
         a, b, visit, kappa = self.noise.get(ch.name, (1.0, 0.0, 0.0, 1.0))
         visit /= kappa
         # S is scaled by kappa and the inflation later: the floor and the input's noise are known
@@ -1032,10 +1104,12 @@ class HealthMonitor:
         c = visit / (1.0 + visit * (P @ w))
         WN = N * w[:, None]
         PWN = P @ WN
-        Ginv = np.linalg.pinv(N.T @ WN - PWN.T @ (c[:, None] * PWN))
+        G = N.T @ WN - PWN.T @ (c[:, None] * PWN)
+        Ginv = np.linalg.pinv(G if precision is None else G + np.diag(precision))
         rhs = WN.T @ ch.y - PWN.T @ (c * (P @ (w * ch.y)))
-        res = ch.y - N @ (Ginv @ rhs)
-        return w, P, c, res, Ginv, PWN
+        beta = Ginv @ rhs
+        res = ch.y - N @ beta
+        return w, P, c, res, Ginv, PWN, beta
 
     def _single(self, ch: _Channel, N: np.ndarray, z: np.ndarray) -> float:
         """The chi-square(1) statistic of one test column z against the nuisance N (0 if the
@@ -1241,9 +1315,10 @@ class HealthMonitor:
 
     def _set_aside(self, ev: HealthEvent, note: str, fresh_window: bool = True) -> list[HealthEvent]:
         """A change that is no alarm, kept in ``minor`` with ``note``: a named one that is or
-        could be too small to be a fault, after which, as after a reported one, a fresh window
-        (the change is the new normal); or (``fresh_window`` False) an unnamed one whose statistic
-        fell back under the threshold by name_within_s after its onset: it did not hold, nothing
+        could be too small to be a fault, after which, as after a reported one, a new window
+        from its onset (the change is the new normal: ``_restart_from``); or (``fresh_window``
+        False) an unnamed one whose statistic fell back under the threshold by name_within_s
+        after its onset: it did not hold, nothing
         changed, and a fresh window would leave the monitor blind for its reference and learn_s
         (such a disturbance of a few seconds was the only false alarm in 10.4 h of flights on
         fresh benches). Returns no event."""
@@ -1252,7 +1327,7 @@ class HealthMonitor:
         self._pending = None
         self.state = _ARMING
         if fresh_window:
-            self._reset_window()
+            self._restart_from(self._pending_onset_block)
         return []
 
     def _size(self, f: int, theta: float) -> float:
@@ -1290,11 +1365,11 @@ class HealthMonitor:
         return [self._settle(ev)]
 
     def _settle(self, ev: HealthEvent) -> HealthEvent:
-        """Report ``ev`` and start a fresh window after it (the change is the new normal)."""
+        """Report ``ev`` and start a new window at its onset (the change is the new normal)."""
         self._pending = None
         self.events.append(ev)
         self.state = _ARMING
-        self._reset_window()
+        self._restart_from(self._pending_onset_block)
         return ev
 
 
