@@ -933,11 +933,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "waited at most 15 s) gave propeller_damage 11/16, pack_resistance 15/16, motor_heating 11/16, and no "
           "false alarm in 10.39 h; eight more (`--first-seed 860`, measured at 8fb8faa) 13/16, 15/16 and 15/16 "
           "(14/16 with the 15 s wait: bench 867's heating, unnamed at 15 s, named right at 22.6 s), and no false "
-          "alarm in 10.39 h; eight more (`--first-seed 870`, measured at 8fe93c5) 13/16, 15/16 and 10/16, and "
-          "**one false alarm in 10.39 h** (bench 873, a healthy flight named propeller_damage 6.0 % at 60 s, "
-          "statistic 40.5 against 33.9: the reference's last hold at full throttle, the learned error's edge, "
-          "sat 2.7 rad/s below it and the drift's curvature bent toward it; two at 869748f, before a change "
-          "still being sized at a flight's end was judged by the smallest worth an alarm)."),
+          "alarm in 10.39 h; eight more (`--first-seed 870`, measured at 77bad59) 13/16, 15/16 and 10/16, and "
+          "no false alarm in 10.39 h (one at 8fe93c5, before the speed's drift and curvature had a prior: bench "
+          "873, a healthy flight named propeller_damage 6.0 % at 60 s, the curvature bent toward a full-throttle "
+          "hold at the learned error's edge; two at 869748f, before a change still being sized at a flight's end "
+          "was judged by the smallest worth an alarm)."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,

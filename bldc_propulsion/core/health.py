@@ -813,8 +813,9 @@ class HealthMonitor:
         error is learned again over them as if the window had started there; the noise estimates
         are kept. Why: a window started empty when the change was settled (up to name_within_s
         after its onset) left the monitor blind for its whole reference and learn_s after that,
-        up to 55 s after the onset; on tuning bench 3 a healthy flight's 1.16x pack resistance,
-        set aside as minor 13 s after its onset, hid a 10 % propeller loss 8 s later."""
+        up to 60 s after the onset: on tuning bench 3 a 1.16x pack sag seen before any fault, set
+        aside as minor at 51 s (13 s after its onset), left it blind until 86 s, over a 10 %
+        propeller loss at 59 s; from the onset it watches again at 74 s."""
         keep = min(max(self._row - onset_block, 0), self._filled)
         self._reset_window()
         start = self._row - keep
@@ -1318,10 +1319,9 @@ class HealthMonitor:
         could be too small to be a fault, after which, as after a reported one, a new window
         from its onset (the change is the new normal: ``_restart_from``); or (``fresh_window``
         False) an unnamed one whose statistic fell back under the threshold by name_within_s
-        after its onset: it did not hold, nothing
-        changed, and a fresh window would leave the monitor blind for its reference and learn_s
-        (such a disturbance of a few seconds was the only false alarm in 10.4 h of flights on
-        fresh benches). Returns no event."""
+        after its onset: it did not hold, nothing changed, and a fresh window would leave the
+        monitor blind for its reference and learn_s (such a disturbance of a few seconds was the
+        only false alarm in 10.4 h of flights on fresh benches). Returns no event."""
         ev.note = note
         self.minor.append(ev)
         self._pending = None
