@@ -821,10 +821,9 @@ class HealthMonitor:
         start = self._row - keep
         back = int(self._detect_post[-1]) + 1
         n = len(self._buf)
-        for q in range(start, self._row):
-            self._filled = q - start + 1
+        for filled, q in enumerate(range(start, self._row), 1):  # as _close_block did, block by block
             self._against_learned(self._buf[q % n])
-            if self._filled > back:
+            if filled > back:
                 self._learn_block(self._buf[(q + 1 - back) % n])
         self._filled = keep
 
@@ -1049,6 +1048,11 @@ class HealthMonitor:
         """The visit error's variance before the flight has shown it (_VISIT_PRIOR)."""
         return (_VISIT_PRIOR[name] * (self.speed_scale if name == "speed" else 1.0)) ** 2
 
+    @property
+    def _memory_gain(self) -> float:
+        """The weight one evaluation's estimate gets in a running mean of noise_memory_s."""
+        return min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
+
     def _learn_bending(self, name: str, beta: np.ndarray) -> None:
         """The flight's typical drift and curvature of the model's error over a window: the mean
         square of the channel's nuisance coefficients (fitted without a prior) with the noise's
@@ -1061,7 +1065,7 @@ class HealthMonitor:
         if old is None:
             self._bending[name] = (sq, 1)
             return
-        g = min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
+        g = self._memory_gain
         self._bending[name] = (old[0] + g * (sq - old[0]), old[1] + 1)
 
     def _bending_precision(self, name: str, n_columns: int, kappa: float) -> np.ndarray | None:
@@ -1185,7 +1189,7 @@ class HealthMonitor:
             self.noise[ch.name] = (a, b, visit if dof > 0.0 else old[2] if old else self._visit_prior(ch.name),
                                    kappa)
         else:
-            g = min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
+            g = self._memory_gain
             self.noise[ch.name] = (old[0] + g * (a - old[0]), old[1] + g * (b - old[1]),
                                    visit if first_visit else old[2] + g * (visit - old[2]),
                                    old[3] + g * (kappa - old[3]))
