@@ -829,6 +829,16 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
                      f"{_median([r['offline']['thrust_post_n'] for r in rows], 3)} | "
                      f"propeller loss {prop:.3f}, friction x{fric:.2f}{pack_change(rows)} | "
                      f"{min(twin):.2f} - {max(twin):.2f} |")
+    told = {name: [r["told"]["vs_twin"] for r in rows] for name, rows in f["runs"].items()
+            if rows and all("told" in r for r in rows)}
+    if told:
+        lines += ["", "The model told the change (its constants moved as the simulator moved the bench's, "
+                  "`bench_adaptation.told`; no adapting; not a bearing's friction, whose fitted constant is no "
+                  "reference: `bench_adaptation.TOLD`), after / the adapted twin, median / worst and within "
+                  f"{goal}x: " + "; ".join(f"{name} {_median_worst(v)}, {sum(x <= goal for x in v)}/{len(v)}"
+                                           for name, v in told.items())
+                  + ". What the adapter could reach had it learnt the change exactly: where that is within the "
+                  "goal and the adapter is not, the miss is the estimator's, not the model's."]
     h = f["healthy"]
     ok = sum(r["ratio"] <= goal_healthy for r in h)
     lines += ["", f"Healthy flights: {len(h)}; adapted / offline RMSE median / worst "

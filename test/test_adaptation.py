@@ -18,6 +18,7 @@ from bldc_propulsion.core.adaptation import (
     HEATING_BOUNDS_K,
     AdaptationConfig,
     PhysicsAdapter,
+    _projected,
     adapter_for,
 )
 from bldc_propulsion.core.estimator import MEASURED_SPEED_MAX_AGE_S, ThrustEstimator
@@ -228,6 +229,32 @@ def test_bounds_hold_with_absurd_speeds(model, faulted):
         assert np.all(th[:, 0] >= BOUNDS[0][0]) and np.all(th[:, 0] <= BOUNDS[0][1])
         assert np.all(th[:, 1] >= 1.0 + BOUNDS[1][0]) and np.all(th[:, 1] <= 1.0 + BOUNDS[1][1])
         assert th[-1, 0] in (BOUNDS[0][0], BOUNDS[0][1]) or abs(th[-1, 1] - 1.0) > 0.5  # it did move
+
+
+def test_a_step_past_a_bound_is_projected_in_the_covariance_s_metric():
+    """An update past theta's bounds lands on the box's point nearest in P^-1 (scipy's bounded
+    minimiser of the same quadratic as the reference, 200 random covariances and steps), and by
+    hand: the friction's factor past its floor (theta[1] -1.5 -> -1), the loss moves by the
+    regression P01 / P11 on it (0.02 / 0.25 * 0.5 = +0.04), where clipping each alone left it."""
+    from scipy.optimize import minimize
+
+    assert _projected([[0.01, 0.02], [0.02, 0.25]], 0.05, -1.5) == pytest.approx((0.09, -1.0))
+    assert _projected([[0.01, 0.0], [0.0, 0.25]], 0.6, 60.0) == (BOUNDS[0][1], BOUNDS[1][1])
+    assert _projected([[0.01, 0.02], [0.02, 0.25]], 0.05, 3.0) == (0.05, 3.0)  # inside: as it is
+    rng = np.random.default_rng(34)
+    lo, hi = np.array([b[0] for b in BOUNDS]), np.array([b[1] for b in BOUNDS])
+    for _ in range(200):
+        a = rng.normal(size=(2, 2)) * [0.1, 0.5]
+        cov = a @ a.T + np.diag([1e-4, 1e-3])
+        x = np.array([rng.uniform(-1.0, 1.2), rng.uniform(-3.0, 52.0)])
+        inv = np.linalg.inv(cov)
+        def dist(z, x=x, inv=inv):
+            return float((z - x) @ inv @ (z - x))
+        ref = minimize(dist, np.clip(x, lo, hi), bounds=BOUNDS, method="L-BFGS-B",
+                       options={"ftol": 1e-15, "gtol": 1e-12})
+        got = np.array(_projected([[cov[0, 0], cov[0, 1]], [cov[1, 0], cov[1, 1]]], *x))
+        assert np.all(got >= lo) and np.all(got <= hi)
+        assert dist(got) <= ref.fun + 1e-9 * (1.0 + ref.fun)
 
 
 def test_off_by_default_and_reset_returns_to_the_offline_model(model, faulted):

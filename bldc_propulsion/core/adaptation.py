@@ -48,7 +48,9 @@ stepped once per parameter with it perturbed (``core.health.PhysicsTwins``' lane
 adapted ones). theta is estimated by recursive least squares with exponential forgetting in time
 (memory ``memory_s``), bounded:
 
-* theta is clamped to physical bounds (``BOUNDS``) after every update;
+* theta is kept within physical bounds (``BOUNDS``) after every update, projected on them in the
+  covariance's metric (``_projected``: a parameter held at its bound passes what it could not
+  take to the one the covariance ties it to);
 * the covariance never exceeds the prior (``prior_sigma``): no windup however long the
   excitation lacks; forgetting runs only on samples that update (the rotor turning, the speed
   fresh), and at most ``_MAX_FORGET_S`` of it per sample, so a gap or a stop does not inflate it;
@@ -255,6 +257,35 @@ def _rls2_step(P: list[list[float]], p_max: Sequence[float], forget_s: float, me
     p0[1] = p01 - k0 * ps1
     p1[1] = p11 - k1 * ps1
     return k0 * e, k1 * e
+
+
+def _projected(P: list[list[float]], x0: float, x1: float) -> tuple[float, float]:
+    """(x0, x1) projected on ``BOUNDS`` in the metric of the covariance P (its upper triangle):
+    the box's point nearest in P^-1, the estimate's most likely value within the bounds. Clipping
+    each alone broke a propeller loss on a randomized bench: the friction's first move took the
+    error, hit its lower bound within 2 s, and the clipped remainder, which the covariance ties to
+    a larger loss, never reached the propeller (its loss went negative and stayed there for 7 s).
+    On a box in two dimensions the nearest point is the estimate (if inside) or on an edge, where
+    it is the conditional mean given that bound, clipped to the edge: the least of those four."""
+    (lo0, hi0), (lo1, hi1) = BOUNDS
+    if lo0 <= x0 <= hi0 and lo1 <= x1 <= hi1:
+        return x0, x1
+    p00, p01, p11 = P[0][0], P[0][1], P[1][1]
+    det = p00 * p11 - p01 * p01
+    if not (p00 > 0.0 and p11 > 0.0 and det > 0.0):  # degenerate: each alone
+        return min(max(x0, lo0), hi0), min(max(x1, lo1), hi1)
+    best, out = math.inf, (x0, x1)
+    for c0, c1 in ((lo0, None), (hi0, None), (None, lo1), (None, hi1)):
+        if c0 is not None:
+            y0, y1 = c0, min(max(x1 + p01 / p00 * (c0 - x0), lo1), hi1)
+        else:
+            assert c1 is not None
+            y0, y1 = min(max(x0 + p01 / p11 * (c1 - x1), lo0), hi0), c1
+        d0, d1 = y0 - x0, y1 - x1
+        dist = (p11 * d0 * d0 - 2.0 * p01 * d0 * d1 + p00 * d1 * d1) / det
+        if dist < best:
+            best, out = dist, (y0, y1)
+    return out
 
 
 class _Sag:
@@ -717,16 +748,14 @@ class PhysicsAdapter:
     def _learn(self, t: float, e: float, s0: float, s1: float, r: float) -> None:
         """One RLS step (``_rls2_step``) on the innovation e with the regressor (s0, s1) and the
         sample's noise variance r ((rad/s)^2), forgetting over the excited time since the last
-        update; theta then clamped to ``BOUNDS``."""
+        update; theta then projected on ``BOUNDS`` (``_projected``, with the updated covariance)."""
         last = self._last_update_t
         self._last_update_t = t
         forget = min(t - last, _MAX_FORGET_S) if last is not None and t > last else 0.0
         d0, d1 = _rls2_step(self._P, self._p_max, forget, self.config.memory_s, s0, s1, e, r,
                             self.config.innovation_limit)
         th = self.theta
-        (lo0, hi0), (lo1, hi1) = BOUNDS
-        th[0] = min(max(th[0] + d0, lo0), hi0)
-        th[1] = min(max(th[1] + d1, lo1), hi1)
+        th[0], th[1] = _projected(self._P, th[0] + d0, th[1] + d1)
 
     def _rebase(self) -> None:
         """The lanes rebuilt at theta (their states kept); the history moved to the new point
