@@ -189,9 +189,9 @@ def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfi
     """One faulted flight: RMSE after the change over the twin's (``twin``: the same flight
     without the fault) and over the seconds before the onset, adapted and offline, with their
     recovery times; the thrust's RMSE after the change; the adapted parameters at the end. With
-    the ``bench``: the same over the twin's for the model told the change (``told``, not adapting):
-    what the adapter could reach if it learnt the change exactly, so a miss is the estimator's
-    (told within the goal) or the model's structure's (told not)."""
+    the ``bench``: the RMSE after the change of the model told it (``told``, not adapting) over the
+    offline twin's: whether the model can hold the change at all, so that a miss of the adapter is
+    the estimator's (told within the goal) or the model's structure's (told not)."""
     out: dict[str, Any] = {}
     o = fault.onset_s
     if bench is not None and fault.name in TOLD:
@@ -209,7 +209,7 @@ def judge(model: Any, res: Any, fault: Fault, twin: Any, config: AdaptationConfi
         out[label] |= {"twin_post_rad_s": twin_post, "vs_twin": post / twin_post,
                        "twin_ratio": twin_post / rmse(tw, o - PRE_S, o),
                        "recovery_vs_twin_s": recovery_s(run, o, lambda t0, t1, tw=tw: rmse(tw, t0, t1))}
-        if adapt and "told" in out:
+        if not adapt and "told" in out:  # against the offline twin: the model, not the estimator
             out["told"]["vs_twin"] = out["told"]["post_rad_s"] / twin_post
         if adapt:
             out["final"] = {n: float(v) for n, v in zip(ADAPTED, run["theta"][-1], strict=True)}

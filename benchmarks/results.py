@@ -834,11 +834,12 @@ def render_adaptation(f: dict[str, Any]) -> list[str]:
     if told:
         lines += ["", "The model told the change (its constants moved as the simulator moved the bench's, "
                   "`bench_adaptation.told`; no adapting; not a bearing's friction, whose fitted constant is no "
-                  "reference: `bench_adaptation.TOLD`), after / the adapted twin, median / worst and within "
-                  f"{goal}x: " + "; ".join(f"{name} {_median_worst(v)}, {sum(x <= goal for x in v)}/{len(v)}"
-                                           for name, v in told.items())
-                  + ". What the adapter could reach had it learnt the change exactly: where that is within the "
-                  "goal and the adapter is not, the miss is the estimator's, not the model's."]
+                  "reference: `bench_adaptation.TOLD`), its RMSE after the change over the offline twin's, median / "
+                  f"worst and within {goal}x: "
+                  + "; ".join(f"{name} {_median_worst(v)}, {sum(x <= goal for x in v)}/{len(v)}"
+                              for name, v in told.items())
+                  + ". Whether the model can hold the change at all: where the told model is within the goal and "
+                  "the adapted one is not, the miss is the estimator's, not the model's."]
     h = f["healthy"]
     ok = sum(r["ratio"] <= goal_healthy for r in h)
     lines += ["", f"Healthy flights: {len(h)}; adapted / offline RMSE median / worst "
