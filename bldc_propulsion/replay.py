@@ -105,7 +105,7 @@ class AdaptationJson(TypedDict):
     in_use: bool  #: whether the prediction used the adapted parameters at the end (the guard)
     parameters: dict[str, AdaptedJson]
     #: the changes the health monitor named that were taken into the model (--health: a hot
-    #: winding, ``PhysicsAdapter.take_named``): name, size (its unit) and onset (s)
+    #: winding or a pack's resistance, ``PhysicsAdapter.take_named``): name, size (its unit) and onset (s)
     named_changes_taken: list[dict[str, object]]
     saved: str | None  #: --save-adapted's model file
 

@@ -439,6 +439,40 @@ def test_a_change_of_the_pack_counts_past_a_third_and_until_it_falls_under_a_six
         assert ad.pack_ohm == pytest.approx(rs + measured - 0.04 if counts else rs), measured
 
 
+def test_a_named_pack_moves_the_model_by_its_factor_of_the_resistance_measured_before(model):
+    """By hand: the measured resistance 0.04 ohm until 50 s, then climbing 2 mohm/s (the voltage's
+    estimate following a change); the monitor names a pack 1.9x with its onset at 52 s: the
+    model's series resistance moves by 0.9 x 0.04 (the value 5 s before the onset) and stays there
+    whatever the estimate does; the size refined (2.1x) moves only it; a second named change (1.5x
+    at 80 s) adds half of the resistance measured before its own onset; the names are in the saved
+    model's metadata."""
+    ad = PhysicsAdapter(model)
+    rs = model.params.battery_series_resistance_ohm
+    sag = ad._sag
+    sag.add = lambda t, v, i: None  # the estimate as the rows set it
+
+    def row(t: float, r: float) -> None:
+        sag.x[1] = r
+        ad._lanes.supply = lambda: (t, 15.0, 5.0)  # type: ignore[method-assign]
+        ad._pack_row()
+
+    for k in range(560):  # 0.1 s rows, kept as the adapter keeps them
+        row(0.1 * k, 0.04 if k < 500 else 0.04 + 0.0002 * (k - 500))
+    assert ad.pack_ohm == rs
+    assert ad.take_named("pack_resistance", 1.9, 52.0)
+    assert ad.pack_ohm == pytest.approx(rs + 0.9 * 0.04)
+    ad.take_named("pack_resistance", 2.1, 52.0)
+    assert ad.pack_ohm == pytest.approx(rs + 1.1 * 0.04)
+    for k in range(560, 800):
+        row(0.1 * k, 0.04 + 0.0002 * (k - 500))
+    assert ad.pack_ohm == pytest.approx(rs + 1.1 * 0.04)  # the estimate's climb does not move it
+    ad.take_named("pack_resistance", 1.5, 80.0)
+    assert ad.pack_named_ohm == pytest.approx(1.1 * 0.04 + 0.5 * (0.04 + 0.0002 * 250), abs=2e-4)
+    assert [c["size"] for c in ad.named_changes()] == [2.1, 1.5]
+    assert ad.adapted_plant().params.battery_series_resistance_ohm == pytest.approx(ad.pack_ohm)
+    assert not ad.take_named("pack_resistance", math.nan, 90.0)
+
+
 # --- a change the health monitor names, taken into the model -------------------------------------------
 @pytest.fixture(scope="module")
 def hot_flight():
@@ -479,13 +513,12 @@ def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight)
     """By hand on an adapter that has flown: a named heating takes theta back to its value 5 s
     before the onset (``_BEFORE_ONSET_S``) and sets the winding's rise; the same change's refined
     size moves the rise (the lanes rebuilt only past 2 K), another heating adds to the rise before
-    it; what the adapter has a parameter for (a propeller's loss, a bearing's friction, the pack's
-    resistance) and a size that is not a number are not taken, and the bound holds."""
+    it; what the adapter learns from the speed (a propeller's loss, a bearing's friction) and a
+    size that is not a number are not taken, and the bound holds."""
     ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
     before, now = ad.theta_at(75.0), list(ad.theta)
     assert before != ad.theta_at(95.0)  # theta moved over the flight: the history matters
-    for name, size in (("propeller_damage", 0.1), ("bearing_friction", 3.0), ("pack_resistance", 2.0),
-                       ("motor_heating", math.nan)):
+    for name, size in (("propeller_damage", 0.1), ("bearing_friction", 3.0), ("motor_heating", math.nan)):
         assert not ad.take_named(name, size, 80.0)
     assert ad.theta == now and ad.heating_k == 0.0 and ad.taken == []
     assert ad.take_named("motor_heating", 20.0, 80.0) and ad.heating_k == 20.0

@@ -413,6 +413,13 @@ class PhysicsAdapter:
         self._base_sum, self._base_n = 0.0, 0
         self.pack_baseline_ohm: float | None = None
         self.pack_changed = False  #: whether the measured resistance's change counts (hysteresis)
+        #: the series resistance the named pack changes added (ohm; ``take_named``), None before one
+        self.pack_named_ohm: float | None = None
+        #: the latest named pack change: its onset (s), what the names before it added and the
+        #: resistance measured before its onset (ohm)
+        self._pack_named: tuple[float, float, float] | None = None
+        self._pack_hist_t: list[float] = []  #: the measured resistance's history (as theta's)
+        self._pack_hist: list[float] = []
         self.restart()
 
     def restart(self) -> None:
@@ -512,6 +519,15 @@ class PhysicsAdapter:
             return
         self._pack_row_t = now[0]
         self._sag.add(*now)
+        ht = self._pack_hist_t
+        if ht and now[0] - ht[-1] < _THETA_STEP_S:
+            self._pack_hist[-1] = self.pack_measured_ohm
+        else:
+            ht.append(now[0])
+            self._pack_hist.append(self.pack_measured_ohm)
+            old = bisect.bisect_left(ht, now[0] - _THETA_HISTORY_S) - 1
+            if old > 64:  # amortised
+                del ht[:old], self._pack_hist[:old]
         if self.pack_baseline_ohm is None:
             if self._base_t is None and self._sag.sigma_r < cfg.pack_confident * self._pack_ref:
                 self._base_t = now[0]
@@ -542,10 +558,13 @@ class PhysicsAdapter:
     def pack_ohm(self) -> float:
         """The adapted series resistance (ohm): the model's plus the change of the measured one
         since its baseline, within ``PACK_BOUNDS``, while that change counts (``pack_significant``);
-        else the model's."""
+        else the model's. After a named pack change (``take_named``): the model's plus what the
+        names added."""
+        lo, hi = self._pack_bounds
+        if self.pack_named_ohm is not None:
+            return min(max(self._pack_model + self.pack_named_ohm, lo), hi)
         if self.pack_baseline_ohm is None or not self.pack_changed:
             return self._pack_model
-        lo, hi = self._pack_bounds
         return min(max(self._pack_model + self.pack_measured_ohm - self.pack_baseline_ohm, lo), hi)
 
     def _now(self, row: tuple[float, float, float, int]) -> tuple[float, float, float]:
@@ -705,12 +724,27 @@ class PhysicsAdapter:
         were (propeller 6/6 within 1.2x of the healthy twin's RMSE from 10 s on) or worse (friction,
         the RMSE after the change 1.07 -> 1.19x the twin's on bench 1). A heating it cannot learn: it stands
         the propeller and the friction in for it, which leaves a third to half of what the rise
-        does (the module's docstring). The pack's resistance is the voltage's to tell (``pack_ohm``)."""
-        if name != "motor_heating" or not math.isfinite(size):
+        does (the module's docstring).
+
+        And a pack's resistance (``pack_resistance``, a factor on its sag per ampere): the model's
+        series resistance moves by the factor's share of the one measured before the onset
+        (``_BEFORE_ONSET_S``, its history; what earlier names added stands) and stays there
+        (``_take_pack``): the voltage's own estimate follows a doubling over 10-20 s and swings
+        while the current holds still, where the monitor sized it 1.72-2.12x within 1.5-8 s on
+        benches 840-847. Tried: the voltage's estimate set to the named value and refining from
+        there; it drifted off again (tuning benches 1-7, 14 flights with a doubled pack: within
+        1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14, 1.65x; not taken
+        12/14, 5.94x)."""
+        if not math.isfinite(size):
             return False
-        again = bool(self.taken) and self.taken[-1][0] == name and self.taken[-1][2] == onset_s
+        if name == "pack_resistance":
+            return self._take_pack(size, onset_s)
+        if name != "motor_heating":
+            return False
+        same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
+        again = bool(same)
         if again:
-            self.taken[-1] = (name, size, onset_s)
+            self.taken[same[-1]] = (name, size, onset_s)
         else:
             self.taken.append((name, size, onset_s))
             self._heat_before = self.heating_k
@@ -721,6 +755,29 @@ class PhysicsAdapter:
         if again and abs(self.heating_k - self._heat_lin) < _HEATING_REBUILD_K:
             return False
         self._rebase()
+        return True
+
+    def _take_pack(self, factor: float, onset_s: float) -> bool:
+        """``take_named``'s pack: the resistance added (ohm) set to the factor's share of the
+        resistance measured before the onset, over what the names before it added; a refined
+        factor of the same change moves only its own share."""
+        if self._sag is None:
+            return False  # the model undoes no battery filter: its resistance is not used
+        entry = ("pack_resistance", factor, onset_s)
+        named = self._pack_named
+        if named is not None and named[0] == onset_s:  # refined
+            i = max(k for k, (n, _, o) in enumerate(self.taken) if n == entry[0] and o == onset_s)
+            self.taken[i] = entry
+        else:
+            ht = self._pack_hist_t
+            i = bisect.bisect_right(ht, onset_s - _BEFORE_ONSET_S)
+            named = (onset_s, self.pack_named_ohm or 0.0,
+                     self._pack_hist[max(i - 1, 0)] if ht else self.pack_measured_ohm)
+            self._pack_named = named
+            self.taken.append(entry)
+        self.pack_named_ohm = named[1] + (factor - 1.0) * named[2]
+        if self._pack_moved():
+            self._rebase()
         return True
 
     def _pack_moved(self) -> bool:
