@@ -267,6 +267,9 @@ def test_off_by_default_and_reset_returns_to_the_offline_model(model, faulted):
     assert est.adapter.theta[0] > 0.05  # it learned the loss
     values = est.status()[0].values
     assert {f"adapted_{n}" for n in ADAPTED} <= set(values) and "adapted_propeller_damage_sigma" in values
+    in_use = float(values["adapted_pack_resistance_in_use"])  # (statuses are strings)
+    assert in_use == pytest.approx(est.adapter.pack_ohm, rel=1e-5)
+    assert in_use == pytest.approx(model.params.battery_series_resistance_ohm, rel=1e-5)  # a loss moves no pack
     est.reset()
     assert est.adapter.theta == [0.0, 0.0] and est.adapter.values()["bearing_friction"][0] == 1.0
     fresh = ThrustEstimator(model, adapter=adapter_for(model))

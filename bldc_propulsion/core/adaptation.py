@@ -40,7 +40,9 @@ and the thrust not), and on benches 1-3 the runs back within 1.2x of the healthy
 10 s on fell, propeller 6/6 -> 3/6 and 4/6, heating 5/6 -> 4/6 and 0/6. What the adapter
 cannot learn it can be told: with the health monitor watching (``core.health.HealthStream``), a
 change it names is taken into the model (``take_named``), a heating as a fixed rise of the
-winding's temperature (``heating_k``), set, not learnt, so nothing wanders along it.
+winding's temperature (``heating_k``), set, not learnt, so nothing wanders along it; and a pack
+whose resistance rose, which the monitor sizes within seconds where the voltage's own estimate
+(below) takes 10-20 s, as a fixed addition to the series resistance (``pack_named_ohm``).
 
 How: the model's speed is linear in theta near a linearisation point theta_lin,
 w(theta) = w(theta_lin) + S (theta - theta_lin), with S = d speed / d theta from the physics
@@ -708,8 +710,9 @@ class PhysicsAdapter:
 
     def take_named(self, name: str, size: float, onset_s: float) -> bool:
         """A change the health monitor named (``core.health.HealthEvent``: a fault's name, its size
-        in ``FAULT_UNITS``, its onset on the caller's clock), taken into the model if it is one the
-        adapter has no parameter for: a winding running hot (``motor_heating``). theta goes back to
+        in ``FAULT_UNITS``, its onset on the caller's clock), taken into the model if the adapter
+        has no parameter for it or learns it slower (a pack, below). A winding running hot
+        (``motor_heating``): theta goes back to
         what it was before the onset (``_BEFORE_ONSET_S``: what it learnt since was the heating,
         taken in the propeller's and the friction's place), the winding's rise (``heating_k``) to
         the named size over what the previous named heating left (the monitor tests the offline
@@ -717,12 +720,12 @@ class PhysicsAdapter:
         covariance stays as it is. A later call for the same change (its size refined) moves only
         the rise. Returns whether the model moved.
 
-        Why only the heating: theta learns a change it has a parameter for over its memory, and
-        the monitor's size of such a change is no better than theta's (a bearing's friction tripled,
-        named 1.81x and 1.65x on tuning benches 1 and 3, the first dated 14 s late): taking a
-        propeller's loss and a bearing's friction from the monitor left tuning benches 1-3 as they
-        were (propeller 6/6 within 1.2x of the healthy twin's RMSE from 10 s on) or worse (friction,
-        the RMSE after the change 1.07 -> 1.19x the twin's on bench 1). A heating it cannot learn: it stands
+        Why not a propeller or a friction: theta learns those from the speed over its memory, and
+        the monitor's size of such a change is no better than theta's (a bearing's friction
+        tripled, named 1.81x and 1.65x on tuning benches 1 and 3, the first dated 14 s late):
+        taking them from the monitor left tuning benches 1-3 as they were (propeller 6/6 within
+        1.2x of the healthy twin's RMSE from 10 s on) or worse (friction, the RMSE after the
+        change 1.07 -> 1.19x the twin's on bench 1). A heating it cannot learn: it stands
         the propeller and the friction in for it, which leaves a third to half of what the rise
         does (the module's docstring).
 

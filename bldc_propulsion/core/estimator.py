@@ -442,7 +442,7 @@ class ThrustEstimator:
 
     def _adaptation_values(self) -> dict[str, object]:
         """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma, the
-        winding's rise a named heating set (K)."""
+        winding's rise a named heating set (K), the series resistance the model uses (ohm)."""
         assert self.adapter is not None
         out: dict[str, object] = {"adaptation": self.adaptation_state(),
                                   "adapted_in_use": self.adapter.in_use}
@@ -450,6 +450,8 @@ class ThrustEstimator:
             out[f"adapted_{name}"] = value
             out[f"adapted_{name}_sigma"] = sigma
         out["adapted_motor_heating"] = self.adapter.heating_k  # set by a name only (health on)
+        # the series resistance in use (ohm): the model's, moved by the voltage's change or a named pack
+        out["adapted_pack_resistance_in_use"] = self.adapter.pack_ohm
         return out
 
     def status(self) -> list[CoreStatus]:
