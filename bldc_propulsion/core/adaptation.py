@@ -89,6 +89,7 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 from ..errors import BadInputError
 from ..physics.params import PlantParams
@@ -131,6 +132,7 @@ _THETA_STEP_S = 0.2
 #: did (tuning bench 2, a flight's propeller loss: its onset dated 2.9 s late, theta at the bound
 #: of the friction by then)
 _BEFORE_ONSET_S = 5.0
+_V = TypeVar("_V")
 #: The winding's named rise (K) is taken within these bounds (a model fitted hot may see it cool).
 HEATING_BOUNDS_K: tuple[float, float] = (-60.0, 200.0)
 #: A refined size of a named heating moves the lanes once it differs this much (K) from theirs.
@@ -290,6 +292,34 @@ def _projected(P: list[list[float]], x0: float, x1: float) -> tuple[float, float
     return out
 
 
+class _History(Generic[_V]):
+    """A value's recent past: at most one per ``_THETA_STEP_S`` (the latest value stands for its
+    step), kept ``_THETA_HISTORY_S``; for what it was before a named change's onset."""
+
+    def __init__(self) -> None:
+        self.t: list[float] = []  #: times (s)
+        self.values: list[_V] = []
+
+    def keep(self, t: float, value: _V) -> None:
+        """The value at t (s)."""
+        ht = self.t
+        if ht and t - ht[-1] < _THETA_STEP_S:
+            self.values[-1] = value
+            return
+        ht.append(t)
+        self.values.append(value)
+        old = bisect.bisect_left(ht, t - _THETA_HISTORY_S) - 1  # the value at the cut-off kept
+        if old > 64:  # amortised
+            del ht[:old], self.values[:old]
+
+    def at(self, t: float, default: _V) -> _V:
+        """The value at t (s): the latest kept at or before t, else (t before the history) the
+        oldest kept; ``default`` without a history."""
+        if not self.t:
+            return default
+        return self.values[max(bisect.bisect_right(self.t, t) - 1, 0)]
+
+
 class _Sag:
     """The pack's series resistance from the filtered voltage v and the model's supply current
     through the same filter i: v = e - R i + noise, (e, R) by recursive least squares with
@@ -391,8 +421,7 @@ class PhysicsAdapter:
         self._heat_before = 0.0  #: heating_k before the latest named heating: its size is relative to it
         #: the named changes taken: (name, size, onset_s)
         self.taken: list[tuple[str, float, float]] = []
-        self._theta_t: list[float] = []  #: theta's history (``_THETA_HISTORY_S``): times (s), values
-        self._theta_at: list[tuple[float, ...]] = []
+        self._theta_hist: _History[tuple[float, ...]] = _History()  #: theta's
         self._judged_t: float | None = None  #: the latest measured speed the guard scored
         self._sq_offline = self._sq_adapted = 0.0  #: the guard's forgotten squared errors
         self.in_use = True  #: whether the correction applies (the guard: it scores no worse)
@@ -420,8 +449,7 @@ class PhysicsAdapter:
         #: the latest named pack change: its onset (s), what the names before it added and the
         #: resistance measured before its onset (ohm)
         self._pack_named: tuple[float, float, float] | None = None
-        self._pack_hist_t: list[float] = []  #: the measured resistance's history (as theta's)
-        self._pack_hist: list[float] = []
+        self._pack_hist: _History[float] = _History()  #: the measured resistance's
         self.restart()
 
     def restart(self) -> None:
@@ -521,15 +549,7 @@ class PhysicsAdapter:
             return
         self._pack_row_t = now[0]
         self._sag.add(*now)
-        ht = self._pack_hist_t
-        if ht and now[0] - ht[-1] < _THETA_STEP_S:
-            self._pack_hist[-1] = self.pack_measured_ohm
-        else:
-            ht.append(now[0])
-            self._pack_hist.append(self.pack_measured_ohm)
-            old = bisect.bisect_left(ht, now[0] - _THETA_HISTORY_S) - 1
-            if old > 64:  # amortised
-                del ht[:old], self._pack_hist[:old]
+        self._pack_hist.keep(now[0], self.pack_measured_ohm)
         if self.pack_baseline_ohm is None:
             if self._base_t is None and self._sag.sigma_r < cfg.pack_confident * self._pack_ref:
                 self._base_t = now[0]
@@ -679,7 +699,7 @@ class PhysicsAdapter:
         slope = (offline_rad_s - prev[1]) / (t - prev[0]) if 0.0 < t - prev[0] <= _SLOPE_GAP_S else 0.0
         r = self._r + (cfg.timing_s * slope) ** 2
         self._learn(t, innovation, row[1], row[2], r)
-        self._keep_theta(t)
+        self._theta_hist.keep(t, tuple(self.theta))
         self.note = "on"
         self.updates += 1
         th, lin, step = self.theta, self._lin, cfg.relinearise
@@ -687,26 +707,15 @@ class PhysicsAdapter:
             self._rebase()
         return True
 
-    def _keep_theta(self, t: float) -> None:
-        """theta after an update at t, into its history (at most one per _THETA_STEP_S)."""
-        ht = self._theta_t
-        if ht and t - ht[-1] < _THETA_STEP_S:
-            self._theta_at[-1] = tuple(self.theta)  # the latest value stands for its step
-            return
-        ht.append(t)
-        self._theta_at.append(tuple(self.theta))
-        old = bisect.bisect_left(ht, t - _THETA_HISTORY_S) - 1  # the value at the cut-off kept
-        if old > 64:  # amortised
-            del ht[:old], self._theta_at[:old]
-
     def theta_at(self, t: float) -> list[float]:
         """theta as it was at t (s): the latest update at or before t, else (t before the history)
         the oldest kept, or the present one without a history."""
-        ht = self._theta_t
-        if not ht:
-            return list(self.theta)
-        i = bisect.bisect_right(ht, t)
-        return list(self._theta_at[max(i - 1, 0)])
+        return list(self._theta_hist.at(t, tuple(self.theta)))
+
+    def _taken_index(self, name: str, onset_s: float) -> int | None:
+        """Where ``taken`` holds the named change of this name and onset (the latest), else None."""
+        same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
+        return same[-1] if same else None
 
     def take_named(self, name: str, size: float, onset_s: float) -> bool:
         """A change the health monitor named (``core.health.HealthEvent``: a fault's name, its size
@@ -744,16 +753,16 @@ class PhysicsAdapter:
             return self._take_pack(size, onset_s)
         if name != "motor_heating":
             return False
-        same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
-        again = bool(same)
-        if again:
-            self.taken[same[-1]] = (name, size, onset_s)
+        i = self._taken_index(name, onset_s)
+        again = i is not None
+        if i is not None:
+            self.taken[i] = (name, size, onset_s)
         else:
             self.taken.append((name, size, onset_s))
             self._heat_before = self.heating_k
             self.theta = self.theta_at(onset_s - _BEFORE_ONSET_S)
-            if self._theta_at:  # the latest value stands for its step
-                self._theta_at[-1] = tuple(self.theta)
+            if self._theta_hist.values:  # the latest value stands for its step
+                self._theta_hist.values[-1] = tuple(self.theta)
         self.heating_k = min(max(self._heat_before + size, HEATING_BOUNDS_K[0]), HEATING_BOUNDS_K[1])
         if again and abs(self.heating_k - self._heat_lin) < _HEATING_REBUILD_K:
             return False
@@ -768,14 +777,12 @@ class PhysicsAdapter:
             return False  # the model undoes no battery filter: its resistance is not used
         entry = ("pack_resistance", factor, onset_s)
         named = self._pack_named
-        if named is not None and named[0] == onset_s:  # refined
-            i = max(k for k, (n, _, o) in enumerate(self.taken) if n == entry[0] and o == onset_s)
+        i = self._taken_index(entry[0], onset_s)
+        if named is not None and named[0] == onset_s and i is not None:  # refined
             self.taken[i] = entry
         else:
-            ht = self._pack_hist_t
-            i = bisect.bisect_right(ht, onset_s - _BEFORE_ONSET_S)
             named = (onset_s, self.pack_named_ohm or 0.0,
-                     self._pack_hist[max(i - 1, 0)] if ht else self.pack_measured_ohm)
+                     self._pack_hist.at(onset_s - _BEFORE_ONSET_S, self.pack_measured_ohm))
             self._pack_named = named
             self.taken.append(entry)
         self.pack_named_ohm = named[1] + (factor - 1.0) * named[2]
