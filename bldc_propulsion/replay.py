@@ -104,8 +104,8 @@ class AdaptationJson(TypedDict):
     frozen_samples: int  #: measured speeds that did not
     in_use: bool  #: whether the prediction used the adapted parameters at the end (the guard)
     parameters: dict[str, AdaptedJson]
-    #: the changes the health monitor named that were taken into the model (--health: a hot
-    #: winding or a pack's resistance, ``PhysicsAdapter.take_named``): name, size (its unit) and onset (s)
+    #: the changes the health monitor named that were taken into the model (--health,
+    #: ``PhysicsAdapter.take_named``): name, size (its unit) and onset (s)
     named_changes_taken: list[dict[str, object]]
     saved: str | None  #: --save-adapted's model file
 

@@ -516,12 +516,12 @@ def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight)
     """By hand on an adapter that has flown: a named heating takes theta back to its value 5 s
     before the onset (``_BEFORE_ONSET_S``) and sets the winding's rise; the same change's refined
     size moves the rise (the lanes rebuilt only past 2 K), another heating adds to the rise before
-    it; what the adapter learns from the speed (a propeller's loss, a bearing's friction) and a
-    size that is not a number are not taken, and the bound holds."""
+    it; a size that is not a number and a name the adapter has no use for are not taken, and the
+    bound holds."""
     ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
     before, now = ad.theta_at(75.0), list(ad.theta)
     assert before != ad.theta_at(95.0)  # theta moved over the flight: the history matters
-    for name, size in (("propeller_damage", 0.1), ("bearing_friction", 3.0), ("motor_heating", math.nan)):
+    for name, size in (("input_delay", 0.01), ("bearing_friction", math.nan), ("motor_heating", math.nan)):
         assert not ad.take_named(name, size, 80.0)
     assert ad.theta == now and ad.heating_k == 0.0 and ad.taken == []
     assert ad.take_named("motor_heating", 20.0, 80.0) and ad.heating_k == 20.0
@@ -533,6 +533,32 @@ def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight)
     assert ad.take_named("motor_heating", 10.0, 90.0) and ad.heating_k == 37.0  # another rise
     assert ad.take_named("motor_heating", 500.0, 95.0) and ad.heating_k == HEATING_BOUNDS_K[1]
     assert [n for n, _, _ in ad.taken] == ["motor_heating"] * 3
+
+
+def test_a_named_propeller_or_friction_restarts_theta_from_before_its_onset_with_its_size(model, hot_flight):
+    """By hand on an adapter that has flown: a named friction (a factor) takes theta back to its
+    value 5 s before the onset with the factor - 1 added to the friction's parameter, and the
+    covariance back to the prior; its refined size moves that parameter by the refinement only
+    (what theta learnt since stays); a named propeller loss (a fraction) does the same on the
+    loss, and one past the bound is projected on it."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    prior = [[s * s, 0.0] for s in ad.config.prior_sigma]
+    prior[1] = [0.0, prior[1][0]]
+    before = ad.theta_at(75.0)
+    assert ad._P != prior and ad.theta != before  # learnt over the flight: both must move back
+    rebuilt = ad.relinearisations
+    assert ad.take_named("bearing_friction", 3.0, 80.0)
+    assert ad.theta == pytest.approx([before[0], before[1] + 2.0]) and ad._P == prior
+    assert ad.relinearisations == rebuilt + 1 and ad.values()["bearing_friction"][0] == pytest.approx(before[1] + 3.0)
+    ad.theta[1] += 0.3  # learnt since the name
+    assert ad.take_named("bearing_friction", 2.5, 80.0)  # refined: 0.5 less
+    assert ad.theta == pytest.approx([before[0], before[1] + 1.8])
+    at85 = ad.theta_at(85.0)
+    assert ad.take_named("propeller_damage", 0.1, 90.0)
+    assert ad.theta == pytest.approx([at85[0] + 0.1, at85[1]])
+    assert ad.take_named("propeller_damage", 0.9, 95.0) and ad.theta[0] == BOUNDS[0][1]
+    assert [n for n, _, _ in ad.taken] == ["bearing_friction", "propeller_damage", "propeller_damage"]
+    assert ad.taken[0][1] == 2.5
 
 
 def test_replay_with_both_on_takes_the_named_heating(model, hot_flight, tmp_path):

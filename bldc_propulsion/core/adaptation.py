@@ -42,7 +42,10 @@ cannot learn it can be told: with the health monitor watching (``core.health.Hea
 change it names is taken into the model (``take_named``), a heating as a fixed rise of the
 winding's temperature (``heating_k``), set, not learnt, so nothing wanders along it; and a pack
 whose resistance rose, which the monitor sizes within seconds where the voltage's own estimate
-(below) takes 10-20 s, as a fixed addition to the series resistance (``pack_named_ohm``).
+(below) takes 10-20 s, as a fixed addition to the series resistance (``pack_named_ohm``). A
+propeller or a friction the monitor names restarts theta from before the onset with the named
+size on the named parameter: at one operating point the two are one direction to the speed, and
+the monitor's window, longer than the adapter's memory, tells them apart.
 
 How: the model's speed is linear in theta near a linearisation point theta_lin,
 w(theta) = w(theta_lin) + S (theta - theta_lin), with S = d speed / d theta from the physics
@@ -720,7 +723,7 @@ class PhysicsAdapter:
     def take_named(self, name: str, size: float, onset_s: float) -> bool:
         """A change the health monitor named (``core.health.HealthEvent``: a fault's name, its size
         in ``FAULT_UNITS``, its onset on the caller's clock), taken into the model if the adapter
-        has no parameter for it or learns it slower (a pack, below). A winding running hot
+        has no parameter for it or learns it slower (all four names, below). A winding running hot
         (``motor_heating``): theta goes back to
         what it was before the onset (``_BEFORE_ONSET_S``: what it learnt since was the heating,
         taken in the propeller's and the friction's place), the winding's rise (``heating_k``) to
@@ -729,14 +732,18 @@ class PhysicsAdapter:
         covariance stays as it is. A later call for the same change (its size refined) moves only
         the rise. Returns whether the model moved.
 
-        Why not a propeller or a friction: theta learns those from the speed over its memory, and
-        the monitor's size of such a change is no better than theta's (a bearing's friction
-        tripled, named 1.81x and 1.65x on tuning benches 1 and 3, the first dated 14 s late):
-        taking them from the monitor left tuning benches 1-3 as they were (propeller 6/6 within
-        1.2x of the healthy twin's RMSE from 10 s on) or worse (friction, the RMSE after the
-        change 1.07 -> 1.19x the twin's on bench 1). A heating it cannot learn: it stands
-        the propeller and the friction in for it, which leaves a third to half of what the rise
-        does (the module's docstring).
+        A propeller's loss or a bearing's friction (``_take_speed``): theta back to what it was
+        before the onset, the named size added to its own parameter, the covariance back to the
+        prior, and theta learns on from there. Why: a friction step at hover reads first as drag
+        (the two parameters are one direction to the speed at one operating point, the prior
+        decides who moves first, and the wrong split shows once the rotor changes speed), and
+        theta's gain, capped by the prior, takes 10-15 s to climb a friction tripled (5 sigma);
+        the monitor names and sizes it within seconds (a tripled friction named 3.09x 4 s after
+        its onset on tuning bench 2). In flight with the monitor on
+        benches 308-311 (two flights per fault and bench): friction within 1.2x of the healthy
+        twin's RMSE from 10 s on 1/8 -> 4/8 (median 2.01 -> 1.31x), propeller 6/8 -> 7/8, the
+        rest unchanged. A heating it cannot learn: it stands the propeller and the friction in
+        for it, which leaves a third to half of what the rise does (the module's docstring).
 
         And a pack's resistance (``pack_resistance``, a factor on its sag per ampere): the model's
         series resistance moves by the factor's share of the one measured before the onset
@@ -751,6 +758,8 @@ class PhysicsAdapter:
             return False
         if name == "pack_resistance":
             return self._take_pack(size, onset_s)
+        if name in SPEED_ADAPTED:
+            return self._take_speed(SPEED_ADAPTED.index(name), size, onset_s)
         if name != "motor_heating":
             return False
         i = self._taken_index(name, onset_s)
@@ -766,6 +775,30 @@ class PhysicsAdapter:
         self.heating_k = min(max(self._heat_before + size, HEATING_BOUNDS_K[0]), HEATING_BOUNDS_K[1])
         if again and abs(self.heating_k - self._heat_lin) < _HEATING_REBUILD_K:
             return False
+        self._rebase()
+        return True
+
+    def _take_speed(self, k: int, size: float, onset_s: float) -> bool:
+        """``take_named``'s propeller (k 0) or friction (k 1): theta back to what it was before the
+        onset with the named change added to its own parameter, and the covariance back to the prior
+        (theta goes on learning from there, as fast as at the start); a refined size of the same
+        change moves that parameter by the refinement only, keeping what theta learnt since."""
+        delta = size if k == 0 else size - 1.0  # the monitor's unit to theta's (``FAULT_UNITS``)
+        name = SPEED_ADAPTED[k]
+        i = self._taken_index(name, onset_s)
+        th = self.theta
+        if i is not None:
+            _, was, _ = self.taken[i]
+            self.taken[i] = (name, size, onset_s)
+            th[k] += delta - (was if k == 0 else was - 1.0)
+        else:
+            self.taken.append((name, size, onset_s))
+            th[:] = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            th[k] += delta
+            self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+        th[0], th[1] = _projected(self._P, th[0], th[1])
+        if self._theta_hist.values:  # the latest value stands for its step
+            self._theta_hist.values[-1] = tuple(th)
         self._rebase()
         return True
 

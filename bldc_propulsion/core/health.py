@@ -1438,8 +1438,9 @@ class HealthStream:
     With the estimator adapting (``estimator.adapter``), a change named is passed to the adapter
     (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined; the
     adapter takes what it has no parameter for (a hot winding), which it would otherwise learn
-    only in part, in its other parameters' place, and a pack, which the monitor sizes sooner than
-    the adapter's own estimate from the voltage."""
+    only in part, in its other parameters' place, a pack, which the monitor sizes sooner than
+    the adapter's own estimate from the voltage, and a propeller or a friction, which it tells
+    apart and sizes sooner than the adapter's two parameters learn them."""
 
     def __init__(self, estimator: ThrustEstimator, config: HealthConfig | None = None) -> None:
         """BadInputError for a model without physics (a network, the first-principles fallback):
