@@ -535,30 +535,52 @@ def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight)
     assert [n for n, _, _ in ad.taken] == ["motor_heating"] * 3
 
 
-def test_a_named_propeller_or_friction_restarts_theta_from_before_its_onset_with_its_size(model, hot_flight):
-    """By hand on an adapter that has flown: a named friction (a factor) takes theta back to its
-    value 5 s before the onset with the factor - 1 added to the friction's parameter, and the
-    covariance back to the prior; its refined size moves that parameter by the refinement only
-    (what theta learnt since stays); a named propeller loss (a fraction) does the same on the
-    loss, and one past the bound is projected on it."""
-    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+@pytest.fixture(scope="module")
+def rubbed():
+    """A flight whose bearing's friction triples at 50 s, cut 3 s later: theta has begun to learn it."""
+    return simulate("flight", 53.0, 2205, params=draw_bench(BENCH), soc=0.8,
+                    faults=[Fault("bearing_friction", 3.0, 50.0)])
+
+
+def test_a_named_propeller_or_friction_restarts_theta_from_before_its_onset_with_its_size(model, rubbed):
+    """By hand on an adapter that has flown into a tripled friction: the named friction (a factor)
+    takes theta back to its value 5 s before the onset with the factor - 1 added to the friction's
+    parameter, and the covariance back to the prior; its refined size moves that parameter by the
+    refinement only (what theta learnt since stays); a named propeller loss (a fraction) does the
+    same on the loss (``test_a_named_change_theta_explains_far_better_is_refused``)."""
+    ad = run_flight(model, rubbed, adapt=True, keep=True)["estimator"].adapter
     prior = [[s * s, 0.0] for s in ad.config.prior_sigma]
     prior[1] = [0.0, prior[1][0]]
-    before = ad.theta_at(75.0)
+    before = ad.theta_at(45.0)
     assert ad._P != prior and ad.theta != before  # learnt over the flight: both must move back
+    named = [before[0], before[1] + 2.0]
+    assert ad.recent_sq(named) < ad.recent_sq(ad.theta)  # the premise: theta has not learnt it all yet
     rebuilt = ad.relinearisations
-    assert ad.take_named("bearing_friction", 3.0, 80.0)
-    assert ad.theta == pytest.approx([before[0], before[1] + 2.0]) and ad._P == prior
+    assert ad.take_named("bearing_friction", 3.0, 50.0)
+    assert ad.theta == pytest.approx(named) and ad._P == prior
     assert ad.relinearisations == rebuilt + 1 and ad.values()["bearing_friction"][0] == pytest.approx(before[1] + 3.0)
     ad.theta[1] += 0.3  # learnt since the name
-    assert ad.take_named("bearing_friction", 2.5, 80.0)  # refined: 0.5 less
+    assert ad.take_named("bearing_friction", 2.5, 50.0)  # refined: 0.5 less
     assert ad.theta == pytest.approx([before[0], before[1] + 1.8])
+    assert ad.taken == [("bearing_friction", 2.5, 50.0)]
+
+
+def test_a_named_change_theta_explains_far_better_is_refused(model, hot_flight):
+    """On a healthy flight a named tripled friction (or a loss past the bound, projected on it)
+    would make the last 3 s's errors many times theta's (a name dated after theta learnt the
+    change, or a wrong one): refused, nothing moves. A loss too small to contradict them is
+    taken: theta as it was 5 s before its onset, the loss added."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    now, before = list(ad.theta), ad.theta_at(75.0)
+    assert ad.recent_sq([before[0], before[1] + 2.0]) > 4.0 * ad.recent_sq(now)
+    assert not ad.take_named("bearing_friction", 3.0, 80.0)
+    assert not ad.take_named("propeller_damage", 0.9, 85.0)
+    assert ad.theta == now and ad.taken == []
     at85 = ad.theta_at(85.0)
-    assert ad.take_named("propeller_damage", 0.1, 90.0)
-    assert ad.theta == pytest.approx([at85[0] + 0.1, at85[1]])
-    assert ad.take_named("propeller_damage", 0.9, 95.0) and ad.theta[0] == BOUNDS[0][1]
-    assert [n for n, _, _ in ad.taken] == ["bearing_friction", "propeller_damage", "propeller_damage"]
-    assert ad.taken[0][1] == 2.5
+    small = [at85[0] + 0.002, at85[1]]
+    assert ad.recent_sq(small) <= 4.0 * ad.recent_sq(now)  # the premise
+    assert ad.take_named("propeller_damage", 0.002, 90.0)
+    assert ad.theta == pytest.approx(small) and ad.taken == [("propeller_damage", 0.002, 90.0)]
 
 
 def test_replay_with_both_on_takes_the_named_heating(model, hot_flight, tmp_path):

@@ -88,6 +88,7 @@ with the adapted constants (``replay --save-adapted`` writes it).
 from __future__ import annotations
 
 import bisect
+import collections
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
@@ -135,6 +136,11 @@ _THETA_STEP_S = 0.2
 #: did (tuning bench 2, a flight's propeller loss: its onset dated 2.9 s late, theta at the bound
 #: of the friction by then)
 _BEFORE_ONSET_S = 5.0
+#: A named propeller or friction is checked against the adapter's updates of this long (s) before
+#: the name: refused if the named model's squared errors there exceed _TAKE_CHECK times theta's.
+_RECENT_S = 3.0
+_RECENT_N = 4096  #: updates kept for it (trimmed to _RECENT_S when read): 3 s up to 1.3 kHz of speeds
+_TAKE_CHECK = 4.0
 _V = TypeVar("_V")
 #: The winding's named rise (K) is taken within these bounds (a model fitted hot may see it cool).
 HEATING_BOUNDS_K: tuple[float, float] = (-60.0, 200.0)
@@ -425,6 +431,8 @@ class PhysicsAdapter:
         #: the named changes taken: (name, size, onset_s)
         self.taken: list[tuple[str, float, float]] = []
         self._theta_hist: _History[tuple[float, ...]] = _History()  #: theta's
+        #: the latest _RECENT_S of updates: (t, c, S0, S1), the a priori error at theta being c - S theta
+        self._recent: collections.deque[tuple[float, float, float, float]] = collections.deque(maxlen=_RECENT_N)
         self._judged_t: float | None = None  #: the latest measured speed the guard scored
         self._sq_offline = self._sq_adapted = 0.0  #: the guard's forgotten squared errors
         self.in_use = True  #: whether the correction applies (the guard: it scores no worse)
@@ -701,6 +709,8 @@ class PhysicsAdapter:
             return False
         slope = (offline_rad_s - prev[1]) / (t - prev[0]) if 0.0 < t - prev[0] <= _SLOPE_GAP_S else 0.0
         r = self._r + (cfg.timing_s * slope) ** 2
+        th = self.theta
+        self._recent.append((t, innovation + row[1] * th[0] + row[2] * th[1], row[1], row[2]))
         self._learn(t, innovation, row[1], row[2], r)
         self._theta_hist.keep(t, tuple(self.theta))
         self.note = "on"
@@ -782,7 +792,15 @@ class PhysicsAdapter:
         """``take_named``'s propeller (k 0) or friction (k 1): theta back to what it was before the
         onset with the named change added to its own parameter, and the covariance back to the prior
         (theta goes on learning from there, as fast as at the start); a refined size of the same
-        change moves that parameter by the refinement only, keeping what theta learnt since."""
+        change moves that parameter by the refinement only, keeping what theta learnt since.
+
+        Refused (False) where theta explains the speed of the latest ``_RECENT_S``
+        far better than the named model would (``_TAKE_CHECK``): a name dated after theta had
+        already learnt the change counts it twice, and a wrong name is no better. Bench 311, flight
+        3110000: a propeller loss at 45.2 s, learnt by theta within 10 s, then named a bearing's
+        friction 2.54x from 56.8 s; taken, the RMSE after the change went 1.02 -> 2.19x the twin's
+        (the named model's squared errors over the 3 s before it 677x theta's, where the names
+        taken right on benches 308-311 were 0.04-0.93x)."""
         delta = size if k == 0 else size - 1.0  # the monitor's unit to theta's (``FAULT_UNITS``)
         name = SPEED_ADAPTED[k]
         i = self._taken_index(name, onset_s)
@@ -792,15 +810,28 @@ class PhysicsAdapter:
             self.taken[i] = (name, size, onset_s)
             th[k] += delta - (was if k == 0 else was - 1.0)
         else:
+            prior = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+            cand = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            cand[k] += delta
+            cand = list(_projected(prior, *cand))
+            if self.recent_sq(cand) > _TAKE_CHECK * self.recent_sq(th):
+                return False
             self.taken.append((name, size, onset_s))
-            th[:] = self.theta_at(onset_s - _BEFORE_ONSET_S)
-            th[k] += delta
-            self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+            th[:] = cand
+            self._P = prior
         th[0], th[1] = _projected(self._P, th[0], th[1])
         if self._theta_hist.values:  # the latest value stands for its step
             self._theta_hist.values[-1] = tuple(th)
         self._rebase()
         return True
+
+    def recent_sq(self, theta: Sequence[float]) -> float:
+        """The sum of the a priori squared errors ((rad/s)^2) theta would have made on the updates
+        of the latest ``_RECENT_S`` (linear in theta: each update's sensitivities)."""
+        t0, t1 = theta
+        rec = self._recent
+        since = rec[-1][0] - _RECENT_S if rec else 0.0
+        return sum((c - s0 * t0 - s1 * t1) ** 2 for t, c, s0, s1 in rec if t >= since)
 
     def _take_pack(self, factor: float, onset_s: float) -> bool:
         """``take_named``'s pack: the resistance added (ohm) set to the factor's share of the
