@@ -857,7 +857,8 @@ def _monitor_lines(f: dict[str, Any]) -> list[str]:
         first = [next((e for e in r["events"] if e["onset_s"] >= r["onset_s"] - 5.0), None) for r in rows]
         right = sum(e is not None and e["name"] == name for e in first)
         named.append(f"{name} {right}/{len(rows)}")
-    taken = {"motor_heating": "{:.1f} K", "pack_resistance": "{:.2f}x"}  # what the adapter takes
+    taken = {"motor_heating": "{:.1f} K", "pack_resistance": "{:.2f}x",  # what the adapter is passed
+             "propeller_damage": "{:.3f}", "bearing_friction": "{:.2f}x"}
     wrong = [f"{e['name']} in a {name} run (bench {r['bench']}: {taken[e['name']].format(e['size'])})"
              for name, rows in f["runs"].items() for r in rows for e in r["events"]
              if e["name"] in taken and e["name"] != name and e["size"] is not None]
@@ -867,7 +868,7 @@ def _monitor_lines(f: dict[str, Any]) -> list[str]:
     hours = len(clean) * f["flight_s"] / 3600.0
     return [f"With the health monitor watching (`--health`; a change it names is passed to the adapter, "
             f"`PhysicsAdapter.take_named`): the first change after the onset named right, {', '.join(named)}; "
-            f"a heating or a pack named, and so taken, in a run of another fault: {wrong_text}; "
+            f"a change named in a run of another fault, and so passed to the adapter: {wrong_text}; "
             f"on the {len(clean)} flights without a change ({hours:.2f} h), {len(false)} change(s) reported"
             + (": " + "; ".join(f"{e['name']} {e['size']:.3g} {e['unit']} at {e['onset_s']:.1f} s" if e["size"]
                                 is not None else f"{e['name']} at {e['onset_s']:.1f} s" for e in false)
@@ -986,9 +987,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "--json docs/results/adaptation_health.json",
           render_adaptation,
           "The flights of the adaptation in flight above, the health monitor watching too (`replay --adapt "
-          "--health`, the node with both on): a hot winding or a pack it names is taken into the adapted "
-          "model (`PhysicsAdapter.take_named`), a propeller's loss or a bearing's friction is not: the adapter "
-          "learns those itself (about 10 minutes on one core)."),
+          "--health`, the node with both on): a change it names is taken into the adapted model "
+          "(`PhysicsAdapter.take_named`): a hot winding as a set rise and a pack as a set resistance, which "
+          "the adapter cannot learn or learns slower; a propeller's loss or a bearing's friction as a restart "
+          "of the adapted parameters from before the onset with the named size on its own, unless they "
+          "explain the latest 3 s four times better (about 10 minutes on one core)."),
     Group("adaptation_health_steps", "Online adaptation with the health monitor, on random steps (issue 34)",
           "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
           "--health --json docs/results/adaptation_health_steps.json",

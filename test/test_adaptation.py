@@ -330,6 +330,27 @@ def test_the_guard_scores_both_predictions_a_priori_by_hand(model):
     assert ad.in_use  # 3.16 against 4.14: the adapted one scores better now
 
 
+def test_where_theta_does_not_learn_the_guard_scores_apart(model, hot_flight):
+    """By hand: a speed where theta does not learn (a coast, the dead band) goes to its own tallies,
+    and the correction at a prediction follows the guard of its regime, told by the offline speed
+    there (none given: the driven one's)."""
+    ad = PhysicsAdapter(model)
+    ad._judge(10.0, 1.0, 0.5)  # driven: the adapted better
+    ad._judge(10.1, 1.0, 3.0, low=True)  # a coast: the adapted worse
+    assert (ad._sq_offline, ad._sq_adapted, ad.in_use) == (1.0, 0.25, True)
+    assert ad._sq_low == [1.0, 9.0] and not ad.in_use_low
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    t = ad._hist_t[-1]
+    row = ad._sample(t)
+    fast, slow = ad.speed_scale_rad_s, 0.5 * ad.config.min_speed_fraction * ad.speed_scale_rad_s
+    assert row is not None and ad._driven(row, fast) and not ad._driven(row, slow)
+    ad.in_use, ad.in_use_low = True, False
+    moved = ad.correction(t)
+    assert moved[0] != 0.0 and ad.correction(t, fast) == moved and ad.correction(t, slow) == (0.0, 0.0)
+    ad.in_use, ad.in_use_low = False, True
+    assert ad.correction(t) == (0.0, 0.0) == ad.correction(t, fast) and ad.correction(t, slow) == moved
+
+
 def test_the_guard_keeps_a_wrong_adaptation_out_of_the_prediction(model, monkeypatch):
     """Healthy flights on which the adapter, unguarded, learns a change that is not there (the
     model's own error at some operating points looks like one): its prediction is then more than
