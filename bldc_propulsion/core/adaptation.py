@@ -769,11 +769,12 @@ class PhysicsAdapter:
         decides who moves first, and the wrong split shows once the rotor changes speed), and
         theta's gain, capped by the prior, takes 10-15 s to climb a friction tripled (5 sigma);
         the monitor names and sizes it within seconds (a tripled friction named 3.09x 4 s after
-        its onset on tuning bench 2). In flight with the monitor on
-        benches 308-311 (two flights per fault and bench): friction within 1.2x of the healthy
-        twin's RMSE from 10 s on 1/8 -> 4/8 (median 2.01 -> 1.31x), propeller 6/8 -> 7/8, the
-        rest unchanged. A heating it cannot learn: it stands the propeller and the friction in
-        for it, which leaves a third to half of what the rise does (the module's docstring).
+        its onset on tuning bench 2). In flight with the monitor (``bench_adaptation.py --health``,
+        two flights per fault and bench), within 1.2x of the healthy twin's RMSE from 10 s on:
+        benches 308-311 friction 0/8 -> 5/8 (median 2.27 -> 1.18x), propeller 4/8 -> 5/8; fresh
+        benches 320-323 friction 5/8 -> 7/8, propeller 5/8 -> 7/8; the other faults unchanged.
+        A heating it cannot learn: it stands the propeller and the friction in for it, which
+        leaves a third to half of what the rise does (the module's docstring).
 
         And a pack's resistance (``pack_resistance``, a factor on its sag per ampere): the model's
         series resistance moves by the factor's share of the one measured before the onset
