@@ -320,13 +320,13 @@ def test_the_guard_scores_both_predictions_a_priori_by_hand(model):
     ad = PhysicsAdapter(model)
     m, k = ad.config.memory_s, math.exp(-1.0)
     ad._judge(10.0, 1.0, -2.0)
-    assert (ad._sq_offline, ad._sq_adapted, ad.in_use) == (1.0, 4.0, False)
+    assert (ad._score.offline, ad._score.adapted, ad.in_use) == (1.0, 4.0, False)
     assert ad.correction(10.0) == (0.0, 0.0) and ad.applied_thrust_factor == 1.0
     ad._judge(10.0 + m, 0.0, -1.0)
-    assert ad._sq_offline == pytest.approx(k) and ad._sq_adapted == pytest.approx(4.0 * k + 1.0)
+    assert ad._score.offline == pytest.approx(k) and ad._score.adapted == pytest.approx(4.0 * k + 1.0)
     ad._judge(10.0 + 2.0 * m, 2.0, 1.5)
-    assert ad._sq_offline == pytest.approx(k * k + 4.0)
-    assert ad._sq_adapted == pytest.approx((4.0 * k + 1.0) * k + 2.25)
+    assert ad._score.offline == pytest.approx(k * k + 4.0)
+    assert ad._score.adapted == pytest.approx((4.0 * k + 1.0) * k + 2.25)
     assert ad.in_use  # 3.16 against 4.14: the adapted one scores better now
 
 
@@ -337,8 +337,8 @@ def test_where_theta_does_not_learn_the_guard_scores_apart(model, hot_flight):
     ad = PhysicsAdapter(model)
     ad._judge(10.0, 1.0, 0.5)  # driven: the adapted better
     ad._judge(10.1, 1.0, 3.0, low=True)  # a coast: the adapted worse
-    assert (ad._sq_offline, ad._sq_adapted, ad.in_use) == (1.0, 0.25, True)
-    assert ad._sq_low == [1.0, 9.0] and not ad.in_use_low
+    assert (ad._score.offline, ad._score.adapted, ad.in_use) == (1.0, 0.25, True)
+    assert (ad._score_low.offline, ad._score_low.adapted, ad.in_use_low) == (1.0, 9.0, False)
     ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
     t = ad._hist_t[-1]
     row = ad._sample(t)

@@ -334,6 +334,26 @@ class _History(Generic[_V]):
         return self.values[max(bisect.bisect_right(self.t, t) - 1, 0)]
 
 
+class _Score:
+    """The guard's tally: both predictions' squared errors on the measured speeds (rad/s)^2,
+    forgotten in time, and the latest time scored."""
+
+    __slots__ = ("adapted", "offline", "t")
+
+    def __init__(self) -> None:
+        self.t: float | None = None
+        self.offline = self.adapted = 0.0
+
+    def add(self, t: float, error_offline: float, e_adapted: float, memory_s: float) -> bool:
+        """Both errors at t (s), the earlier ones forgotten over memory_s; whether the adapted
+        prediction scores no worse."""
+        last, self.t = self.t, t
+        keep = math.exp(-(t - last) / memory_s) if last is not None and t > last else 1.0
+        self.offline = keep * self.offline + error_offline * error_offline
+        self.adapted = keep * self.adapted + e_adapted * e_adapted
+        return self.adapted <= self.offline
+
+
 class _Sag:
     """The pack's series resistance from the filtered voltage v and the model's supply current
     through the same filter i: v = e - R i + noise, (e, R) by recursive least squares with
@@ -438,14 +458,10 @@ class PhysicsAdapter:
         self._theta_hist: _History[tuple[float, ...]] = _History()  #: theta's
         #: the latest _RECENT_S of updates: (t, c, S0, S1), the a priori error at theta being c - S theta
         self._recent: collections.deque[tuple[float, float, float, float]] = collections.deque(maxlen=_RECENT_N)
-        self._judged_t: float | None = None  #: the latest measured speed the guard scored
-        self._sq_offline = self._sq_adapted = 0.0  #: the guard's forgotten squared errors
+        self._score = _Score()  #: the guard's, where theta learns
         self.in_use = True  #: whether the correction applies (the guard: it scores no worse)
-        #: the guard where theta does not learn (``_driven`` false): its latest time, its forgotten
-        #: squared errors (offline, adapted), and whether the correction applies there
-        self._low_judged_t: float | None = None
-        self._sq_low = [0.0, 0.0]
-        self.in_use_low = True
+        self._score_low = _Score()  #: the guard's where theta does not learn (``_driven`` false)
+        self.in_use_low = True  #: whether the correction applies there
         cfg = self.config
         sig = cfg.prior_sigma
         self._p_max = [s * s for s in sig]
@@ -885,18 +901,9 @@ class PhysicsAdapter:
         from the adapted prediction, rad/s, the latter the innovation theta learns from), forget
         over memory_s; ``low``: a speed where theta does not learn, scored on its own."""
         if low:
-            last, self._low_judged_t = self._low_judged_t, t
-            keep = math.exp(-(t - last) / self.config.memory_s) if last is not None and t > last else 1.0
-            sq = self._sq_low
-            sq[0] = keep * sq[0] + error_offline * error_offline
-            sq[1] = keep * sq[1] + e_adapted * e_adapted
-            self.in_use_low = sq[1] <= sq[0]
-            return
-        last, self._judged_t = self._judged_t, t
-        keep = math.exp(-(t - last) / self.config.memory_s) if last is not None and t > last else 1.0
-        self._sq_offline = keep * self._sq_offline + error_offline * error_offline
-        self._sq_adapted = keep * self._sq_adapted + e_adapted * e_adapted
-        self.in_use = self._sq_adapted <= self._sq_offline
+            self.in_use_low = self._score_low.add(t, error_offline, e_adapted, self.config.memory_s)
+        else:
+            self.in_use = self._score.add(t, error_offline, e_adapted, self.config.memory_s)
 
     def _linear(self, row: tuple[float, float, float], w: float) -> bool:
         """Whether the lanes' own steps move the speed by at most _LINEAR_SHARE of it: where a lane
