@@ -84,7 +84,9 @@ theta does not learn (below the speed floor, starting or stopping: a coast-down,
 band) the two are scored apart (``in_use_low``): theta learnt at speed may be wrong there (a
 friction read from the driven range where it is confounded with drag shows in a coast), and a
 coast of a second or two is too short to outweigh the guard's seconds of driven flight. Random
-steps on benches 308-311, healthy flights, adapted over offline RMSE: worst 1.12 -> 0.98x.
+steps, healthy flights, adapted over offline RMSE: benches 308-311 worst 1.12 -> 0.98x, fresh
+benches 320-323 1.07 -> 1.01x (within 1.05x 7/8 -> 8/8). The price there: one tripled friction
+1.76 -> 3.34x its twin (the coasts' score picked the offline model while theta had it right).
 
 ``reset()`` returns to the offline model (theta = 0). ``adapted_plant()`` is the physics model
 with the adapted constants (``replay --save-adapted`` writes it).
