@@ -467,7 +467,7 @@ class PhysicsAdapter:
         cfg = self.config
         sig = cfg.prior_sigma
         self._p_max = [s * s for s in sig]
-        self._P = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+        self._P = self._prior_cov()
         rs = self.plant.params.battery_series_resistance_ohm
         self._pack_model = rs  #: the offline model's series resistance (ohm)
         ref = rs if rs > 0.0 else PACK_REFERENCE_OHM
@@ -523,6 +523,17 @@ class PhysicsAdapter:
         sigma = self.config.noise_fraction * self.speed_scale_rad_s
         self._r = sigma * sigma
         self.note = "frozen: no measured speed yet"
+
+    def _prior_cov(self) -> list[list[float]]:
+        """theta's covariance at the prior (its upper triangle read): the start, and a named restart."""
+        return [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
+
+    def _set_theta(self, values: Sequence[float]) -> None:
+        """theta set (in place) by a named change, its history's latest value with it (it stands
+        for its step)."""
+        self.theta[:] = values
+        if self._theta_hist.values:
+            self._theta_hist.values[-1] = tuple(self.theta)
 
     def _lane_units(self) -> list[float]:
         """Per lane: d lane / d theta, units of the lane's own (relative to the constants it was
@@ -727,17 +738,17 @@ class PhysicsAdapter:
         else:
             row = self._aligned(t)
             error = measured_rad_s - offline_rad_s
+            driven = row is not None and measured_rad_s >= REST_SPEED_RAD_S and self._driven(row, offline_rad_s)
             if row is not None:
                 innovation = error - self._delta(row)  # the adapted prediction's a priori error
                 if math.isfinite(error):  # judged at every speed, rest included
-                    low = not (measured_rad_s >= REST_SPEED_RAD_S and self._driven(row, offline_rad_s))
-                    self._judge(t, error, innovation, low)
+                    self._judge(t, error, innovation, not driven)
             if not (measured_rad_s >= REST_SPEED_RAD_S
                     and offline_rad_s >= cfg.min_speed_fraction * self.speed_scale_rad_s):  # (NaN: not ready)
                 row, why = None, "frozen: rotor at rest or below the ESC start"
             elif row is None:
                 why = "frozen: measured speed older than the model's history"
-            elif not self._linear(row, offline_rad_s):
+            elif not driven:  # above the floor, so: not linear
                 row, why = None, "frozen: the rotor is starting or stopping (the model is not linear in theta there)"
         if row is None:
             self.note = why
@@ -818,9 +829,7 @@ class PhysicsAdapter:
         else:
             self.taken.append((name, size, onset_s))
             self._heat_before = self.heating_k
-            self.theta = self.theta_at(onset_s - _BEFORE_ONSET_S)
-            if self._theta_hist.values:  # the latest value stands for its step
-                self._theta_hist.values[-1] = tuple(self.theta)
+            self._set_theta(self.theta_at(onset_s - _BEFORE_ONSET_S))
         self.heating_k = min(max(self._heat_before + size, HEATING_BOUNDS_K[0]), HEATING_BOUNDS_K[1])
         if again and abs(self.heating_k - self._heat_lin) < _HEATING_REBUILD_K:
             return False
@@ -840,27 +849,24 @@ class PhysicsAdapter:
         friction 2.54x from 56.8 s; taken, the RMSE after the change went 1.02 -> 2.19x the twin's
         (the named model's squared errors over the 3 s before it 677x theta's, where the names
         taken right on benches 308-311 were 0.04-0.93x)."""
-        delta = size if k == 0 else size - 1.0  # the monitor's unit to theta's (``FAULT_UNITS``)
+        none = 0.0 if k == 0 else 1.0  # the size of no change in the monitor's unit (``FAULT_UNITS``)
         name = SPEED_ADAPTED[k]
         i = self._taken_index(name, onset_s)
-        th = self.theta
+        th = list(self.theta)
         if i is not None:
             _, was, _ = self.taken[i]
             self.taken[i] = (name, size, onset_s)
-            th[k] += delta - (was if k == 0 else was - 1.0)
+            th[k] += size - was
         else:
-            prior = [[self._p_max[0], 0.0], [0.0, self._p_max[1]]]
-            cand = self.theta_at(onset_s - _BEFORE_ONSET_S)
-            cand[k] += delta
-            cand = list(_projected(prior, *cand))
-            if self.recent_sq(cand) > _TAKE_CHECK * self.recent_sq(th):
+            prior = self._prior_cov()
+            th = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            th[k] += size - none
+            th = list(_projected(prior, *th))
+            if self.recent_sq(th) > _TAKE_CHECK * self.recent_sq(self.theta):
                 return False
             self.taken.append((name, size, onset_s))
-            th[:] = cand
             self._P = prior
-        th[0], th[1] = _projected(self._P, th[0], th[1])
-        if self._theta_hist.values:  # the latest value stands for its step
-            self._theta_hist.values[-1] = tuple(th)
+        self._set_theta(_projected(self._P, *th))
         self._rebase()
         return True
 
