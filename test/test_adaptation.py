@@ -604,6 +604,158 @@ def test_a_named_change_theta_explains_far_better_is_refused(model, hot_flight):
     assert ad.theta == pytest.approx(small) and ad.taken == [("propeller_damage", 0.002, 90.0)]
 
 
+def test_a_provisional_take_is_undone_when_named_otherwise_or_not_at_all(model, hot_flight):
+    """By hand on an adapter that has flown: the leading candidate of a change still being named
+    is taken as a name would be if it is a hot winding (the rise set, theta back to 5 s before the
+    onset; what the adapter learns itself is not taken), and refined likewise; named otherwise, the
+    adapter goes back to exactly what it was before the lead (theta, covariance, rise, the changes
+    taken) and the name is judged on its own (a tripled friction on a healthy flight: refused);
+    dropped (the change left unnamed, or set aside, or led by another candidate), the same; named
+    as led, taken afresh as a name."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    now, cov, before = list(ad.theta), [list(r) for r in ad._P], ad.theta_at(75.0)
+    assert now != before  # the premise: the lead moves theta
+    assert not ad.drop_provisional()
+    assert ad.take_named("motor_heating", 20.0, 80.0, provisional=True)
+    assert ad.heating_k == 20.0 and ad.theta == before and ad.taken == [("motor_heating", 20.0, 80.0)]
+    assert ad.take_named("motor_heating", 24.0, 80.0, provisional=True) and ad.heating_k == 24.0
+    assert not ad.take_named("bearing_friction", 3.0, 80.0)  # named otherwise: undone, then refused
+    assert ad.theta == now and ad._P == cov and ad.heating_k == 0.0 and ad.taken == []
+    assert ad.take_named("motor_heating", 20.0, 80.0, provisional=True) and ad.drop_provisional()
+    assert ad.theta == now and ad._P == cov and ad.heating_k == 0.0 and ad.taken == []
+    assert ad.take_named("motor_heating", 20.0, 80.0, provisional=True)
+    assert ad.take_named("motor_heating", 27.0, 80.0)  # named as led: taken afresh
+    assert ad.theta == before and ad.heating_k == 27.0 and ad.taken == [("motor_heating", 27.0, 80.0)]
+    assert not ad.drop_provisional()
+    kept = list(ad.theta)  # a lead the adapter learns itself (a propeller, a friction, a pack) is not taken
+    for name, size in (("propeller_damage", 0.002), ("bearing_friction", 1.1), ("pack_resistance", 1.5)):
+        assert not ad.take_named(name, size, 90.0, provisional=True)
+    assert ad.theta == kept and ad.taken == [("motor_heating", 27.0, 80.0)]
+    assert ad.take_named("motor_heating", 5.0, 90.0, provisional=True) and ad.heating_k == 32.0
+    assert not ad.take_named("bearing_friction", 1.1, 90.0, provisional=True)  # the lead moved on: undone
+    assert ad.heating_k == 27.0 and ad.taken == [("motor_heating", 27.0, 80.0)] and not ad.drop_provisional()
+
+
+@pytest.fixture(scope="module")
+def slow_name():
+    """70 s of a multirotor's motor, the winding 30 K hotter from 50 s: a heating the monitor
+    names only 8 s after its onset (a friction explains it about as well until then)."""
+    return simulate("flight", 70.0, 2213, params=draw_bench(BENCH), soc=0.8,
+                    faults=[Fault("motor_heating", 30.0, 50.0)])
+
+
+def test_a_heating_that_leads_before_its_name_is_taken_at_once(model, slow_name, monkeypatch):
+    """End to end (``HealthStream`` and the adapter): the hot winding leads the change seconds
+    before it is named and is taken then; the name takes the same change afresh, and the named
+    change is all that is left. Until the name, the speed's RMSE is below what it is with no lead
+    taken (``HealthMonitor.leading`` None)."""
+    from bldc_propulsion.core.health import HealthMonitor
+
+    calls = []
+    take = PhysicsAdapter.take_named
+
+    def spy(self, name, size, onset_s, provisional=False):
+        moved = take(self, name, size, onset_s, provisional)
+        calls.append((self._last_update_t, name, provisional, moved, self.heating_k))
+        return moved
+
+    monkeypatch.setattr(PhysicsAdapter, "take_named", spy)
+    run = run_flight(model, slow_name, adapt=True, health=True, keep=True)
+    (event,) = run["events"]
+    led = [c for c in calls if c[2] and c[3]]
+    assert event["name"] == "motor_heating" and event["named_s"] > 55.0  # the premise: a late name
+    assert led and led[0][1] == "motor_heating" and led[0][0] < 55.0 and led[0][4] > 10.0, led[:1]
+    assert [c[1] for c in calls if not c[2]][0] == "motor_heating"
+    ad = run["estimator"].adapter
+    assert ad.taken == [("motor_heating", event["size"], event["onset_s"])] and ad.heating_k == event["size"]
+    monkeypatch.setattr(HealthMonitor, "leading", property(lambda self: None))
+    unled = run_flight(model, slow_name, adapt=True, health=True)
+    window = (led[0][0], event["named_s"])
+    assert rmse(run, *window) < 0.5 * rmse(unled, *window), (rmse(run, *window), rmse(unled, *window))
+
+
+class _Monitor:
+    """What ``HealthStream._pass_on`` reads of the monitor, set by hand."""
+
+    def __init__(self) -> None:
+        self.pending = None
+        self.leading = None
+
+    def finish(self):
+        """The end of the data: the change being named reported as it stands."""
+        ev, self.pending, self.leading = self.pending, None, None
+        return [ev]
+
+
+class _Adapter:
+    """Records what ``HealthStream._pass_on`` passes on."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+
+    def take_named(self, name, size, onset_s, provisional=False):
+        self.calls.append((name, size, onset_s, provisional))
+        return True
+
+    def drop_provisional(self):
+        self.calls.append(("drop",))
+        return True
+
+
+def test_the_stream_passes_a_lead_that_held_once_per_size_and_drops_it_when_it_goes(model):
+    """``HealthStream._pass_on`` by hand: while a change is being named, its leading candidate goes
+    to the adapter provisionally once it has led for ``_LEAD_HOLD_S``, again only when its size
+    moves; another candidate leading drops it (and must hold in turn); named, the name goes as
+    before (the adapter settles the lead itself); gone unnamed (reported so, set aside, or the
+    data ending), the lead is dropped."""
+    from bldc_propulsion.core.estimator import ThrustEstimator
+    from bldc_propulsion.core.health import _LEAD_HOLD_S, UNNAMED, HealthEvent, HealthStream
+
+    stream = HealthStream(ThrustEstimator(model))
+    mon, ad = _Monitor(), _Adapter()
+    stream.monitor = mon  # type: ignore[assignment]
+    ev = HealthEvent(50.0, 50.5, UNNAMED, None, "", 40.0)
+    mon.pending, mon.leading = ev, ("motor_heating", 20.0)
+    stream._pass_on(ad, [], 50.5)
+    stream._pass_on(ad, [], 50.5 + 0.5 * _LEAD_HOLD_S)
+    assert ad.calls == []  # not held long enough yet
+    stream._pass_on(ad, [], 50.5 + _LEAD_HOLD_S)
+    stream._pass_on(ad, [], 51.0 + _LEAD_HOLD_S)
+    mon.leading = ("motor_heating", 22.0)
+    stream._pass_on(ad, [], 51.5 + _LEAD_HOLD_S)
+    assert ad.calls == [("motor_heating", 20.0, 50.0, True), ("motor_heating", 22.0, 50.0, True)]
+    mon.leading = None  # its statistic dipped: the lead stays
+    stream._pass_on(ad, [], 52.0 + _LEAD_HOLD_S)
+    assert len(ad.calls) == 2
+    mon.leading = ("bearing_friction", 2.0)  # another leads: dropped, and it must hold in turn
+    stream._pass_on(ad, [], 52.5 + _LEAD_HOLD_S)
+    assert ad.calls[2:] == [("drop",)]
+    stream._pass_on(ad, [], 52.5 + 2.0 * _LEAD_HOLD_S)
+    assert ad.calls[3:] == [("bearing_friction", 2.0, 50.0, True)]
+    mon.pending = None  # reported unnamed
+    stream._pass_on(ad, [ev], 60.0)
+    assert ad.calls[4:] == [("drop",)]
+    ad.calls.clear()
+    ev2 = HealthEvent(70.0, 70.4, UNNAMED, None, "", 40.0)
+    mon.pending, mon.leading = ev2, ("motor_heating", 30.0)
+    stream._pass_on(ad, [], 70.4)
+    stream._pass_on(ad, [], 70.4 + _LEAD_HOLD_S)
+    named = HealthEvent(70.0, 70.4, "motor_heating", 31.0, "K", 90.0)
+    mon.pending, mon.leading = named, None
+    stream._pass_on(ad, [], 75.0)
+    mon.pending = None
+    stream._pass_on(ad, [named], 80.0)
+    assert ad.calls == [("motor_heating", 30.0, 70.0, True), ("motor_heating", 31.0, 70.0, False), ("drop",)]
+    ad.calls.clear()  # the data end while a lead is taken: the change is left unnamed, the lead dropped
+    stream.estimator.adapter = ad  # type: ignore[assignment]
+    mon.pending, mon.leading = HealthEvent(90.0, 90.3, UNNAMED, None, "", 40.0), ("motor_heating", 25.0)
+    stream._pass_on(ad, [], 90.3)
+    stream._pass_on(ad, [], 90.3 + _LEAD_HOLD_S)
+    stream.last_s = 93.0
+    assert [e.name for e in stream.finish()] == [UNNAMED]
+    assert ad.calls == [("motor_heating", 25.0, 90.0, True), ("drop",)]
+
+
 def test_replay_with_both_on_takes_the_named_heating(model, hot_flight, tmp_path):
     """``replay --adapt --health`` (the API the command runs; the node shares ``HealthStream``):
     the summary lists the heating the monitor named as taken, the estimator's status carries the

@@ -45,7 +45,10 @@ whose resistance rose, which the monitor sizes within seconds where the voltage'
 (below) takes 10-20 s, as a fixed addition to the series resistance (``pack_named_ohm``). A
 propeller or a friction the monitor names restarts theta from before the onset with the named
 size on the named parameter: at one operating point the two are one direction to the speed, and
-the monitor's window, longer than the adapter's memory, tells them apart.
+the monitor's window, longer than the adapter's memory, tells them apart. A heating waits longest
+for its name (a friction explains it alike for seconds): while a change is being named and a hot
+winding leads, that lead is taken provisionally and undone if the change is named otherwise or
+not at all.
 
 How: the model's speed is linear in theta near a linearisation point theta_lin,
 w(theta) = w(theta_lin) + S (theta - theta_lin), with S = d speed / d theta from the physics
@@ -431,6 +434,19 @@ class _Lanes(_Twins):
         self.params, self.friction_reference_a = fresh.params, fresh.friction_reference_a
 
 
+@dataclass(frozen=True)
+class _Before:
+    """What a provisional named change moves (``PhysicsAdapter.take_named``), as it was before it."""
+
+    theta: tuple[float, ...]
+    P: tuple[tuple[float, ...], ...]
+    heating_k: float
+    heat_before: float
+    taken: tuple[tuple[str, float, float], ...]
+    pack_named_ohm: float | None
+    pack_named: tuple[float, float, float] | None
+
+
 class PhysicsAdapter:
     """Recursive least squares of ``ADAPTED`` on a physics (or hybrid) model's measured speed.
 
@@ -457,6 +473,9 @@ class PhysicsAdapter:
         self._heat_before = 0.0  #: heating_k before the latest named heating: its size is relative to it
         #: the named changes taken: (name, size, onset_s)
         self.taken: list[tuple[str, float, float]] = []
+        #: the change being named, taken as its leading candidate (``take_named(provisional=True)``):
+        #: its name, onset (s) and what the adapter was before it; None if none
+        self._provisional: tuple[str, float, _Before] | None = None
         self._theta_hist: _History[tuple[float, ...]] = _History()  #: theta's
         #: the latest _RECENT_S of updates: (t, c, S0, S1), the a priori error at theta being c - S theta
         self._recent: collections.deque[tuple[float, float, float, float]] = collections.deque(maxlen=_RECENT_N)
@@ -779,7 +798,7 @@ class PhysicsAdapter:
         same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
         return same[-1] if same else None
 
-    def take_named(self, name: str, size: float, onset_s: float) -> bool:
+    def take_named(self, name: str, size: float, onset_s: float, provisional: bool = False) -> bool:
         """A change the health monitor named (``core.health.HealthEvent``: a fault's name, its size
         in ``FAULT_UNITS``, its onset on the caller's clock), taken into the model if the adapter
         has no parameter for it or learns it slower (all four names, below). A winding running hot
@@ -813,9 +832,69 @@ class PhysicsAdapter:
         benches 840-847. Tried: the voltage's estimate set to the named value and refining from
         there; it drifted off again (tuning benches 1-7, 14 flights with a doubled pack: within
         1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14, 1.65x; not taken
-        12/14, 5.94x)."""
+        12/14, 5.94x).
+
+        ``provisional``: the change is still being named and this is its leading candidate (the
+        monitor's ``HealthMonitor.leading``): taken as above, and undone (the adapter back to what
+        it was before, ``drop_provisional``) if the change is named otherwise or not at all. Why: a
+        hot winding and a bearing's friction explain a change in flight alike for seconds, and the
+        name waits for them to part, 4-13 s after the onset on benches 308-311, when what the
+        adapter learnt meanwhile (the heating in the propeller's and the friction's place) has
+        already cost the first 10 s."""
         if not math.isfinite(size):
             return False
+        prov = self._provisional
+        if provisional:
+            if prov is not None and prov[:2] == (name, onset_s):
+                return self._take(name, size, onset_s)  # the lead's size refined
+            self.drop_provisional()  # another lead, or another change's
+            # a lead is taken only where the adapter does not learn it itself: theta learns a
+            # propeller or a friction (and a restart's prior covariance on the transient right
+            # after the onset let it learn a propeller's loss of 0.04 beside a friction the lead had
+            # right: tuning bench 5, flight 50101, 1.38 -> 4.26x the twin's RMSE), the voltage a pack
+            if name != "motor_heating":
+                return False
+            before = self._before()
+            if not self._take(name, size, onset_s):
+                return False
+            self._provisional = (name, onset_s, before)
+            return True
+        if prov is None:
+            return self._take(name, size, onset_s)
+        # named, as led or otherwise: the lead undone and the name taken afresh, the lanes straight
+        # to the name's model (by way of the state before the lead, a second large move of their
+        # states in an instant, theta ran off on tuning bench 5)
+        self._restore(prov[2])
+        if self._take(name, size, onset_s):
+            return True
+        self._rebase()
+        return False
+
+    def drop_provisional(self) -> bool:
+        """Undo the change taken provisionally (``take_named``), if any: the adapter back to what it
+        was before it (what it learnt since was learnt on the lead's model). Returns whether one was."""
+        prov = self._provisional
+        if prov is None:
+            return False
+        self._restore(prov[2])
+        self._rebase()
+        return True
+
+    def _restore(self, b: _Before) -> None:
+        """The state before a provisional change (the lanes not yet rebuilt), which is no more."""
+        self._provisional = None
+        self.taken = list(b.taken)
+        self.heating_k, self._heat_before = b.heating_k, b.heat_before
+        self.pack_named_ohm, self._pack_named = b.pack_named_ohm, b.pack_named
+        self._P = [list(r) for r in b.P]
+        self._set_theta(b.theta)
+
+    def _before(self) -> _Before:
+        return _Before(tuple(self.theta), tuple(tuple(r) for r in self._P), self.heating_k, self._heat_before,
+                       tuple(self.taken), self.pack_named_ohm, self._pack_named)
+
+    def _take(self, name: str, size: float, onset_s: float) -> bool:
+        """``take_named`` without the provisional's bookkeeping."""
         if name == "pack_resistance":
             return self._take_pack(size, onset_s)
         if name in SPEED_ADAPTED:

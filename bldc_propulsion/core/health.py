@@ -80,7 +80,7 @@ from .status import ERROR, OK, WARN, CoreStatus, counters
 
 if TYPE_CHECKING:
     from ..physics.plant_model import PlantModel
-    from .estimator import SpeedModel, ThrustEstimator
+    from .estimator import Adapter, SpeedModel, ThrustEstimator
 
 #: The contract's fault names, in the order the monitor reports them.
 FAULTS: tuple[str, ...] = ("propeller_damage", "pack_resistance", "bearing_friction", "motor_heating")
@@ -671,6 +671,7 @@ class HealthMonitor:
         self._block_index = 0
         self._last_t: float | None = None
         self._pending: HealthEvent | None = None
+        self._lead: tuple[str, float] | None = None  #: ``leading``'s, set by each naming test
         self._pending_onset_block = 0
         #: the named pending change's latest (statistic, theta) of its fault: what decides, when
         #: it is reported, whether it could be below the smallest worth an alarm (None: not sized)
@@ -730,6 +731,15 @@ class HealthMonitor:
         if self._pending is not None:
             out += self._report_named() if self.state == _REFINING else [self._settle(self._pending)]
         return out
+
+    @property
+    def leading(self) -> tuple[str, float] | None:
+        """The change being named's leading candidate: its name and size (``FAULT_UNITS``) at the
+        latest test, if it would be named but for its lead over the next (it passes the threshold,
+        is seen at two operating points and leaves nothing significant unexplained); None
+        otherwise and once named."""
+        ev = self._pending
+        return self._lead if ev is not None and ev.name == UNNAMED else None
 
     @property
     def pending(self) -> HealthEvent | None:
@@ -1256,13 +1266,17 @@ class HealthMonitor:
         best, second = int(order[0]), int(order[1])
         ev.candidates = {FAULTS[j]: float(row[j]) for j in range(self.n_faults)}
         ev.statistic = float(max(row[best], max(float(g[o]) for g in generic)))
-        clear = row[best] >= self.threshold and row[best] - row[second] >= self._name_margin(float(row[best]))
+        margin = row[best] - row[second] >= self._name_margin(float(row[best]))
         # seen at one operating point only, a change fits any shape: a name needs two
         post = self._steady[len(self._steady) - int(self._post[o]):] > 0
         # what the name leaves unexplained must be small beside the change itself: the model's
         # signature is never exact, so a large change always leaves a little
         left = max(self.threshold, _UNEXPLAINED_SHARE * float(row[best]))
-        if clear and len(true_run_pairs(post)) >= _NAME_STRETCHES and self._unexplained(o, best) < left:
+        # a name but for its lead over the next: the ``leading`` candidate
+        fits = row[best] >= self.threshold and len(true_run_pairs(post)) >= _NAME_STRETCHES \
+            and self._unexplained(o, best) < left
+        self._lead = (FAULTS[best], self._size(best, float(theta[o, best]))) if fits else None
+        if fits and margin:
             ev.name = FAULTS[best]
             ev.named_s = t_now
             ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
@@ -1424,6 +1438,13 @@ def require_physics(model: object, what: str, where: str) -> PlantModel:
                         f"{this}, which has no fitted physics (train --kind physics makes one)")
 
 
+#: How long (s of the caller's clock) a candidate must lead a change being named before the
+#: adapter takes it provisionally (``HealthStream``): a lead of a second or two can be the change's
+#: first, transient, shape (tuning bench 2, flight 20001: a tripled friction led as a 157 K heating
+#: for 1.2 s, then named; taken, its RMSE after the change went 1.51 -> 1.87x the twin's).
+_LEAD_HOLD_S = 2.0
+
+
 class HealthStream:
     """The monitor fed one input at a time, as the estimator is: the code the node (parameter
     ``health``), ``replay --health`` and the offline driver (:func:`run_health`) share, so the
@@ -1436,7 +1457,9 @@ class HealthStream:
     the caller's clock (the node's, or seconds from a recording's start), and so are the events'.
 
     With the estimator adapting (``estimator.adapter``), a change named is passed to the adapter
-    (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined; the
+    (``PhysicsAdapter.take_named``) the moment it is named and again with its size refined, and
+    while a change is being named, its leading candidate (``HealthMonitor.leading``), taken
+    provisionally (a hot winding only) and undone if it leaves unnamed; the
     adapter takes what it has no parameter for (a hot winding), which it would otherwise learn
     only in part, in its other parameters' place, a pack, which the monitor sizes sooner than
     the adapter's own estimate from the voltage, and a propeller or a friction, which it tells
@@ -1460,6 +1483,10 @@ class HealthStream:
         self.last_s = math.nan  #: the latest
         #: per named change passed to the adapter (by its detection time), the size passed
         self._passed: dict[float, float] = {}
+        #: the change being named as last passed to the adapter: its onset (s), lead's name and size
+        self._led: tuple[float, str, float] | None = None
+        #: the change being named: its onset, its leading candidate's name and since when it leads (s)
+        self._lead_since: tuple[float, str, float] | None = None
 
     def _twins(self) -> PhysicsTwins:
         p = self._plant
@@ -1493,12 +1520,36 @@ class HealthStream:
         events = self.monitor.update(HealthSample(t, measured_rad_s, predicted, self._last_voltage[1], tw))
         adapter = self.estimator.adapter
         if adapter is not None:
-            for ev in (*events, self.monitor.pending):
-                if ev is not None and ev.name != UNNAMED and ev.size is not None \
-                        and self._passed.get(ev.detected_s) != ev.size:
-                    self._passed[ev.detected_s] = ev.size
-                    adapter.take_named(ev.name, ev.size, ev.onset_s)
+            self._pass_on(adapter, events, t)
         return events
+
+    def _pass_on(self, adapter: Adapter, events: list[HealthEvent], t: float) -> None:
+        """The changes named (settled, or named and being sized) to the adapter, each once per size;
+        the one being named as its leading candidate (provisionally) once the lead has held
+        ``_LEAD_HOLD_S``, undone when another candidate leads or the change leaves unnamed."""
+        pending = self.monitor.pending
+        for ev in (*events, pending):
+            if ev is not None and ev.name != UNNAMED and ev.size is not None \
+                    and self._passed.get(ev.detected_s) != ev.size:
+                self._passed[ev.detected_s] = ev.size
+                adapter.take_named(ev.name, ev.size, ev.onset_s)
+        if pending is None or (self._lead_since is not None and pending.onset_s != self._lead_since[0]):
+            self._lead_since = None
+            self._drop_lead(adapter)  # nothing to undo once the change was named (``take_named``)
+        lead = self.monitor.leading
+        if pending is None or lead is None:
+            return
+        if self._lead_since is None or self._lead_since[:2] != (pending.onset_s, lead[0]):
+            self._lead_since = (pending.onset_s, lead[0], t)
+            self._drop_lead(adapter)  # another candidate leads now
+        if t - self._lead_since[2] >= _LEAD_HOLD_S and self._led != (pending.onset_s, *lead):
+            self._led = (pending.onset_s, *lead)
+            adapter.take_named(lead[0], lead[1], pending.onset_s, provisional=True)
+
+    def _drop_lead(self, adapter: Adapter) -> None:
+        if self._led is not None:
+            self._led = None
+            adapter.drop_provisional()
 
     def restart_physics(self) -> None:
         """The twins start again at the next command (the estimator's ``restart_physics``: after a
@@ -1510,8 +1561,13 @@ class HealthStream:
 
     def finish(self) -> list[HealthEvent]:
         """The end of the data: a change still being named is reported as it stands (a named one
-        that could be too small to be a fault kept as minor: ``HealthMonitor.finish``)."""
-        return self.monitor.finish()
+        that could be too small to be a fault kept as minor: ``HealthMonitor.finish``); the adapter
+        keeps no lead of a change left unnamed."""
+        events = self.monitor.finish()
+        adapter = self.estimator.adapter
+        if adapter is not None:
+            self._pass_on(adapter, events, self.last_s)
+        return events
 
     def run(self) -> HealthRun:
         """What was found so far, as :func:`run_health` returns it."""
