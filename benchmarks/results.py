@@ -991,7 +991,9 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "(`PhysicsAdapter.take_named`): a hot winding as a set rise and a pack as a set resistance, which "
           "the adapter cannot learn or learns slower; a propeller's loss or a bearing's friction as a restart "
           "of the adapted parameters from before the onset with the named size on its own, unless they "
-          "explain the latest 3 s four times better (about 10 minutes on one core)."),
+          "explain the latest 3 s four times better; and a hot winding that has led a change still being "
+          "named for 2 s, at once, provisionally (undone if the change is named otherwise or left unnamed; "
+          "`HealthMonitor.leading`) (about 10 minutes on one core)."),
     Group("adaptation_health_steps", "Online adaptation with the health monitor, on random steps (issue 34)",
           "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
           "--health --json docs/results/adaptation_health_steps.json",

@@ -436,15 +436,14 @@ class _Lanes(_Twins):
 
 @dataclass(frozen=True)
 class _Before:
-    """What a provisional named change moves (``PhysicsAdapter.take_named``), as it was before it."""
+    """What a provisional hot winding moves, or theta learns on its model (``PhysicsAdapter.take_named``),
+    as it was before it."""
 
     theta: tuple[float, ...]
     P: tuple[tuple[float, ...], ...]
     heating_k: float
     heat_before: float
     taken: tuple[tuple[str, float, float], ...]
-    pack_named_ohm: float | None
-    pack_named: tuple[float, float, float] | None
 
 
 class PhysicsAdapter:
@@ -835,8 +834,9 @@ class PhysicsAdapter:
         12/14, 5.94x).
 
         ``provisional``: the change is still being named and this is its leading candidate (the
-        monitor's ``HealthMonitor.leading``): taken as above, and undone (the adapter back to what
-        it was before, ``drop_provisional``) if the change is named otherwise or not at all. Why: a
+        monitor's ``HealthMonitor.leading``): a hot winding is taken as above, and undone (the
+        adapter back to what it was before, ``drop_provisional``) if the change is named otherwise
+        or not at all; the others the adapter learns itself are not taken (False). Why: a
         hot winding and a bearing's friction explain a change in flight alike for seconds, and the
         name waits for them to part, 4-13 s after the onset on benches 308-311, when what the
         adapter learnt meanwhile (the heating in the propeller's and the friction's place) has
@@ -885,13 +885,12 @@ class PhysicsAdapter:
         self._provisional = None
         self.taken = list(b.taken)
         self.heating_k, self._heat_before = b.heating_k, b.heat_before
-        self.pack_named_ohm, self._pack_named = b.pack_named_ohm, b.pack_named
         self._P = [list(r) for r in b.P]
         self._set_theta(b.theta)
 
     def _before(self) -> _Before:
         return _Before(tuple(self.theta), tuple(tuple(r) for r in self._P), self.heating_k, self._heat_before,
-                       tuple(self.taken), self.pack_named_ohm, self._pack_named)
+                       tuple(self.taken))
 
     def _take(self, name: str, size: float, onset_s: float) -> bool:
         """``take_named`` without the provisional's bookkeeping."""
