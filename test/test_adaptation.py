@@ -618,6 +618,7 @@ def test_a_provisional_take_is_undone_when_named_otherwise_or_not_at_all(model, 
     assert not ad.drop_provisional()
     assert ad.take_named("motor_heating", 20.0, 80.0, provisional=True)
     assert ad.heating_k == 20.0 and ad.theta == before and ad.taken == [("motor_heating", 20.0, 80.0)]
+    assert ad.provisional
     assert ad.take_named("motor_heating", 24.0, 80.0, provisional=True) and ad.heating_k == 24.0
     assert not ad.take_named("bearing_friction", 3.0, 80.0)  # named otherwise: undone, then refused
     assert ad.theta == now and ad._P == cov and ad.heating_k == 0.0 and ad.taken == []
@@ -626,7 +627,7 @@ def test_a_provisional_take_is_undone_when_named_otherwise_or_not_at_all(model, 
     assert ad.take_named("motor_heating", 20.0, 80.0, provisional=True)
     assert ad.take_named("motor_heating", 27.0, 80.0)  # named as led: taken afresh
     assert ad.theta == before and ad.heating_k == 27.0 and ad.taken == [("motor_heating", 27.0, 80.0)]
-    assert not ad.drop_provisional()
+    assert not ad.provisional and not ad.drop_provisional()
     kept = list(ad.theta)  # a lead the adapter learns itself (a propeller, a friction, a pack) is not taken
     for name, size in (("propeller_damage", 0.002), ("bearing_friction", 1.1), ("pack_resistance", 1.5)):
         assert not ad.take_named(name, size, 90.0, provisional=True)
@@ -668,6 +669,8 @@ def test_a_heating_that_leads_before_its_name_is_taken_at_once(model, slow_name,
     assert [c[1] for c in calls if not c[2]][0] == "motor_heating"
     ad = run["estimator"].adapter
     assert ad.taken == [("motor_heating", event["size"], event["onset_s"])] and ad.heating_k == event["size"]
+    status = run["estimator"]._adaptation_values()  # the node's and replay's key-values
+    assert status["adapted_motor_heating"] == event["size"] and status["adapted_motor_heating_provisional"] is False
     monkeypatch.setattr(HealthMonitor, "leading", property(lambda self: None))
     unled = run_flight(model, slow_name, adapt=True, health=True)
     window = (led[0][0], event["named_s"])

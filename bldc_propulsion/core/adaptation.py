@@ -870,6 +870,11 @@ class PhysicsAdapter:
         self._rebase()
         return False
 
+    @property
+    def provisional(self) -> bool:
+        """Whether a change still being named is in the model (its lead, ``take_named``)."""
+        return self._provisional is not None
+
     def drop_provisional(self) -> bool:
         """Undo the change taken provisionally (``take_named``), if any: the adapter back to what it
         was before it (what it learnt since was learnt on the lead's model). Returns whether one was."""

@@ -86,6 +86,9 @@ class Adapter(Protocol):
     heating_k: float  #: the winding's rise a named change set (K; ``take_named``), 0 without
 
     @property
+    def provisional(self) -> bool: ...  #: whether heating_k holds a change still being named
+
+    @property
     def applied_thrust_factor(self) -> float: ...
     @property
     def pack_ohm(self) -> float: ...  #: the series resistance the adapted model uses (ohm)
@@ -445,7 +448,8 @@ class ThrustEstimator:
 
     def _adaptation_values(self) -> dict[str, object]:
         """Status values: ``adaptation`` (its state), each adapted parameter and its one sigma, the
-        winding's rise a named heating set (K), the series resistance the model uses (ohm)."""
+        winding's rise a named heating set (K) and whether it is still a lead only, the series
+        resistance the model uses (ohm)."""
         assert self.adapter is not None
         out: dict[str, object] = {"adaptation": self.adaptation_state(),
                                   "adapted_in_use": self.adapter.in_use}
@@ -453,6 +457,7 @@ class ThrustEstimator:
             out[f"adapted_{name}"] = value
             out[f"adapted_{name}_sigma"] = sigma
         out["adapted_motor_heating"] = self.adapter.heating_k  # set by a name only (health on)
+        out["adapted_motor_heating_provisional"] = self.adapter.provisional  # a lead, not yet a name
         # the series resistance in use (ohm): the model's, moved by the voltage's change or a named pack
         out["adapted_pack_resistance_in_use"] = self.adapter.pack_ohm
         return out
