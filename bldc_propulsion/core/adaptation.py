@@ -844,31 +844,24 @@ class PhysicsAdapter:
         if not math.isfinite(size):
             return False
         prov = self._provisional
-        if provisional:
-            if prov is not None and prov[:2] == (name, onset_s):
-                return self._take(name, size, onset_s)  # the lead's size refined
-            self.drop_provisional()  # another lead, or another change's
-            # a lead is taken only where the adapter does not learn it itself: theta learns a
-            # propeller or a friction (and a restart's prior covariance on the transient right
-            # after the onset let it learn a propeller's loss of 0.04 beside a friction the lead had
-            # right: tuning bench 5, flight 50101, 1.38 -> 4.26x the twin's RMSE), the voltage a pack
-            if name != "motor_heating":
-                return False
-            before = self._before()
-            if not self._take(name, size, onset_s):
-                return False
+        if provisional and prov is not None and prov[:2] == (name, onset_s):
+            return self._take(name, size, onset_s)  # the lead's size refined
+        if prov is not None:
+            # named (as led or otherwise), or another lead: the lead undone, and the lanes rebuilt
+            # once, straight to what follows (by way of the state before the lead, a second large
+            # move of their states in an instant, theta ran off on tuning bench 5)
+            self._restore(prov[2])
+        # a lead is taken only where the adapter does not learn it itself: theta learns a propeller
+        # or a friction (and a restart's prior covariance on the transient right after the onset let
+        # it learn a propeller's loss of 0.04 beside a friction the lead had right: tuning bench 5,
+        # flight 50101, 1.38 -> 4.26x the twin's RMSE), the voltage a pack
+        before = self._before()
+        moved = (not provisional or name == "motor_heating") and self._take(name, size, onset_s)
+        if moved and provisional:
             self._provisional = (name, onset_s, before)
-            return True
-        if prov is None:
-            return self._take(name, size, onset_s)
-        # named, as led or otherwise: the lead undone and the name taken afresh, the lanes straight
-        # to the name's model (by way of the state before the lead, a second large move of their
-        # states in an instant, theta ran off on tuning bench 5)
-        self._restore(prov[2])
-        if self._take(name, size, onset_s):
-            return True
-        self._rebase()
-        return False
+        elif not moved and prov is not None:
+            self._rebase()  # back at the state before the lead
+        return moved
 
     @property
     def provisional(self) -> bool:
@@ -894,6 +887,7 @@ class PhysicsAdapter:
         self._set_theta(b.theta)
 
     def _before(self) -> _Before:
+        """What a provisional hot winding would move, as it is now (``_restore`` puts it back)."""
         return _Before(tuple(self.theta), tuple(tuple(r) for r in self._P), self.heating_k, self._heat_before,
                        tuple(self.taken))
 
