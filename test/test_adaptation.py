@@ -469,7 +469,8 @@ def test_a_named_pack_moves_the_model_by_its_factor_of_the_resistance_measured_b
     model's series resistance moves by 0.9 x 0.04 (the value 5 s before the onset) and stays there
     whatever the estimate does; the size refined (2.1x) moves only it; a second named change (1.5x
     at 80 s) adds half of the resistance measured before its own onset; the names are in the saved
-    model's metadata."""
+    model's metadata. Given the sag per ampere the monitor sized a factor against
+    (``HealthEvent.reference``), the factor's share of that is added instead."""
     ad = PhysicsAdapter(model)
     rs = model.params.battery_series_resistance_ohm
     sag = ad._sag
@@ -495,6 +496,12 @@ def test_a_named_pack_moves_the_model_by_its_factor_of_the_resistance_measured_b
     assert [c["size"] for c in ad.named_changes()] == [2.1, 1.5]
     assert ad.adapted_plant().params.battery_series_resistance_ohm == pytest.approx(ad.pack_ohm)
     assert not ad.take_named("pack_resistance", math.nan, 90.0)
+    # with the sag the monitor sized the factor against, the ohms it found are added
+    before = ad.pack_named_ohm
+    assert ad.take_named("pack_resistance", 1.5, 95.0, reference=0.03)
+    assert ad.pack_named_ohm == pytest.approx(before + 0.5 * 0.03)
+    ad.take_named("pack_resistance", 1.6, 95.0, reference=0.035)  # refined, against its own window
+    assert ad.pack_named_ohm == pytest.approx(before + 0.6 * 0.035)
 
 
 # --- a change the health monitor names, taken into the model -------------------------------------------
@@ -655,8 +662,8 @@ def test_a_heating_that_leads_before_its_name_is_taken_at_once(model, slow_name,
     calls = []
     take = PhysicsAdapter.take_named
 
-    def spy(self, name, size, onset_s, provisional=False):
-        moved = take(self, name, size, onset_s, provisional)
+    def spy(self, name, size, onset_s, provisional=False, reference=None):
+        moved = take(self, name, size, onset_s, provisional, reference)
         calls.append((self._last_update_t, name, provisional, moved, self.heating_k))
         return moved
 
@@ -695,9 +702,11 @@ class _Adapter:
 
     def __init__(self) -> None:
         self.calls: list[tuple] = []
+        self.references: list[float | None] = []
 
-    def take_named(self, name, size, onset_s, provisional=False):
+    def take_named(self, name, size, onset_s, provisional=False, reference=None):
         self.calls.append((name, size, onset_s, provisional))
+        self.references.append(reference)
         return True
 
     def drop_provisional(self):
@@ -749,6 +758,10 @@ def test_the_stream_passes_a_lead_that_held_once_per_size_and_drops_it_when_it_g
     mon.pending = None
     stream._pass_on(ad, [named], 80.0)
     assert ad.calls == [("motor_heating", 30.0, 70.0, True), ("motor_heating", 31.0, 70.0, False), ("drop",)]
+    ad.calls.clear()  # a pack's factor goes with what it is relative to
+    mon.pending = None
+    stream._pass_on(ad, [HealthEvent(80.0, 80.4, "pack_resistance", 1.9, "factor", 90.0, reference=0.05)], 85.0)
+    assert ad.calls == [("pack_resistance", 1.9, 80.0, False)] and ad.references[-1] == 0.05
     ad.calls.clear()  # the data end while a lead is taken: the change is left unnamed, the lead dropped
     stream.estimator.adapter = ad  # type: ignore[assignment]
     mon.pending, mon.leading = HealthEvent(90.0, 90.3, UNNAMED, None, "", 40.0), ("motor_heating", 25.0)

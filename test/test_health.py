@@ -20,6 +20,7 @@ from bldc_propulsion.core.health import (
     FAULTS,
     UNNAMED,
     HealthConfig,
+    HealthEvent,
     HealthMonitor,
     HealthSample,
     PhysicsTwins,
@@ -246,6 +247,10 @@ def test_after_a_change_the_watch_resumes_a_window_after_its_onset_not_after_its
     assert [e.name for e in mon.events] == ["pack_resistance"], [e.as_dict() for e in mon.events]
     e = mon.events[0]
     assert abs(e.onset_s - 140.0) <= 0.5 and e.detected_s <= 145.0 and e.size == pytest.approx(2.0, rel=0.2)
+    # the factor's reference is the healthy sag per ampere: the two give the 0.04 ohm added
+    assert e.reference == pytest.approx(0.04, rel=0.1) and alarm.reference is None
+    assert (e.size - 1.0) * e.reference == pytest.approx(0.04, rel=0.2)
+    assert HealthEvent.from_dict(e.as_dict()) == e
 
 
 def test_minor_is_decided_at_two_sigma_in_each_faults_unit():

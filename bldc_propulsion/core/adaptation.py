@@ -797,7 +797,8 @@ class PhysicsAdapter:
         same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
         return same[-1] if same else None
 
-    def take_named(self, name: str, size: float, onset_s: float, provisional: bool = False) -> bool:
+    def take_named(self, name: str, size: float, onset_s: float, provisional: bool = False,
+                   reference: float | None = None) -> bool:
         """A change the health monitor named (``core.health.HealthEvent``: a fault's name, its size
         in ``FAULT_UNITS``, its onset on the caller's clock), taken into the model if the adapter
         has no parameter for it or learns it slower (all four names, below). A winding running hot
@@ -824,11 +825,13 @@ class PhysicsAdapter:
         leaves a third to half of what the rise does (the module's docstring).
 
         And a pack's resistance (``pack_resistance``, a factor on its sag per ampere): the model's
-        series resistance moves by the factor's share of the one measured before the onset
-        (``_BEFORE_ONSET_S``, its history; what earlier names added stands) and stays there
-        (``_take_pack``): the voltage's own estimate follows a doubling over 10-20 s and swings
-        while the current holds still, where the monitor sized it 1.72-2.12x within 1.5-8 s on
-        benches 840-847. Tried: the voltage's estimate set to the named value and refining from
+        series resistance moves by the factor's share of ``reference``, the sag per ampere the
+        monitor sized the factor against (``HealthEvent.reference``), so by the ohms the monitor
+        found added; without one, of the resistance the adapter measured before the onset
+        (``_BEFORE_ONSET_S``, its history). What earlier names added stands, and the model stays
+        there (``_take_pack``): the voltage's own estimate follows a doubling over 10-20 s and
+        swings while the current holds still, where the monitor sized it 1.72-2.12x within 1.5-8 s
+        on benches 840-847. Tried: the voltage's estimate set to the named value and refining from
         there; it drifted off again (tuning benches 1-7, 14 flights with a doubled pack: within
         1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14, 1.65x; not taken
         12/14, 5.94x).
@@ -845,7 +848,7 @@ class PhysicsAdapter:
             return False
         prov = self._provisional
         if provisional and prov is not None and prov[:2] == (name, onset_s):
-            return self._take(name, size, onset_s)  # the lead's size refined
+            return self._take(name, size, onset_s, reference)  # the lead's size refined
         if prov is not None:
             # named (as led or otherwise), or another lead: the lead undone, and the lanes rebuilt
             # once, straight to what follows (by way of the state before the lead, a second large
@@ -856,7 +859,7 @@ class PhysicsAdapter:
         # it learn a propeller's loss of 0.04 beside a friction the lead had right: tuning bench 5,
         # flight 50101, 1.38 -> 4.26x the twin's RMSE), the voltage a pack
         before = self._before()
-        moved = (not provisional or name == "motor_heating") and self._take(name, size, onset_s)
+        moved = (not provisional or name == "motor_heating") and self._take(name, size, onset_s, reference)
         if moved and provisional:
             self._provisional = (name, onset_s, before)
         elif not moved and prov is not None:
@@ -891,10 +894,10 @@ class PhysicsAdapter:
         return _Before(tuple(self.theta), tuple(tuple(r) for r in self._P), self.heating_k, self._heat_before,
                        tuple(self.taken))
 
-    def _take(self, name: str, size: float, onset_s: float) -> bool:
+    def _take(self, name: str, size: float, onset_s: float, reference: float | None = None) -> bool:
         """``take_named`` without the provisional's bookkeeping."""
         if name == "pack_resistance":
-            return self._take_pack(size, onset_s)
+            return self._take_pack(size, onset_s, reference)
         if name in SPEED_ADAPTED:
             return self._take_speed(SPEED_ADAPTED.index(name), size, onset_s)
         if name != "motor_heating":
@@ -955,10 +958,13 @@ class PhysicsAdapter:
         since = rec[-1][0] - _RECENT_S if rec else 0.0
         return sum((c - s0 * t0 - s1 * t1) ** 2 for t, c, s0, s1 in rec if t >= since)
 
-    def _take_pack(self, factor: float, onset_s: float) -> bool:
-        """``take_named``'s pack: the resistance added (ohm) set to the factor's share of the
-        resistance measured before the onset, over what the names before it added; a refined
-        factor of the same change moves only its own share."""
+    def _take_pack(self, factor: float, onset_s: float, reference: float | None = None) -> bool:
+        """``take_named``'s pack: the resistance added (ohm) set to the factor's share of
+        ``reference`` (or, without one, of the resistance measured before the onset), over what
+        the names before it added; a refined factor of the same change moves only its own share.
+        Why the monitor's reference: its factor is the ohms it found added over its own window's
+        sag, and the adapter's measured resistance differs from that by up to a fifth (benches
+        308-311), which scaled the ohms added by as much."""
         if self._sag is None:
             return False  # the model undoes no battery filter: its resistance is not used
         entry = ("pack_resistance", factor, onset_s)
@@ -971,7 +977,8 @@ class PhysicsAdapter:
                      self._pack_hist.at(onset_s - _BEFORE_ONSET_S, self.pack_measured_ohm))
             self._pack_named = named
             self.taken.append(entry)
-        self.pack_named_ohm = named[1] + (factor - 1.0) * named[2]
+        share = named[2] if reference is None or not math.isfinite(reference) or reference <= 0.0 else reference
+        self.pack_named_ohm = named[1] + (factor - 1.0) * share
         if self._pack_moved():
             self._rebase()
         return True

@@ -433,22 +433,27 @@ class HealthEvent:
     named_s: float | None = None  #: when the name was given (None: unnamed)
     candidates: dict[str, float] = field(default_factory=dict)  #: every fault's statistic then
     note: str = ""
+    #: what a factor ``size`` is relative to, in the fault's own unit: the pack's healthy sag per
+    #: ampere the monitor sized it against (ohm; ``(size - 1) * reference`` is the resistance added);
+    #: None for the other faults
+    reference: float | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {"onset_s": self.onset_s, "detected_s": self.detected_s, "named_s": self.named_s,
                 "name": self.name, "size": self.size, "unit": self.unit, "statistic": self.statistic,
-                "candidates": dict(self.candidates), "note": self.note}
+                "candidates": dict(self.candidates), "note": self.note, "reference": self.reference}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, object]) -> HealthEvent:
         """The event ``as_dict`` gave (a summary's JSON read back, to print it as ``text``)."""
-        size, named = d.get("size"), d.get("named_s")
+        size, named, ref = d.get("size"), d.get("named_s"), d.get("reference")
         candidates = d.get("candidates") or {}
         assert isinstance(candidates, dict)
         return cls(float(cast(float, d["onset_s"])), float(cast(float, d["detected_s"])), str(d["name"]),
                    None if size is None else float(cast(float, size)), str(d["unit"]),
                    float(cast(float, d["statistic"])), None if named is None else float(cast(float, named)),
-                   {str(k): float(v) for k, v in candidates.items()}, str(d.get("note", "")))
+                   {str(k): float(v) for k, v in candidates.items()}, str(d.get("note", "")),
+                   None if ref is None else float(cast(float, ref)))
 
     def text(self) -> str:
         size = "" if self.size is None else f", size {_size_text(self.size, self.unit)}"
@@ -1279,7 +1284,8 @@ class HealthMonitor:
         if fits and margin:
             ev.name = FAULTS[best]
             ev.named_s = t_now
-            ev.size, ev.unit = self._size(best, float(theta[o, best])), FAULT_UNITS[FAULTS[best]]
+            self._set_size(ev, best, float(theta[o, best]))
+            ev.unit = FAULT_UNITS[FAULTS[best]]
             ev.statistic = float(row[best])
             self._named_fit = (float(row[best]), float(theta[o, best]))
             if self._size_at(best, float(theta[o, best]), float(row[best]), 2.0) < self._min_size(best):
@@ -1356,6 +1362,12 @@ class HealthMonitor:
             return 1.0 + theta
         return theta
 
+    def _set_size(self, ev: HealthEvent, f: int, theta: float) -> None:
+        """``ev``'s size from the fit's theta, with what a pack's factor is relative to (the sag per
+        ampere of this window: an adapter adds the same ohms the monitor sized)."""
+        ev.size = self._size(f, theta)
+        ev.reference = self._sag if FAULTS[f] == "pack_resistance" else None
+
     def _refine(self, o: int) -> list[HealthEvent]:
         """While the named change's data grow to refine_within_s after its onset: its size from
         the most data; then (or at once, if it was named later) it is reported."""
@@ -1365,7 +1377,7 @@ class HealthMonitor:
         f = FAULTS.index(ev.name)
         self._named_fit = None
         if stat[o, f] > 0:
-            ev.size = self._size(f, float(theta[o, f]))
+            self._set_size(ev, f, float(theta[o, f]))
             ev.statistic = max(ev.statistic, float(stat[o, f]))
             self._named_fit = (float(stat[o, f]), float(theta[o, f]))
         if self._post[o] + self.config.evaluate_every > self._refine_blocks:
@@ -1532,7 +1544,7 @@ class HealthStream:
             if ev is not None and ev.name != UNNAMED and ev.size is not None \
                     and self._passed.get(ev.detected_s) != ev.size:
                 self._passed[ev.detected_s] = ev.size
-                adapter.take_named(ev.name, ev.size, ev.onset_s)
+                adapter.take_named(ev.name, ev.size, ev.onset_s, reference=ev.reference)
         if pending is None or (self._lead_since is not None and pending.onset_s != self._lead_since[0]):
             self._lead_since = None
             self._drop_lead(adapter)  # nothing to undo once the change was named (``take_named``)
