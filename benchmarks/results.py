@@ -988,8 +988,8 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           render_adaptation,
           "The flights of the adaptation in flight above, the health monitor watching too (`replay --adapt "
           "--health`, the node with both on): a change it names is taken into the adapted model "
-          "(`PhysicsAdapter.take_named`): a hot winding as a set rise and a pack as a set resistance, which "
-          "the adapter cannot learn or learns slower; a propeller's loss or a bearing's friction as a restart "
+          "(`PhysicsAdapter.take_named`): a hot winding as a set rise and a pack as a set resistance (the ohms "
+          "the monitor found added), which the adapter cannot learn or learns slower; a propeller's loss or a bearing's friction as a restart "
           "of the adapted parameters from before the onset with the named size on its own, unless they "
           "explain the latest 3 s four times better; and a hot winding that has led a change still being "
           "named for 2 s, at once, provisionally (undone if the change is named otherwise or left unnamed; "
