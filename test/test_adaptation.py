@@ -563,6 +563,21 @@ def test_a_named_heating_takes_theta_back_to_before_its_onset(model, hot_flight)
     assert [n for n, _, _ in ad.taken] == ["motor_heating"] * 3
 
 
+def test_a_named_pack_takes_theta_back_to_before_its_onset(model, hot_flight):
+    """By hand on an adapter that has flown: a named pack takes theta back to its value 5 s before
+    the onset, as a heating does (what theta learnt since, at the steps where the pack sagged more
+    than the model undid, was the pack in the propeller's and the friction's place), the
+    covariance kept; its refined size moves the resistance only, theta as it has learnt since."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    before, cov = ad.theta_at(75.0), [list(r) for r in ad._P]
+    assert before != list(ad.theta)  # theta moved over the flight: the history matters
+    assert ad.take_named("pack_resistance", 1.8, 80.0, reference=0.04)
+    assert ad.theta == before and ad._P == cov and ad.pack_named_ohm == pytest.approx(0.8 * 0.04)
+    ad._set_theta([0.01, 0.1])  # learnt on since
+    assert ad.take_named("pack_resistance", 1.9, 80.0, reference=0.04)
+    assert ad.theta == [0.01, 0.1] and ad.pack_named_ohm == pytest.approx(0.9 * 0.04)
+
+
 @pytest.fixture(scope="module")
 def rubbed():
     """A flight whose bearing's friction triples at 50 s, cut 3 s later: theta has begun to learn it."""

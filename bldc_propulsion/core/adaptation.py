@@ -831,7 +831,12 @@ class PhysicsAdapter:
         (``_BEFORE_ONSET_S``, its history). What earlier names added stands, and the model stays
         there (``_take_pack``): the voltage's own estimate follows a doubling over 10-20 s and
         swings while the current holds still, where the monitor sized it 1.72-2.12x within 1.5-8 s
-        on benches 840-847. Tried: the voltage's estimate set to the named value and refining from
+        on benches 840-847. theta goes back to what it was before the onset, the covariance kept,
+        as for a heating: at each current step after the onset the pack sagged more than the model
+        undid, and theta learnt that in the propeller's and the friction's place (bench 311, random
+        steps: a propeller 7.6 % stronger and the friction 0.74x at the first step after the onset;
+        on benches 308-311 with the monitor, pack within 1.2x of the twin 6/8 -> 8/8 in flight,
+        5/8 -> 7/8 on random steps). Tried: the voltage's estimate set to the named value and refining from
         there; it drifted off again (tuning benches 1-7, 14 flights with a doubled pack: within
         1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14, 1.65x; not taken
         12/14, 5.94x).
@@ -961,7 +966,8 @@ class PhysicsAdapter:
     def _take_pack(self, factor: float, onset_s: float, reference: float | None = None) -> bool:
         """``take_named``'s pack: the resistance added (ohm) set to the factor's share of
         ``reference`` (or, without one, of the resistance measured before the onset), over what
-        the names before it added; a refined factor of the same change moves only its own share.
+        the names before it added, and theta back to before the onset; a refined factor of the
+        same change moves only its own share.
         Why the monitor's reference: its factor is the ohms it found added over its own window's
         sag, and the adapter's measured resistance differs from that by up to a fifth (benches
         308-311), which scaled the ohms added by as much."""
@@ -970,6 +976,7 @@ class PhysicsAdapter:
         entry = ("pack_resistance", factor, onset_s)
         named = self._pack_named
         i = self._taken_index(entry[0], onset_s)
+        moved = False
         if named is not None and named[0] == onset_s and i is not None:  # refined
             self.taken[i] = entry
         else:
@@ -977,9 +984,12 @@ class PhysicsAdapter:
                      self._pack_hist.at(onset_s - _BEFORE_ONSET_S, self.pack_measured_ohm))
             self._pack_named = named
             self.taken.append(entry)
+            theta = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            moved = theta != self.theta
+            self._set_theta(theta)
         share = named[2] if reference is None or not math.isfinite(reference) or reference <= 0.0 else reference
         self.pack_named_ohm = named[1] + (factor - 1.0) * share
-        if self._pack_moved():
+        if moved or self._pack_moved():
             self._rebase()
         return True
 
