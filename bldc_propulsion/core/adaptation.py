@@ -836,10 +836,10 @@ class PhysicsAdapter:
         undid, and theta learnt that in the propeller's and the friction's place (bench 311, random
         steps: a propeller 7.6 % stronger and the friction 0.74x at the first step after the onset;
         on benches 308-311 with the monitor, pack within 1.2x of the twin 6/8 -> 8/8 in flight,
-        5/8 -> 7/8 on random steps). Tried: the voltage's estimate set to the named value and refining from
-        there; it drifted off again (tuning benches 1-7, 14 flights with a doubled pack: within
-        1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14, 1.65x; not taken
-        12/14, 5.94x).
+        5/8 -> 7/8 on random steps). Tried: the voltage's estimate set to the named value and
+        refining from there; it drifted off again (tuning benches 1-7, 14 flights with a doubled
+        pack: within 1.2x of the twin 10/14, the worst 2.50x; held at the named value 12/14,
+        1.65x; not taken 12/14, 5.94x).
 
         ``provisional``: the change is still being named and this is its leading candidate (the
         monitor's ``HealthMonitor.leading``): a hot winding is taken as above, and undone (the
