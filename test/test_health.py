@@ -597,3 +597,40 @@ def test_the_bending_prior_gives_the_glr_against_the_nuisance_marginalised_over_
     num_p, den_p = glr(S + Nk[:, 1:] @ np.diag(tau2) @ Nk[:, 1:].T, Nk[:, :1])
     assert prior[0][0, 0] == pytest.approx(num_p, rel=1e-6) and prior[1][0, 0] == pytest.approx(den_p, rel=1e-6)
     assert num_p**2 / den_p > num**2 / den
+
+
+def test_the_bending_prior_is_the_fits_mean_square_net_of_their_scatter():
+    """Empirical Bayes, hand-computed: the drift's and curvature's typical square is the mean of
+    (coefficient^2 - its estimate's variance) over the fits so far (not the first fit taken
+    whole); the prior's variance is at least the visit error's (times the inflation); and on
+    coefficients drawn as truth tau plus the fit's scatter, it comes back near tau^2 where the
+    plain mean square would read the scatter as bending."""
+    mon = HealthMonitor(2.0, speed_scale_rad_s=600.0, pack_resistance_ohm=0.04)
+    a, b, visit, kappa = 0.3, 0.0, 0.5, 1.5
+    mon.noise["speed"] = (a, b, visit, kappa)
+    betas = [np.array([0.0, 20.0, -30.0]), np.array([0.0, 2.0, 1.0]), np.array([0.0, -3.0, 4.0])]
+    variances = [np.array([1.0, 300.0, 950.0]), np.array([1.0, 5.0, 6.0]), np.array([1.0, 4.0, 5.0])]
+    for beta, var in zip(betas, variances, strict=True):
+        mon._learn_bending("speed", beta, var)
+    expected = np.mean([beta[1:] ** 2 - var[1:] for beta, var in zip(betas, variances, strict=True)], axis=0)
+    assert np.allclose(mon._bending["speed"][0], expected) and mon._bending["speed"][1] == 3
+    # (400 - 300 + 4 - 5 + 9 - 4) / 3 and (900 - 950 + 1 - 6 + 16 - 5) / 3
+    assert expected == pytest.approx([104.0 / 3.0, -44.0 / 3.0])
+    mon._bending["speed"] = (expected, 10_000)
+    lam = mon._bending_precision("speed", 3, kappa)
+    assert lam is not None and lam[0] == 0.0
+    floor = visit * mon.config.noise_inflation
+    assert lam[1] == pytest.approx(kappa / max(expected[0], floor))
+    assert lam[2] == pytest.approx(kappa / floor)  # nothing seen beyond the scatter: the visit error's
+
+    rng = np.random.default_rng(11)
+    tau2, scatter2 = np.array([4.0, 1.0]), np.array([30.0, 60.0])
+    fresh = HealthMonitor(2.0, speed_scale_rad_s=600.0, pack_resistance_ohm=0.04)
+    fresh.noise["speed"] = (a, b, visit, kappa)
+    squares = []
+    for _ in range(3000):
+        beta = np.concatenate([[0.0], rng.normal(0.0, np.sqrt(tau2)) + rng.normal(0.0, np.sqrt(scatter2))])
+        fresh._learn_bending("speed", beta, np.concatenate([[1.0], scatter2]))
+        squares.append(beta[1:] ** 2)
+    assert np.all(np.abs(fresh._bending["speed"][0] - tau2) < 0.5 * np.sqrt(tau2 + scatter2))
+    assert np.all(np.mean(squares, axis=0) > tau2 + 0.5 * scatter2)

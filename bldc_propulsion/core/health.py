@@ -555,9 +555,9 @@ _UNEXPLAINED_SHARE = 0.1
 _VISIT_PRIOR = {"speed": 0.01, "voltage": 0.02}
 #: The nuisance columns whose coefficients get a prior (per channel): the speed's drift and
 #: curvature in time (columns 1 and 2 of its nuisance), with the flight's own typical size
-#: (_learn_bending). Free, the curvature takes part of a step in the window's last seconds for
-#: bending (a 30 K winding rise on tuning bench 1: statistic 67 against the offset alone, 45 with
-#: the drift, 21 with the curvature, under the threshold 34: never found).
+#: (_learn_bending), at least the visit error's. Free, the curvature takes part of a step in the
+#: window's last seconds for bending (a 30 K winding rise on tuning bench 1: statistic 67 against
+#: the offset alone, 45 with the drift, 21 with the curvature, under the threshold 34: never found).
 _BENDING_COLUMNS = {"speed": (1, 2)}
 
 
@@ -664,7 +664,8 @@ class HealthMonitor:
         #: the model's error from one steady stretch to the next, the short correlation factor
         self.noise: dict[str, tuple[float, float, float, float]] = {}
         self._visit_learned: set[str] = set()  #: channels whose visit error the flight has shown
-        #: channel -> (mean square of its bending coefficients, evaluations seen): _learn_bending
+        #: channel -> (mean square of its bending coefficients net of their estimates' variance,
+        #: evaluations seen): _learn_bending
         self._bending: dict[str, tuple[np.ndarray, int]] = {}
         self._since_jump = 0  #: blocks since the predicted speed last jumped
         #: the predicted speed's latest block-to-block changes (rad/s), a ring: the flight's dither
@@ -1048,7 +1049,8 @@ class HealthMonitor:
             self._learn_noise(ch, flat[3], N.shape[1])
             if ch.name not in self.noise:  # too few quiet blocks to learn it from: nothing tested yet
                 return empty, empty
-            self._learn_bending(ch.name, flat[6])
+            scale = self.noise[ch.name][3] * self.config.noise_inflation
+            self._learn_bending(ch.name, flat[6], np.diag(flat[4]) * scale)
         kappa = self.noise[ch.name][3] * self.config.noise_inflation
         w, P, c, res, Ginv, PWN, _ = self._fit(ch, N, self._bending_precision(ch.name, N.shape[1], kappa))
         Zw = tests * w[None, :, None]
@@ -1068,33 +1070,42 @@ class HealthMonitor:
         """The weight one evaluation's estimate gets in a running mean of noise_memory_s."""
         return min(1.0, self.config.block_s * self.config.evaluate_every / self.config.noise_memory_s)
 
-    def _learn_bending(self, name: str, beta: np.ndarray) -> None:
-        """The flight's typical drift and curvature of the model's error over a window: the mean
-        square of the channel's nuisance coefficients (fitted without a prior) with the noise's
-        memory, the first taken whole (only the channels with a prior: _BENDING_COLUMNS)."""
+    def _learn_bending(self, name: str, beta: np.ndarray, variance: np.ndarray) -> None:
+        """The flight's typical drift and curvature of the model's error over a window (only the
+        channels with a prior: _BENDING_COLUMNS), by empirical Bayes: a coefficient fitted without
+        a prior (``beta``) has mean square tau^2 + the variance of its estimate (``variance``, the
+        fit's), so tau^2 is their mean difference: over every fit so far, then with the noise's
+        memory. Why net, and not the first fit taken whole: on a short reference of random steps
+        the drift and curvature are nearly collinear with the offset, and their scatter (a mean
+        square of ~500 (rad/s)^2 on tuning bench 1, where the later fits show none beyond it) left
+        the prior so loose for minutes that the curvature took a 10 % propeller loss's step."""
         cols = _BENDING_COLUMNS.get(name)
         if cols is None:
             return
-        sq = np.asarray(beta)[list(cols)] ** 2
+        net = np.asarray(beta)[list(cols)] ** 2 - np.asarray(variance)[list(cols)]
         old = self._bending.get(name)
         if old is None:
-            self._bending[name] = (sq, 1)
+            self._bending[name] = (net, 1)
             return
-        g = self._memory_gain
-        self._bending[name] = (old[0] + g * (sq - old[0]), old[1] + 1)
+        g = max(self._memory_gain, 1.0 / (old[1] + 1))
+        self._bending[name] = (old[0] + g * (net - old[0]), old[1] + 1)
 
     def _bending_precision(self, name: str, n_columns: int, kappa: float) -> np.ndarray | None:
         """The prior precision of each nuisance column in the fit's unscaled units (the fit's S is
         scaled by ``kappa`` afterwards): kappa / the typical square of its coefficient for the
         bending columns once the flight has shown it for learn_s, 0 (free) for the others; None
-        before then (every column free)."""
+        before then (every column free). The typical square is taken at least the visit error's
+        variance (times the inflation, as the fit takes it): a bending smaller than one visit's
+        error is not told apart from the visits, and a net estimate at or below zero (no bending
+        seen beyond the fits' scatter) would otherwise pin the drift and curvature to zero."""
         cols = _BENDING_COLUMNS.get(name)
         seen = self._bending.get(name)
         if cols is None or seen is None \
                 or seen[1] * self.config.block_s * self.config.evaluate_every < self.config.learn_s:
             return None
         lam = np.zeros(n_columns)
-        floor = (_SPEED_NOISE_FLOOR * self.speed_scale) ** 2
+        floor = max((_SPEED_NOISE_FLOOR * self.speed_scale) ** 2,
+                    self.noise[name][2] * self.config.noise_inflation if name in self.noise else 0.0)
         lam[list(cols)] = kappa / np.maximum(seen[0], floor)
         return lam
 
