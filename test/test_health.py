@@ -634,3 +634,30 @@ def test_the_bending_prior_is_the_fits_mean_square_net_of_their_scatter():
         squares.append(beta[1:] ** 2)
     assert np.all(np.abs(fresh._bending["speed"][0] - tau2) < 0.5 * np.sqrt(tau2 + scatter2))
     assert np.all(np.mean(squares, axis=0) > tau2 + 0.5 * scatter2)
+
+
+@pytest.mark.parametrize(("theta", "alarm"), [(-0.014, False), (0.0, True)])
+def test_a_named_change_whose_latest_fit_reverses_is_no_alarm(theta, alarm):
+    """A named change is reported by its latest fit: when that fit finds the change reversed
+    (theta against the fault's direction: none of it holds) it is a change of no size, set aside
+    as minor, not an alarm with the size an earlier fit gave; when the latest evaluation tested
+    nothing (theta 0), the change is reported as it stands, as before."""
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
+    for s in samples:
+        mon.update(s)
+        if mon.state == "refining":
+            break
+    assert mon.state == "refining" and mon._pending is not None
+    stat, thetas, generic, chans = mon._last
+    f = FAULTS.index("propeller_damage")
+    stat, thetas = np.zeros_like(stat), np.zeros_like(thetas)
+    thetas[0, f] = theta
+    mon._last = (stat, thetas, generic, chans)
+    mon._post = np.array([mon._refine_blocks])  # the fit at the end of the refinement
+    out = mon._refine(0)
+    if alarm:
+        assert [e.name for e in out] == ["propeller_damage"] and mon.minor == []
+    else:
+        assert out == [] and mon._pending is None
+        assert [m.name for m in mon.minor] == ["propeller_damage"] and "could be below" in mon.minor[0].note
