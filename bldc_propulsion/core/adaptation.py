@@ -792,6 +792,11 @@ class PhysicsAdapter:
         the oldest kept, or the present one without a history."""
         return list(self._theta_hist.at(t, tuple(self.theta)))
 
+    def _theta_before(self, onset_s: float) -> list[float]:
+        """theta as it was before a named change's onset (``_BEFORE_ONSET_S`` earlier): where each
+        named change takes theta back to, what theta learnt since being that change."""
+        return self.theta_at(onset_s - _BEFORE_ONSET_S)
+
     def _taken_index(self, name: str, onset_s: float) -> int | None:
         """Where ``taken`` holds the named change of this name and onset (the latest), else None."""
         same = [k for k, (n, _, o) in enumerate(self.taken) if n == name and o == onset_s]
@@ -914,7 +919,7 @@ class PhysicsAdapter:
         else:
             self.taken.append((name, size, onset_s))
             self._heat_before = self.heating_k
-            self._set_theta(self.theta_at(onset_s - _BEFORE_ONSET_S))
+            self._set_theta(self._theta_before(onset_s))
         self.heating_k = min(max(self._heat_before + size, HEATING_BOUNDS_K[0]), HEATING_BOUNDS_K[1])
         if again and abs(self.heating_k - self._heat_lin) < _HEATING_REBUILD_K:
             return False
@@ -944,7 +949,7 @@ class PhysicsAdapter:
             th[k] += size - was
         else:
             prior = self._prior_cov()
-            th = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            th = self._theta_before(onset_s)
             th[k] += size - none
             th = list(_projected(prior, *th))
             if self.recent_sq(th) > _TAKE_CHECK * self.recent_sq(self.theta):
@@ -984,7 +989,7 @@ class PhysicsAdapter:
                      self._pack_hist.at(onset_s - _BEFORE_ONSET_S, self.pack_measured_ohm))
             self._pack_named = named
             self.taken.append(entry)
-            theta = self.theta_at(onset_s - _BEFORE_ONSET_S)
+            theta = self._theta_before(onset_s)
             moved = theta != self.theta
             self._set_theta(theta)
         share = named[2] if reference is None or not math.isfinite(reference) or reference <= 0.0 else reference
