@@ -1394,7 +1394,7 @@ class HealthMonitor:
         elif theta[o, f] < 0.0:
             # the latest fit finds the named change reversed: none of it holds, so it is judged
             # as a change of no size (minor), not reported with the size an earlier fit gave (a
-            # healthy flight of bench 897: a propeller loss named at 0.03 %, its fit -1.4 % by the
+            # healthy flight of bench 897: a propeller loss reported at 0.03 %, its fit -1.4 % by the
             # report, was an alarm)
             self._named_fit = (0.0, float(theta[o, f]))
         if self._post[o] + self.config.evaluate_every > self._refine_blocks:
