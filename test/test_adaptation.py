@@ -578,6 +578,24 @@ def test_a_named_pack_takes_theta_back_to_before_its_onset(model, hot_flight):
     assert ad.theta == [0.01, 0.1] and ad.pack_named_ohm == pytest.approx(0.9 * 0.04)
 
 
+def test_a_renamed_change_holds_only_its_latest_name(model, hot_flight):
+    """By hand on an adapter that has flown: a change named one fault and renamed another while
+    it is sized (the monitor's ``_refine``) holds only the new name's take: a heating renamed a
+    pack leaves no winding rise, a pack renamed a heating no ohms (None: nothing named before),
+    and an earlier change's take stays; theta is the new take's (back to before the onset)."""
+    ad = run_flight(model, hot_flight[1], adapt=True, keep=True)["estimator"].adapter
+    before = ad.theta_at(75.0)
+    assert ad.take_named("motor_heating", 20.0, 60.0) and ad.heating_k == 20.0  # an earlier change
+    assert ad.take_named("motor_heating", 15.0, 80.0) and ad.heating_k == 35.0
+    assert ad.take_named("pack_resistance", 1.8, 80.0, reference=0.04)  # renamed
+    assert ad.heating_k == 20.0 and ad.pack_named_ohm == pytest.approx(0.8 * 0.04)
+    assert ad.theta == before
+    assert [n for n, _, _ in ad.taken] == ["motor_heating", "pack_resistance"]
+    assert ad.take_named("motor_heating", 12.0, 80.0)  # and back: the pack's ohms go, the rise comes
+    assert ad.pack_named_ohm is None and ad.heating_k == 32.0
+    assert [(n, v) for n, v, _ in ad.taken] == [("motor_heating", 20.0), ("motor_heating", 12.0)]
+
+
 @pytest.fixture(scope="module")
 def rubbed():
     """A flight whose bearing's friction triples at 50 s, cut 3 s later: theta has begun to learn it."""

@@ -655,9 +655,42 @@ def test_a_named_change_whose_latest_fit_reverses_is_no_alarm(theta, alarm):
     thetas[0, f] = theta
     mon._last = (stat, thetas, generic, chans)
     mon._post = np.array([mon._refine_blocks])  # the fit at the end of the refinement
-    out = mon._refine(0)
+    out = mon._refine(100.0, 0)
     if alarm:
         assert [e.name for e in out] == ["propeller_damage"] and mon.minor == []
     else:
         assert out == [] and mon._pending is None
         assert [m.name for m in mon.minor] == ["propeller_damage"] and "could be below" in mon.minor[0].note
+
+
+@pytest.mark.parametrize(("lead", "explained", "renamed"),
+                         [(400.0, True, True), (400.0, False, False), (300.0 + 5.0, True, False)])
+def test_a_candidate_that_comes_to_lead_by_the_naming_rule_takes_the_name(monkeypatch, lead, explained, renamed):
+    """While a named change is refined, the name is tested again by the rule that gave it: a
+    candidate that now leads the named one by the margin (here max(9, 10 % of its statistic))
+    and leaves nothing significant unexplained takes the name, named at that time; a lead below
+    the margin, or one that leaves part of the change unexplained, keeps the first name."""
+    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
+    mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
+    for s in samples:
+        mon.update(s)
+        if mon.state == "refining":
+            break
+    assert mon.state == "refining" and mon._pending is not None
+    assert mon._pending.name == "propeller_damage"
+    stat, thetas, generic, chans = mon._last
+    f, h = FAULTS.index("propeller_damage"), FAULTS.index("motor_heating")
+    stat, thetas = np.zeros_like(stat), np.zeros_like(thetas)
+    stat[0, f], stat[0, h] = 300.0, lead
+    thetas[0, f], thetas[0, h] = 0.1, 20.0
+    mon._last = (stat, thetas, generic, chans)
+    monkeypatch.setattr(mon, "_unexplained", lambda o, j: 0.0 if explained else 1e6)
+    first_named = mon._pending.named_s
+    assert mon._refine(123.0, 0) == []  # still refining: nothing reported yet
+    ev = mon._pending
+    assert ev is not None
+    if renamed:
+        assert (ev.name, ev.unit, ev.named_s) == ("motor_heating", "K", 123.0)
+        assert ev.candidates["motor_heating"] == lead and ev.size == mon._size(h, 20.0)
+    else:
+        assert (ev.name, ev.named_s) == ("propeller_damage", first_named)

@@ -868,13 +868,30 @@ class PhysicsAdapter:
         # or a friction (and a restart's prior covariance on the transient right after the onset let
         # it learn a propeller's loss of 0.04 beside a friction the lead had right: tuning bench 5,
         # flight 50101, 1.38 -> 4.26x the twin's RMSE), the voltage a pack
+        undone = not provisional and self._untake_renamed(name, onset_s)
         before = self._before()
         moved = (not provisional or name == "motor_heating") and self._take(name, size, onset_s, reference)
         if moved and provisional:
             self._provisional = (name, onset_s, before)
-        elif not moved and prov is not None:
-            self._rebase()  # back at the state before the lead
+        elif not moved and (prov is not None or undone):
+            self._rebase()  # back at the state before the lead, or without the earlier name
+            moved = undone
         return moved
+
+    def _untake_renamed(self, name: str, onset_s: float) -> bool:
+        """Undo what a change taken under another name added (a winding's rise, a pack's ohms), now
+        that it is named ``name``: the monitor renames a change being sized when another candidate
+        comes to lead it by the naming rule, and the model must not hold both. theta needs no undo:
+        every first take of a change sets it back to before the onset. Returns whether one was."""
+        old = [n for n, _, o in self.taken if o == onset_s and n != name]
+        for n in old:
+            if n == "motor_heating":
+                self.heating_k = self._heat_before
+            elif n == "pack_resistance" and self._pack_named is not None and self._pack_named[0] == onset_s:
+                earlier = any(e[0] == n and e[2] != onset_s for e in self.taken)
+                self.pack_named_ohm, self._pack_named = (self._pack_named[1] if earlier else None), None
+        self.taken = [e for e in self.taken if e[2] != onset_s or e[0] == name]
+        return bool(old)
 
     @property
     def provisional(self) -> bool:

@@ -1251,7 +1251,7 @@ class HealthMonitor:
         t_now = float(win[-1, _T])
         h = self.threshold
         if self.state == _REFINING:
-            return self._refine(0)
+            return self._refine(t_now, 0)
         if self.state == _NAMING:
             return self._try_name(t_now, 0)
         if self._filled - self._detect_blocks < self.config.learn_s / self.config.block_s:
@@ -1379,13 +1379,23 @@ class HealthMonitor:
         ev.size = self._size(f, theta)
         ev.reference = self._sag if FAULTS[f] == "pack_resistance" else None
 
-    def _refine(self, o: int) -> list[HealthEvent]:
+    def _refine(self, t_now: float, o: int) -> list[HealthEvent]:
         """While the named change's data grow to refine_within_s after its onset: its size from
-        the most data; then (or at once, if it was named later) it is reported."""
+        the most data, and its name again by the naming rule (a candidate that now leads the named
+        one by the margin and leaves nothing significant unexplained takes the name: more data
+        separate signatures that 5 s could not); then (or at once, if it was named later) it is
+        reported."""
         ev = self._pending
         assert ev is not None
         stat, theta, _, _ = self._last
         f = FAULTS.index(ev.name)
+        best = int(np.argmax(stat[o]))
+        lead = float(stat[o, best])
+        if best != f and lead >= self.threshold and lead - float(stat[o, f]) >= self._name_margin(lead) \
+                and self._unexplained(o, best) < max(self.threshold, _UNEXPLAINED_SHARE * lead):
+            f = best
+            ev.name, ev.unit, ev.named_s = FAULTS[f], FAULT_UNITS[FAULTS[f]], t_now
+            ev.candidates = {FAULTS[j]: float(stat[o, j]) for j in range(self.n_faults)}
         self._named_fit = None
         if stat[o, f] > 0:
             self._set_size(ev, f, float(theta[o, f]))
@@ -1510,8 +1520,8 @@ class HealthStream:
                                      source_resistance_ohm=self.twins.source_resistance_ohm)
         self.first_s = math.nan  #: the first measured speed the monitor took (s)
         self.last_s = math.nan  #: the latest
-        #: per named change passed to the adapter (by its detection time), the size passed
-        self._passed: dict[float, float] = {}
+        #: per named change passed to the adapter (by its detection time), the name and size passed
+        self._passed: dict[float, tuple[str, float]] = {}
         #: the change being named as last passed to the adapter: its onset (s), lead's name and size
         self._led: tuple[float, str, float] | None = None
         #: the change being named: its onset, its leading candidate's name and since when it leads (s)
@@ -1559,8 +1569,8 @@ class HealthStream:
         pending = self.monitor.pending
         for ev in (*events, pending):
             if ev is not None and ev.name != UNNAMED and ev.size is not None \
-                    and self._passed.get(ev.detected_s) != ev.size:
-                self._passed[ev.detected_s] = ev.size
+                    and self._passed.get(ev.detected_s) != (ev.name, ev.size):
+                self._passed[ev.detected_s] = (ev.name, ev.size)
                 adapter.take_named(ev.name, ev.size, ev.onset_s, reference=ev.reference)
         if pending is None or (self._lead_since is not None and pending.onset_s != self._lead_since[0]):
             self._lead_since = None
