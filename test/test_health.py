@@ -691,6 +691,7 @@ def test_a_candidate_that_comes_to_lead_by_the_naming_rule_takes_the_name(monkey
     assert ev is not None
     if renamed:
         assert (ev.name, ev.unit, ev.named_s) == ("motor_heating", "K", 123.0)
+        assert ev.note == f"first named propeller_damage at {first_named:.2f} s"
         assert ev.candidates["motor_heating"] == lead and ev.size == mon._size(h, 20.0)
     else:
-        assert (ev.name, ev.named_s) == ("propeller_damage", first_named)
+        assert (ev.name, ev.named_s, ev.note) == ("propeller_damage", first_named, "")

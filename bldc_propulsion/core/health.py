@@ -1394,6 +1394,7 @@ class HealthMonitor:
         if best != f and lead >= self.threshold and lead - float(stat[o, f]) >= self._name_margin(lead) \
                 and self._unexplained(o, best) < max(self.threshold, _UNEXPLAINED_SHARE * lead):
             f = best
+            ev.note = f"first named {ev.name} at {ev.named_s:.2f} s"  # what the status showed till now
             ev.name, ev.unit, ev.named_s = FAULTS[f], FAULT_UNITS[FAULTS[f]], t_now
             ev.candidates = {FAULTS[j]: float(stat[o, j]) for j in range(self.n_faults)}
         self._named_fit = None
