@@ -255,11 +255,16 @@ def monitor_whole_log(d: Path, whole: Path, rows: list[dict]) -> list[dict]:
         if r["kind"] not in ("physics", "hybrid") or "refused" in r:
             continue
         rec = cli_json("health", "--model", str(d / f"split{r['split']}_{r['kind']}.npz"), str(whole))["recordings"][0]
-        said = [f"{e['name']} ({e['size']:.3g} {e['unit']}) from {e['onset_s']:.1f} s" if e.get("size") is not None
-                else f"{e['name']} from {e['onset_s']:.1f} s" for e in rec["events"]]
         out.append({"split": r["split"], "kind": r["kind"], "monitored_s": rec["monitored_s"],
-                    "duration_s": rec["duration_s"], "events": said})
+                    "duration_s": rec["duration_s"], "events": [_said(e) for e in rec["events"]],
+                    "minor": [_said(e) + (f": {e['note']}" if e.get("note") else "") for e in rec["minor"]]})
     return out
+
+
+def _said(e: dict) -> str:
+    """A change of the health monitor's JSON (``HealthEvent.as_dict``) in a line."""
+    size = f" ({e['size']:.3g} {e['unit']})" if e.get("size") is not None else ""
+    return f"{e['name']}{size} from {e['onset_s']:.1f} s"
 
 
 #: A hold's settled part: its last share, after the rotor and the supply have followed the step.
@@ -471,7 +476,9 @@ def main() -> int:
     print(f"health monitor over the whole log (the stand unchanged{spec.health_note}):")
     for h in health:
         said = "; ".join(map(str, h["events"])) or "no change"
-        print(f"  split {h['split']} {h['kind']}: {said} ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)")
+        minor = "".join(f"; minor, no alarm: {m}" for m in h["minor"])
+        print(f"  split {h['split']} {h['kind']}: {said}{minor} ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s "
+              "monitored)")
     if revisited:
         print("the same command on the way up and on the way down (settled medians of the log, no model):")
         print(f"{'level':>7s} {'us':>5s} {'part':>5s} {'up rad/s':>9s} {'A':>6s} {'V':>6s} {'part':>5s} "

@@ -611,8 +611,9 @@ def render_real(f: dict[str, Any]) -> list[str]:
                   "but its supply current-limits at 90 s (1950 µs: 14.45 → 13.60 V for 1.5 A more, where each step "
                   "before sagged about 0.13 V for 3.5 A): an event there is that change, any other a false alarm.",
                   ""]
-        lines += [f"- split {h['split']}, {h['kind']}: {'; '.join(map(str, h['events'])) or 'no change'} "
-                  f"({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)" for h in health]
+        lines += [f"- split {h['split']}, {h['kind']}: {'; '.join(map(str, h['events'])) or 'no change'}"
+                  + "".join(f"; minor, no alarm: {m}" for m in h.get("minor", []))
+                  + f" ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)" for h in health]
         if not health:
             lines.append("- no physics or hybrid model was trained (each refused above), so nothing was monitored")
     return lines
