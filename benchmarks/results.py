@@ -952,11 +952,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "no false alarm in 10.39 h (one at 8fe93c5, before the speed's drift and curvature had a prior: bench "
           "873, a healthy flight named propeller_damage 6.0 % at 60 s, the curvature bent toward a full-throttle "
           "hold at the learned error's edge; two at 869748f, before a change still being sized at a flight's end "
-          "was judged by the smallest worth an alarm); eight more (`--first-seed 890`, measured at 0217125, this "
-          "record's commit) 12/16, 16/16 and 14/16, and two false alarms in 10.39 h, both on bench 897 and both a "
-          "propeller loss named and then reported with an earlier fit's size though the latest fit found it "
-          "reversed; since a named change whose latest fit reverses is set aside as minor, those two flights "
-          "raise none."),
+          "was judged by the smallest worth an alarm); eight more (`--first-seed 890`, measured at 0217125, "
+          "before the two changes since) 12/16, 16/16 and 14/16, and two false alarms in 10.39 h, both on bench "
+          "897 and both a propeller loss named and then reported with an earlier fit's size though the latest fit "
+          "found it reversed; since a named change whose latest fit reverses is set aside as minor, those two "
+          "flights raise none. The record's own benches gave the same at f293639, before a change being sized "
+          "could be renamed (da8dffc): no run here is renamed."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
@@ -967,9 +968,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "steadily by 4 rad/s as the winding warmed: since the speed's drift and curvature have a prior of the "
           "flight's own size (77bad59) that fall at the window's end reads as a step; at a5c8402 the free "
           "curvature took it (no alarm in this flight). The spread: eight more fresh benches (`--first-seed "
-          "890`, measured at 0217125, this record's commit) gave propeller_damage 13/16, pack_resistance 15/16, "
+          "890`, measured at 0217125) gave propeller_damage 13/16, pack_resistance 15/16, "
           "motor_heating 9/16 (4 of its 16 left unnamed: heating and friction explain them alike), and one false "
-          "alarm in 10.39 h (bench 897 at 100 s, an unnamed change no signature fits; the same before 0217125)."),
+          "alarm in 10.39 h (bench 897 at 100 s, an unnamed change no signature fits; the same before 0217125). "
+          "The record's own benches gave the same at f293639, before a change being sized could be renamed "
+          "(da8dffc): no run here is renamed."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
@@ -1002,7 +1005,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "of the adapted parameters from before the onset with the named size on its own, unless they "
           "explain the latest 3 s four times better; and a hot winding that has led a change still being "
           "named for 2 s, at once, provisionally (undone if the change is named otherwise or left unnamed; "
-          "`HealthMonitor.leading`) (about 10 minutes on one core)."),
+          "`HealthMonitor.leading`) (about 10 minutes on one core). A change being sized that another "
+          "candidate comes to lead by the naming rule is renamed, and the adapter drops what the first name "
+          "added; two flights here are (bench 311): 3110001, a tripled friction named motor_heating 1.4 s "
+          "after its onset and bearing_friction 3.26x at 10.4 s (9.55x the twin's RMSE before renames, "
+          "1.59x now), and 3110102, a 30 K heating named bearing_friction at 70.1 s and motor_heating 22.2 K "
+          "at 72.3 s (3.40x, 2.14x); the name counted below is the one reported."),
     Group("adaptation_health_steps", "Online adaptation with the health monitor, on random steps (issue 34)",
           "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
           "--health --json docs/results/adaptation_health_steps.json",
