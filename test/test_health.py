@@ -636,24 +636,29 @@ def test_the_bending_prior_is_the_fits_mean_square_net_of_their_scatter():
     assert np.all(np.mean(squares, axis=0) > tau2 + 0.5 * scatter2)
 
 
-@pytest.mark.parametrize(("theta", "alarm"), [(-0.014, False), (0.0, True)])
-def test_a_named_change_whose_latest_fit_reverses_is_no_alarm(theta, alarm):
-    """A named change is reported by its latest fit: when that fit finds the change reversed
-    (theta against the fault's direction: none of it holds) it is a change of no size, set aside
-    as minor, not an alarm with the size an earlier fit gave; when the latest evaluation tested
-    nothing (theta 0), the change is reported as it stands, as before."""
+def refining_a_propeller_loss() -> HealthMonitor:
+    """A monitor that has just named a 10 % propeller loss (synthetic flight, onset 100 s) and is
+    sizing it; its latest evaluation's statistics and fits zeroed, for a test to set by hand."""
     samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
     mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
     for s in samples:
         mon.update(s)
         if mon.state == "refining":
             break
-    assert mon.state == "refining" and mon._pending is not None
+    assert mon.state == "refining" and mon._pending is not None and mon._pending.name == "propeller_damage"
     stat, thetas, generic, chans = mon._last
-    f = FAULTS.index("propeller_damage")
-    stat, thetas = np.zeros_like(stat), np.zeros_like(thetas)
-    thetas[0, f] = theta
-    mon._last = (stat, thetas, generic, chans)
+    mon._last = (np.zeros_like(stat), np.zeros_like(thetas), generic, chans)
+    return mon
+
+
+@pytest.mark.parametrize(("theta", "alarm"), [(-0.014, False), (0.0, True)])
+def test_a_named_change_whose_latest_fit_reverses_is_no_alarm(theta, alarm):
+    """A named change is reported by its latest fit: when that fit finds the change reversed
+    (theta against the fault's direction: none of it holds) it is a change of no size, set aside
+    as minor, not an alarm with the size an earlier fit gave; when the latest evaluation tested
+    nothing (theta 0), the change is reported as it stands, as before."""
+    mon = refining_a_propeller_loss()
+    mon._last[1][0, FAULTS.index("propeller_damage")] = theta
     mon._post = np.array([mon._refine_blocks])  # the fit at the end of the refinement
     out = mon._refine(100.0, 0)
     if alarm:
@@ -670,20 +675,11 @@ def test_a_candidate_that_comes_to_lead_by_the_naming_rule_takes_the_name(monkey
     candidate that now leads the named one by the margin (here max(9, 10 % of its statistic))
     and leaves nothing significant unexplained takes the name, named at that time; a lead below
     the margin, or one that leaves part of the change unexplained, keeps the first name."""
-    samples = synthetic_flight(150.0, 2, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 100.0))
-    mon = HealthMonitor(2.0, speed_scale_rad_s=650.0, pack_resistance_ohm=0.04)
-    for s in samples:
-        mon.update(s)
-        if mon.state == "refining":
-            break
-    assert mon.state == "refining" and mon._pending is not None
-    assert mon._pending.name == "propeller_damage"
-    stat, thetas, generic, chans = mon._last
+    mon = refining_a_propeller_loss()
+    stat, thetas = mon._last[:2]
     f, h = FAULTS.index("propeller_damage"), FAULTS.index("motor_heating")
-    stat, thetas = np.zeros_like(stat), np.zeros_like(thetas)
     stat[0, f], stat[0, h] = 300.0, lead
     thetas[0, f], thetas[0, h] = 0.1, 20.0
-    mon._last = (stat, thetas, generic, chans)
     monkeypatch.setattr(mon, "_unexplained", lambda o, j: 0.0 if explained else 1e6)
     first_named = mon._pending.named_s
     assert mon._refine(123.0, 0) == []  # still refining: nothing reported yet
