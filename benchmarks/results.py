@@ -956,8 +956,9 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "before the two changes since) 12/16, 16/16 and 14/16, and two false alarms in 10.39 h, both on bench "
           "897 and both a propeller loss named and then reported with an earlier fit's size though the latest fit "
           "found it reversed; since a named change whose latest fit reverses is set aside as minor, those two "
-          "flights raise none. The record's own benches gave the same at f293639, before a change being sized "
-          "could be renamed (da8dffc): no run here is renamed."),
+          "flights raise none; eight more (`--first-seed 900`, measured at a5964b2) 15/16, 16/16 and 14/16, and "
+          "no false alarm in 10.39 h. The record's own benches gave the same at f293639, before a change being "
+          "sized could be renamed (da8dffc): no run here is renamed."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
@@ -970,7 +971,10 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "curvature took it (no alarm in this flight). The spread: eight more fresh benches (`--first-seed "
           "890`, measured at 0217125) gave propeller_damage 13/16, pack_resistance 15/16, "
           "motor_heating 9/16 (4 of its 16 left unnamed: heating and friction explain them alike), and one false "
-          "alarm in 10.39 h (bench 897 at 100 s, an unnamed change no signature fits; the same before 0217125). "
+          "alarm in 10.39 h (bench 897 at 100 s, an unnamed change no signature fits; the same before 0217125); "
+          "eight more (`--first-seed 900`, measured at a5964b2) 12/16, 13/16 and 12/16 (2 of the heating's 16 "
+          "left unnamed), and one false alarm in 10.39 h (bench 905 at 100.7 s, again an unnamed change no "
+          "signature fits, statistic 95). "
           "The record's own benches gave the same at f293639, before a change being sized could be renamed "
           "(da8dffc): no run here is renamed."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
