@@ -1285,12 +1285,9 @@ class HealthMonitor:
         margin = row[best] - row[second] >= self._name_margin(float(row[best]))
         # seen at one operating point only, a change fits any shape: a name needs two
         post = self._steady[len(self._steady) - int(self._post[o]):] > 0
-        # what the name leaves unexplained must be small beside the change itself: the model's
-        # signature is never exact, so a large change always leaves a little
-        left = max(self.threshold, _UNEXPLAINED_SHARE * float(row[best]))
         # a name but for its lead over the next: the ``leading`` candidate
         fits = row[best] >= self.threshold and len(true_run_pairs(post)) >= _NAME_STRETCHES \
-            and self._unexplained(o, best) < left
+            and self._leaves_little(o, best, float(row[best]))
         self._lead = (FAULTS[best], self._size(best, float(theta[o, best]))) if fits else None
         if fits and margin:
             ev.name = FAULTS[best]
@@ -1325,6 +1322,12 @@ class HealthMonitor:
         if row[best] - row[second] < self._name_margin(float(row[best])):
             return f"{FAULTS[best]} and {FAULTS[second]} explain it about equally"
         return f"{FAULTS[best]} leaves part of the change unexplained"
+
+    def _leaves_little(self, o: int, f: int, statistic: float) -> bool:
+        """Whether fault f's change at onset o, of this statistic, leaves little unexplained: less
+        than the threshold or a share of its own statistic, whichever is more (the model's
+        signature is never exact, so a large change always leaves a little)."""
+        return self._unexplained(o, f) < max(self.threshold, _UNEXPLAINED_SHARE * statistic)
 
     def _unexplained(self, o: int, f: int) -> float:
         """The largest step left in either channel once fault f's change at onset o is fitted."""
@@ -1392,7 +1395,7 @@ class HealthMonitor:
         best = int(np.argmax(stat[o]))
         lead = float(stat[o, best])
         if best != f and lead >= self.threshold and lead - float(stat[o, f]) >= self._name_margin(lead) \
-                and self._unexplained(o, best) < max(self.threshold, _UNEXPLAINED_SHARE * lead):
+                and self._leaves_little(o, best, lead):
             f = best
             ev.note = f"first named {ev.name} at {ev.named_s:.2f} s"  # what the status showed till now
             ev.name, ev.unit, ev.named_s = FAULTS[f], FAULT_UNITS[FAULTS[f]], t_now
