@@ -128,7 +128,9 @@ def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None
                            "name": None if first is None else first.name, "size": None if first is None else first.size,
                            "named_delay_s": None if first is None or first.named_s is None
                            else first.named_s - fault.onset_s}
-    out["named_right"] = bool(first is not None and first.name == fault.name)
+    # named right FIRST: a change renamed while sized showed another name first (``first_name``)
+    out["renamed"] = bool(first is not None and first.first_name is not None)
+    out["named_right"] = bool(first is not None and first.name == fault.name and not out["renamed"])
     out["turning_s"] = turning_s
     sized = out["named_right"] and first is not None and first.size is not None
     out["size_error"] = (first.size - fault.size) if sized and first is not None and first.size is not None else None
@@ -246,6 +248,7 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
             "named_wrong": sum(r["name"] not in (None, name, UNNAMED) for r in rows),
             "unnamed": sum(r["name"] == UNNAMED for r in rows),
             "missed": sum(r["name"] is None for r in rows),
+            "renamed": sum(bool(r.get("renamed")) for r in rows),
         }
         named_delays = [r["named_delay_s"] for r in rows if r["named_right"] and r["named_delay_s"] is not None]
         shown = [r for r in rows if r.get("turning_s") is not None
@@ -308,7 +311,8 @@ def print_table(s: dict[str, Any]) -> None:
         c = f["counts"]
         print(f"{name}: rotor turning >= {TURNING_SHARE * DETECT_WITHIN_S:g} s of the {DETECT_WITHIN_S:g} s after "
               f"the onset in {c['could_show']}/{f['runs']} runs; of those detected and named right "
-              f"{c['could_show_detected_and_named_right']}/{c['could_show']}")
+              f"{c['could_show_detected_and_named_right']}/{c['could_show']}; renamed while sized "
+              f"(not named right first) {c['renamed']}")
     h = s["healthy"]
     print(f"healthy: {h['flights']} flights, {h['hours_monitored']:.2f} h monitored, {h['false_alarms']} alarms "
           f"({num(h['false_alarms_per_hour'])} per hour)")

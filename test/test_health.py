@@ -4,6 +4,7 @@ built by hand with a known change, and simulated flights with a fault injected m
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -576,6 +577,12 @@ def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
     assert turning_after(slow, 0.0) == pytest.approx(2.0, abs=0.002)
     out = judge([], Fault("propeller_damage", 0.1, 1.0), turning_after(res, 1.0))
     assert out["turning_s"] == pytest.approx(3.0, abs=0.002) and out["name"] is None
+    # a change renamed while sized showed another name first: named right, but not first
+    right = HealthEvent(1.2, 1.5, "propeller_damage", 0.1, "fraction", 80.0, 3.0)
+    renamed = dataclasses.replace(right, first_name="motor_heating")
+    assert judge([right], Fault("propeller_damage", 0.1, 1.0))["named_right"]
+    out = judge([renamed], Fault("propeller_damage", 0.1, 1.0))
+    assert out["renamed"] and not out["named_right"] and out["name"] == "propeller_damage"
 
 
 def test_the_bending_prior_gives_the_glr_against_the_nuisance_marginalised_over_it():
@@ -715,6 +722,7 @@ def test_a_candidate_that_comes_to_lead_by_the_naming_rule_takes_the_name(monkey
     if renamed:
         assert (ev.name, ev.unit, ev.named_s) == ("motor_heating", "K", 123.0)
         assert ev.note == f"first named propeller_damage at {first_named:.2f} s"
+        assert ev.first_name == "propeller_damage" and HealthEvent.from_dict(ev.as_dict()) == ev
         assert ev.candidates["motor_heating"] == lead and ev.size == mon._size(h, 20.0)
     else:
-        assert (ev.name, ev.named_s, ev.note) == ("propeller_damage", first_named, "")
+        assert (ev.name, ev.named_s, ev.note, ev.first_name) == ("propeller_damage", first_named, "", None)

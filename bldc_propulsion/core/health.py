@@ -438,23 +438,27 @@ class HealthEvent:
     #: ampere the monitor sized it against (ohm; ``(size - 1) * reference`` is the resistance added);
     #: None for the other faults
     reference: float | None = None
+    #: the name the status showed first, when the change was named again while sized (None: never
+    #: renamed): whoever judges the monitor counts what it said first, not only what it settled on
+    first_name: str | None = None
 
     def as_dict(self) -> dict[str, object]:
         return {"onset_s": self.onset_s, "detected_s": self.detected_s, "named_s": self.named_s,
                 "name": self.name, "size": self.size, "unit": self.unit, "statistic": self.statistic,
-                "candidates": dict(self.candidates), "note": self.note, "reference": self.reference}
+                "candidates": dict(self.candidates), "note": self.note, "reference": self.reference,
+                "first_name": self.first_name}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, object]) -> HealthEvent:
         """The event ``as_dict`` gave (a summary's JSON read back, to print it as ``text``)."""
-        size, named, ref = d.get("size"), d.get("named_s"), d.get("reference")
+        size, named, ref, first = d.get("size"), d.get("named_s"), d.get("reference"), d.get("first_name")
         candidates = d.get("candidates") or {}
         assert isinstance(candidates, dict)
         return cls(float(cast(float, d["onset_s"])), float(cast(float, d["detected_s"])), str(d["name"]),
                    None if size is None else float(cast(float, size)), str(d["unit"]),
                    float(cast(float, d["statistic"])), None if named is None else float(cast(float, named)),
                    {str(k): float(v) for k, v in candidates.items()}, str(d.get("note", "")),
-                   None if ref is None else float(cast(float, ref)))
+                   None if ref is None else float(cast(float, ref)), None if first is None else str(first))
 
     def text(self) -> str:
         size = "" if self.size is None else f", size {_size_text(self.size, self.unit)}"
@@ -1414,6 +1418,7 @@ class HealthMonitor:
                 and self._leaves_little(o, best, lead):
             f = best
             ev.note = f"first named {ev.name} at {ev.named_s:.2f} s"  # what the status showed till now
+            ev.first_name = ev.first_name or ev.name
             ev.name, ev.unit, ev.named_s = FAULTS[f], FAULT_UNITS[FAULTS[f]], t_now
             ev.candidates = {FAULTS[j]: float(stat[o, j]) for j in range(self.n_faults)}
         self._named_fit = None
