@@ -248,7 +248,7 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
             "named_wrong": sum(r["name"] not in (None, name, UNNAMED) for r in rows),
             "unnamed": sum(r["name"] == UNNAMED for r in rows),
             "missed": sum(r["name"] is None for r in rows),
-            "renamed": sum(bool(r.get("renamed")) for r in rows),
+            "renamed": sum(bool(r["renamed"]) for r in rows),
         }
         named_delays = [r["named_delay_s"] for r in rows if r["named_right"] and r["named_delay_s"] is not None]
         shown = [r for r in rows if r.get("turning_s") is not None

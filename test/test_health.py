@@ -334,7 +334,6 @@ def test_an_unnamed_change_that_does_not_hold_is_no_alarm_and_the_watch_goes_on(
     assert m.note.startswith("did not hold")
 
 
-
 def _rests_a_few_mv_off(seed: int, change: Change | None = None) -> list[HealthSample]:
     """Holds with every third 5 s stretch at rest (no current), each hold's open-circuit voltage
     4 mV off at random (what the monitor's fitted polarisation and charge leave from one visit to
@@ -360,6 +359,7 @@ def test_a_propeller_loss_between_rests_is_named():
     assert [e.name for e in events] == ["propeller_damage"], [e.as_dict() for e in events]
     assert abs(events[0].onset_s - 100.0) <= 0.5 and events[0].detected_s <= 105.0
     assert events[0].size == pytest.approx(0.1, rel=0.2)
+
 
 # --- simulated flights ---------------------------------------------------------------------------------------
 #: the simulated flights: nominal bench, random steps, 100 s, the fault at 60 s

@@ -39,10 +39,10 @@ speed residual alone:
   of tests (faults x onsets x evaluations per hour), Bonferroni;
 * a change that no candidate explains (the best one's signature leaves a significant step in
   the residual, tested where some fault could show: not on a voltage block at rest, which only
-  pins the open-circuit voltage) is reported as an unnamed change, never a wrong name; a name waits while two
-  candidates explain the change about equally well; an unnamed change whose statistic has fallen
-  back under the threshold by the end of that wait did not hold (a fault is a static change) and
-  is no alarm.
+  pins the open-circuit voltage) is reported as an unnamed change, never a wrong name; a name
+  waits while two candidates explain the change about equally well; an unnamed change whose
+  statistic has fallen back under the threshold by the end of that wait did not hold (a fault is
+  a static change) and is no alarm.
 
 ``HealthMonitor`` is numpy only (no physics, no ROS): it is fed, at each measured speed sample,
 what the estimator knows (:class:`HealthSample`). ``PhysicsTwins`` computes the model's speed,
