@@ -585,6 +585,39 @@ def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
     assert out["renamed"] and not out["named_right"] and out["name"] == "propeller_damage"
 
 
+def test_one_outlying_stretch_does_not_set_the_visit_error():
+    """The visit error (the variance of a steady stretch's mean beyond its blocks' noise) from
+    eight stretches, one of them 3.3 rad/s off where the others scatter by 0.3: estimated, by
+    hand, from the seven others (their mean squares less their own noise, over one freedom
+    fewer). A stretch out by less than the rule's factor, or one of only four stretches, counts."""
+    rng = np.random.default_rng(11)
+
+    def learned(offsets: list[float]) -> tuple[float, float]:
+        """(the monitor's visit error, the same by hand over every stretch but a 3.3 rad/s one)"""
+        mon = HealthMonitor(2.0, speed_scale_rad_s=600.0, pack_resistance_ohm=0.04)
+        k = 20
+        valid = np.concatenate([np.r_[np.ones(k), 0.0] for _ in offsets])
+        res = np.concatenate([np.r_[mu + rng.normal(0.0, 0.05, k), 0.0] for mu in offsets])
+        m = len(res)
+        mon._ref_blocks = m
+        ch = _Channel("speed", res, valid, np.full(m, 300.0), np.zeros(m), np.zeros(m), np.ones((m, 0)),
+                      np.zeros((1, m, 1)))
+        mon._learn_noise(ch, res, 0)
+        a, b, visit, kappa = mon.noise["speed"]
+        terms = [float(res[j * (k + 1):j * (k + 1) + k].mean()) ** 2 - kappa * (a + b * 300.0**2) / k
+                 for j, mu in enumerate(offsets) if mu != 3.3 or len(offsets) <= 4]
+        return visit, max(sum(terms) / len(terms), 0.0)
+
+    inliers = [float(x) for x in rng.normal(0.0, 0.3, 7)]
+    visit, by_hand = learned([*inliers[:3], 3.3, *inliers[3:]])
+    assert visit == pytest.approx(by_hand, rel=1e-9) and visit < 0.3  # with it: ~1.5 (rad/s)^2
+    visit, by_hand = learned([0.2, -0.3, 3.3, 0.1])
+    assert visit == pytest.approx(by_hand, rel=1e-9) and visit > 2.0
+    out = 2.5 * float(np.sqrt(np.mean(np.square(inliers))))  # farther out than any, a visit like them
+    visit, by_hand = learned([*inliers[:3], out, *inliers[3:]])
+    assert visit == pytest.approx(by_hand, rel=1e-9) and visit > float(np.mean(np.square(inliers)))
+
+
 def test_the_bending_prior_gives_the_glr_against_the_nuisance_marginalised_over_it():
     """Hand-computed with dense matrices: with the speed's drift and curvature given a Gaussian
     prior (the flight's mean square of their coefficients), the monitor's statistic is the GLR
