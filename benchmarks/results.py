@@ -969,8 +969,10 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "found it reversed; since a named change whose latest fit reverses is set aside as minor, those two "
           "flights raise none; eight more (`--first-seed 900`, measured at a5964b2) 15/16, 16/16 and 14/16, and "
           "no false alarm in 10.39 h; eight more (`--first-seed 910`, measured at 8d6fe2f) 14/16, 14/16 and "
-          "16/16, and no false alarm in 10.39 h. The record's own benches gave the same at da8dffc, before a "
-          "voltage block at rest stopped carrying the unstructured step test (10ac397)."),
+          "16/16, and no false alarm in 10.39 h; eight more (`--first-seed 920`, measured at 93670b4, never run "
+          "before) 14/16, 15/16 and 16/16, and no false alarm in 10.39 h. The record's own benches gave the "
+          "same at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
+          "estimate (93670b4), but for one propeller loss found 1 s later (bench 842)."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
@@ -993,7 +995,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "and the record's own benches unchanged). Eight more "
           "(`--first-seed 910`, measured at 8d6fe2f, never run before) 10/16, 12/16 and 13/16 (3 propeller "
           "losses missed, bench 913's never found with the rotor turning all 5 s; 2 of the heating's 16 left "
-          "unnamed), and no false alarm in 10.39 h."),
+          "unnamed), and no false alarm in 10.39 h. Eight more (`--first-seed 920`, measured at 93670b4, never "
+          "run before) 10/16, 15/16 and 12/16 (five of the six propeller losses late or missed had the rotor "
+          "turning 1.1-3.4 s of the 5 s after the onset; bench 927's, turning 4.7 s, never found; one heating "
+          "left unnamed, one missed), and no false alarm in 10.39 h. The record's own benches gave the same, run "
+          "by run, at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
+          "estimate (93670b4)."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
