@@ -563,8 +563,8 @@ def render_real(f: dict[str, Any]) -> list[str]:
         lines += [f"`{f['log']}` cut in {1 + max(r['split'] for r in splits)} parts in time; each part is the test "
                   "of models trained and validated on the others. RMSE in % of the log's speed range "
                   f"({f['log_range_rad_s']:.0f} rad/s):", "",
-                  "| test part | kind | RMSE | Kv, rpm/V (rated 1900) | b / direct fit: training, test part | "
-                  "thrust RMSE, % of the log's thrust range |",
+                  f"| test part | kind | RMSE | Kv, rpm/V (rated {f['rated_kv']:.0f}) | "
+                  "b / direct fit: training, test part | thrust RMSE, % of the log's thrust range |",
                   "|---|---|---|---|---|---|"]
         for r in splits:
             if r.get("refused"):  # train's one line: what it refused, up to the first ";"
@@ -607,10 +607,9 @@ def render_real(f: dict[str, Any]) -> list[str]:
                   f"warm. Every hold of the way down lies in part {', '.join(map(str, down))}: the models "
                   "tested there were trained on parts that show only the way up."]
     if (health := f.get("health")) is not None:
-        lines += ["", "The health monitor over the whole log with each split's model. Nobody changed the stand, "
-                  "but its supply current-limits at 90 s (1950 µs: 14.45 → 13.60 V for 1.5 A more, where each step "
-                  "before sagged about 0.13 V for 3.5 A): an event there is that change, any other a false alarm.",
-                  ""]
+        lines += ["", f"The health monitor over the whole log with each split's model. {f['health_context']}", ""]
+        alarmed = sum(1 for h in health if h["events"])
+        lines += [f"Runs with an alarm: {alarmed} of {len(health)}.", ""] if health else []
         lines += [f"- split {h['split']}, {h['kind']}: {'; '.join(map(str, h['events'])) or 'no change'}"
                   + "".join(f"; minor, no alarm: {m}" for m in h.get("minor", []))
                   + f" ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)" for h in health]
@@ -917,6 +916,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "python benchmarks/bench_real.py --jobs 1 --json docs/results/real.json",
           lambda f: render_real({k: v for k, v in f.items() if k != "thrust_law"}),  # the thrust law: its group
           "Every kind on the F80 log cut in three parts in time (about 4 minutes; it prints the thrust law too)."),
+    Group("real_f40", "Every kind on a second real log (`../shared/real/esc_test`, the F40 log)",
+          "python benchmarks/bench_real.py --log f40 --jobs 1 --json docs/results/real_f40.json",
+          lambda f: render_real({k: v for k, v in f.items() if k != "thrust_law"}),
+          "As above on the ESC32v3 + F40 Pro III 1600 kv log with the same propeller, its 5 % duty steps taken "
+          "from the ESC's own AutoQuad log (`import-csv --command-from`): the check that what holds on the F80 "
+          "is not tuned to it (about 4 minutes)."),
     Group("cores", "Speed of the cores", "python benchmarks/bench_cores.py --json docs/results/cores.json",
           render_speed, "CPU time of the tachometer decoder, the battery filter and one estimator update per model "
           "kind, best of several runs (seconds; CPU time, so other load disturbs it little)."),
