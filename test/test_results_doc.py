@@ -89,6 +89,23 @@ def test_the_confusion_rendering_counts_right_on_a_hand_made_run_list():
     assert "- rotor_lag: 25.0 % [0.0, 50.0]" in text  # median of 50 % and 0 %
 
 
+def test_a_real_logs_rendering_states_its_rating_its_context_and_the_alarms_counted():
+    """Each stand log's section names its own motor's rating and what changed on its stand (the
+    record's), and counts the monitor's runs that raised an alarm; minor changes are no alarm."""
+    row = {"split": 0, "kind": "physics", "percent": 1.5, "kv": 1700.0, "b": 1.0, "b_direct": 1.0,
+           "b_direct_training": 1.0}
+    health = [{"split": 0, "kind": "physics", "events": ["unnamed change from 30.4 s"], "minor": [],
+               "monitored_s": 87.0, "duration_s": 112.0},
+              {"split": 1, "kind": "physics", "events": [], "minor": ["pack_resistance (1.03 factor) from 54 s"],
+               "monitored_s": 87.0, "duration_s": 112.0}]
+    text = "\n".join(results.render_real({"log": "x.csv", "log_range_rad_s": 1671.0, "rated_kv": 1600.0,
+                                          "splits": [row], "health": health,
+                                          "health_context": "Nobody changed the stand."}))
+    assert "Kv, rpm/V (rated 1600)" in text and "| 0 | physics | 1.50 % | 1700 |" in text
+    assert "each split's model. Nobody changed the stand." in text
+    assert "Runs with an alarm: 1 of 2." in text
+
+
 def test_foreign_heating_is_judged_on_the_speed_lost_and_its_per_kelvin_shown_aside():
     heating = {"path": "physics", "case": "motor_heating", "seed": 7, "named": ["motor_heating"],
                "first": "motor_heating", "before": 7.0, "after": 1.0, "fitted": 6.0, "truth": 5.0,
