@@ -72,8 +72,8 @@ class RealLog:
     command_from: Path | None
     priors: tuple[str, ...]
     rated_kv: float
-    health_note: str = ""  #: what did change on the stand during the log, for the health monitor's lines
-    #: the same in a sentence for docs/results.md: what an event is judged against
+    #: what changed on the stand during the log, in a sentence: what the health monitor's events are
+    #: judged against (printed, and written into the record for docs/results.md)
     health_context: str = "Nobody changed the stand or its supply: any event is a false alarm."
 
 
@@ -81,12 +81,11 @@ class RealLog:
 PROPELLER = ("--prop-diameter-in", "7", "--prop-pitch-in", "5.6", "--pole-count", "14")
 LOGS = {
     "f80": RealLog(Path("esc_test") / "Log_2019-11-09_181347.csv", None, ("--motor-kv", "1900", *PROPELLER), 1900.0,
-                   "; its supply current-limits at 90 s",
                    "Nobody changed the stand, but its supply current-limits at 90 s (1950 µs: 14.45 → 13.60 V for "
                    "1.5 A more, where each step before sagged about 0.13 V for 3.5 A): an event there is that "
                    "change, any other a false alarm."),
     "f40": RealLog(Path("esc_test") / "Log_2019-11-05_171350.csv", Path("esc_test") / "f40_steps_5-2.csv",
-                   ("--motor-kv", "1600", *PROPELLER), 1600.0, "",
+                   ("--motor-kv", "1600", *PROPELLER), 1600.0,
                    "Nobody changed the stand or its supply (it sags about 50 mΩ per ampere at every step up, "
                    "no current limit); the load cell touched after the last step, the rotor stopped, is nothing "
                    "the monitor tests: any event is a false alarm."),
@@ -481,7 +480,7 @@ def main() -> int:
     if contradicted:
         print("import-csv: the thrust contradicts the speed column (a probe missing the rotor?) at "
               + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in contradicted) + " of the log; scored and trained as read")
-    print(f"health monitor over the whole log (the stand unchanged{spec.health_note}):")
+    print(f"health monitor over the whole log ({spec.health_context})")
     for h in health:
         said = "; ".join(map(str, h["events"])) or "no change"
         minor = "".join(f"; minor, no alarm: {m}" for m in h["minor"])

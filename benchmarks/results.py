@@ -618,6 +618,11 @@ def render_real(f: dict[str, Any]) -> list[str]:
     return lines
 
 
+def render_splits(f: dict[str, Any]) -> list[str]:
+    """A real log's splits, levels and health lines: ``render_real`` without the thrust law (its group)."""
+    return render_real({k: v for k, v in f.items() if k != "thrust_law"})
+
+
 def render_speed(f: dict[str, Any]) -> list[str]:
     """A benchmark's figures as printed: what, value, unit, goal (CPU time of one process)."""
     lines = ["| what | measured | goal |", "|---|---|---|"]
@@ -914,11 +919,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "seconds)."),
     Group("real", "Every kind on a real log (`../shared/real/esc_test`, the F80 log)",
           "python benchmarks/bench_real.py --jobs 1 --json docs/results/real.json",
-          lambda f: render_real({k: v for k, v in f.items() if k != "thrust_law"}),  # the thrust law: its group
+          render_splits,
           "Every kind on the F80 log cut in three parts in time (about 4 minutes; it prints the thrust law too)."),
     Group("real_f40", "Every kind on a second real log (`../shared/real/esc_test`, the F40 log)",
           "python benchmarks/bench_real.py --log f40 --jobs 1 --json docs/results/real_f40.json",
-          lambda f: render_real({k: v for k, v in f.items() if k != "thrust_law"}),
+          render_splits,
           "As above on the ESC32v3 + F40 Pro III 1600 kv log with the same propeller, its 5 % duty steps taken "
           "from the ESC's own AutoQuad log (`import-csv --command-from`): the check that what holds on the F80 "
           "is not tuned to it (about 4 minutes)."),
