@@ -20,7 +20,8 @@ def synthetic_flight(duration_s: float, seed: int, change: Change | list[Change]
                      speeds: Callable[[float], tuple[float, float]] = lambda t: (150.0, 600.0),
                      noise_rad_s: Callable[[float], float] = lambda level: 1.0,
                      dither_rad_s: float = 0.0, ocv_visit_v: float = 0.0,
-                     voltage_noise_v: Callable[[float], float] = lambda amps: 0.02) -> list[HealthSample]:
+                     voltage_noise_v: Callable[[float], float] = lambda amps: 0.02,
+                     terminal_v: Callable[[float, float], float] = lambda t, amps: 0.0) -> list[HealthSample]:
     """A flight of holds at random speeds, 100 speed samples a second: measured = predicted +
     noise (one-sigma ``noise_rad_s(speed)``; + ``change``: from onset t0, theta * the speed
     signature and dv volts of extra sag per ampere; a list of changes adds up, each from its own
@@ -31,7 +32,9 @@ def synthetic_flight(duration_s: float, seed: int, change: Change | list[Change]
     attitude loop (the model follows it exactly). ``ocv_visit_v``: each hold's open-circuit
     voltage is off the 12 V by a new N(0, ocv_visit_v) (a pack's polarisation and charge, which the
     monitor fits along, predicted only to a few mV from one visit to the next);
-    ``voltage_noise_v(current)``: the terminal voltage's noise per sample (one sigma)."""
+    ``voltage_noise_v(current)``: the terminal voltage's noise per sample (one sigma);
+    ``terminal_v(t, current)``: volts added to the terminal voltage (a pack's curve in the current
+    that no line fits, a step no fault explains)."""
     rng = np.random.default_rng(seed)
     out = []
     level, hold_end, dt, ocv = 300.0, 0.0, 0.01, 12.0
@@ -52,7 +55,7 @@ def synthetic_flight(duration_s: float, seed: int, change: Change | list[Change]
         sens = (60.0 * u**2, -400.0 * u**2 * current / 12.0, -20.0 * (1.2 - u), -0.6 * u**2)
         dcur = (-1.0 * u**2, 0.0, 0.8, -0.02 * u**2)
         on = [c for c in changes if t >= c[3]]
-        v_term = (ocv - 0.04 * current - sum(dv * current for _, _, dv, _ in on)
+        v_term = (ocv - 0.04 * current - sum(dv * current for _, _, dv, _ in on) + terminal_v(t, current)
                   + rng.normal(0.0, voltage_noise_v(current)))
         v_f = v_term if v_f is None else v_f + (1.0 - math.exp(-dt / TAU_S)) * (v_term - v_f)
         measured = (speed + rng.normal(0.0, noise_rad_s(speed))
