@@ -24,6 +24,7 @@ import json
 import math
 import os
 import platform
+import re
 import shlex
 import statistics
 import subprocess
@@ -577,6 +578,7 @@ def render_real(f: dict[str, Any]) -> list[str]:
                       if r.get("thrust_rmse_n") is not None and f.get("log_thrust_range_n") else None)
             lines.append(f"| {r['split']} | {r['kind']} | {num(r.get('percent'))} % | {num(r.get('kv'), 0)} | "
                          f"{num(trained, 3)}, {num(ratio, 3)} | {num(thrust)} % |")
+        lines += _fit_flag_lines(splits)
         if spans := f.get("speed_contradicted_s"):
             lines += ["", "`import-csv` finds the log's speed column contradicted by its thrust at "
                       + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in spans)
@@ -615,6 +617,42 @@ def render_real(f: dict[str, Any]) -> list[str]:
                   + f" ({h['monitored_s']:.0f} of {h['duration_s']:.0f} s monitored)" for h in health]
         if not health:
             lines.append("- no physics or hybrid model was trained (each refused above), so nothing was monitored")
+    return lines
+
+
+#: a training warning of a constant the fit left at a bound (physics.fit.FitFlag.text via train)
+_NUMBER = r"-?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
+_AT_BOUND = re.compile(rf"^training fit: (?P<quantity>.+?) fitted (?P<value>{_NUMBER}) vs .*"
+                       rf"\(at a bound of its range (?P<low>{_NUMBER})-(?P<high>{_NUMBER})\)$")
+#: train's warning that a hybrid holds no correction (its network did not beat the physics)
+_HYBRID_IS_PHYSICS = "the hybrid's correction is 0"
+
+
+def _fit_flag_lines(splits: list[dict[str, Any]]) -> list[str]:
+    """What each split's training could not pin down, from train's warnings in the record: the
+    constants fitted at a bound of their range (no figure of the log; a model holding them is
+    only as good as its held-out RMSE says), and the hybrids that are the physics alone."""
+    lines: list[str] = []
+    for split in sorted({r["split"] for r in splits}):
+        flags: dict[str, str] = {}
+        for r in splits:
+            for w in r.get("warnings", []) if r["split"] == split else []:
+                if m := _AT_BOUND.match(w):
+                    value = float(m["value"])
+                    low = abs(value - float(m["low"])) <= abs(value - float(m["high"]))
+                    flags.setdefault(m["quantity"], f"{m['quantity']} at the {'low' if low else 'high'} end of "
+                                                    f"{m['low']}-{m['high']}")
+        if flags:
+            lines.append(f"- split {split}: " + "; ".join(flags.values()))
+    if lines:
+        lines = ["", "Constants the training data could not pin down (fitted at a bound of their range; train "
+                 "warns, and no figure here rests on them; an effect's strength at 0 is the fit turning it off):", "",
+                 *lines]
+    alone = sorted({r["split"] for r in splits if r["kind"] == "hybrid"
+                    and any(_HYBRID_IS_PHYSICS in w for w in r.get("warnings", []))})
+    if alone:
+        lines += ["", f"The hybrid of split{'s' if len(alone) > 1 else ''} {', '.join(map(str, alone))} is the "
+                  "physics alone: its network did not improve on the physics on the validation recordings."]
     return lines
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import pytest
 
 from _scripts import load_script
+from bldc_propulsion.physics.fit import FitFlag
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,6 +105,28 @@ def test_a_real_logs_rendering_states_its_rating_its_context_and_the_alarms_coun
     assert "Kv, rpm/V (rated 1600)" in text and "| 0 | physics | 1.50 % | 1700 |" in text
     assert "each split's model. Nobody changed the stand." in text
     assert "Runs with an alarm: 1 of 2." in text
+
+
+def test_a_real_logs_rendering_lists_the_constants_its_training_left_at_a_bound():
+    """train's own warning text (FitFlag.text) of a constant at a bound is listed once per split
+    with the end it sits at, exponents and all; a hybrid that holds no correction is said to be
+    the physics alone; a split without such warnings is not listed."""
+    def at_bound(quantity: str, value: float, low: float, high: float) -> str:
+        return FitFlag("training fit", quantity, value, 1.0, low, high, at_bound=True, stated=False,
+                       basis="start (not stated)").text()
+
+    thermal = at_bound("motor_thermal_resistance_k_per_w", 1.644, 0.1027, 1.644)
+    small = at_bound("rotor_lag strength", 2e-05, 1e-05, 0.5)
+    rows = [{"split": 0, "kind": "physics", "warnings": [thermal, small]},
+            {"split": 0, "kind": "hybrid", "warnings": [thermal, "the network did not improve on the physics on the "
+                                                        "validation recordings: the hybrid's correction is 0 (the "
+                                                        "physics model alone)"]},
+            {"split": 1, "kind": "physics", "warnings": []}]
+    text = "\n".join(results._fit_flag_lines(rows))
+    assert "- split 0: motor_thermal_resistance_k_per_w at the high end of 0.1027-1.644; " \
+           "rotor_lag strength at the low end of 1e-05-0.5" in text
+    assert "split 1" not in text and text.count("motor_thermal") == 1
+    assert "The hybrid of split 0 is the physics alone" in text
 
 
 def test_foreign_heating_is_judged_on_the_speed_lost_and_its_per_kelvin_shown_aside():
