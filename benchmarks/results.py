@@ -964,7 +964,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           render_splits,
           "As above on the ESC32v3 + F40 Pro III 1600 kv log with the same propeller, its 5 % duty steps taken "
           "from the ESC's own AutoQuad log (`import-csv --command-from`): the check that what holds on the F80 "
-          "is not tuned to it (about 4 minutes)."),
+          "is not tuned to it (about 4 minutes). On its slow staircase every step up is a current the health "
+          "monitor's reference never held, where its voltage fit extrapolates: a change no fault's signature "
+          "explains, seen only at such currents, is kept as minor, not an alarm (a fault whose signature fits is "
+          "still named), so on a log like this one the monitor cannot tell an unexplained change from its own "
+          "extrapolation until the log comes back to currents it held."),
     Group("cores", "Speed of the cores", "python benchmarks/bench_cores.py --json docs/results/cores.json",
           render_speed, "CPU time of the tachometer decoder, the battery filter and one estimator update per model "
           "kind, best of several runs (seconds; CPU time, so other load disturbs it little)."),
