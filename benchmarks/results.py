@@ -1022,9 +1022,14 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "flights raise none; eight more (`--first-seed 900`, measured at a5964b2) 15/16, 16/16 and 14/16, and "
           "no false alarm in 10.39 h; eight more (`--first-seed 910`, measured at 8d6fe2f) 14/16, 14/16 and "
           "16/16, and no false alarm in 10.39 h; eight more (`--first-seed 920`, measured at 93670b4, never run "
-          "before) 14/16, 15/16 and 16/16, and no false alarm in 10.39 h. The record's own benches gave the "
-          "same at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
-          "estimate (93670b4), but for one propeller loss found 1 s later (bench 842)."),
+          "before) 14/16, 15/16 and 16/16, and no false alarm in 10.39 h; eight more (`--first-seed 930`, "
+          "measured at 14b38b2, never run before) 14/16, 12/16 and 14/16 (two propeller losses and three packs "
+          "found 6-14 s after the onset, one pack missed; one heating left unnamed, one missed), and one false "
+          "alarm in 10.39 h (bench 935, a bearing friction named 1.76x at 56.5 s of a healthy flight; the same "
+          "bench raised all but one of that set's false alarms on random steps, below). The record's own "
+          "benches gave the same at 8d6fe2f, before a steady stretch far out of the others was left out of the "
+          "visit error's estimate (93670b4), but for one propeller loss found 1 s later (bench 842), and the "
+          "same run by run at 14b38b2."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
@@ -1050,9 +1055,14 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "unnamed), and no false alarm in 10.39 h. Eight more (`--first-seed 920`, measured at 93670b4, never "
           "run before) 10/16, 15/16 and 12/16 (five of the six propeller losses late or missed had the rotor "
           "turning 1.1-3.4 s of the 5 s after the onset; bench 927's, turning 4.7 s, never found; one heating "
-          "left unnamed, one missed), and no false alarm in 10.39 h. The record's own benches gave the same, run "
-          "by run, at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
-          "estimate (93670b4)."),
+          "left unnamed, one missed), and no false alarm in 10.39 h. Eight more (`--first-seed 930`, measured at "
+          "14b38b2, never run before) 10/16, 14/16 and 8/16 (three propeller losses never found with the rotor "
+          "turning 4-5 s, two late, one at rest; three heating runs left unnamed, heating and friction alike, "
+          "three missed), and three false alarms in 10.39 h, the most of any set: bench 935 a bearing friction "
+          "named 2.07x at 64.3 s and an unnamed change at 62.7 s, bench 936 an unnamed change at 40.4 s "
+          "(heating and friction explaining each alike). The record's own benches gave the same, run by run, "
+          "at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
+          "estimate (93670b4), and at 14b38b2."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
           "taskset -c 1 python benchmarks/bench_band.py --seeds 3-10 --json docs/results/band.json", render_band,
           "Eight benches drawn by `sim.random_bench` (seeds 3-10), the three kinds trained as in the accuracy "
