@@ -635,13 +635,12 @@ def _fit_flag_lines(splits: list[dict[str, Any]]) -> list[str]:
     lines: list[str] = []
     for split in sorted({r["split"] for r in splits}):
         flags: dict[str, str] = {}
-        for r in splits:
-            for w in r.get("warnings", []) if r["split"] == split else []:
-                if m := _AT_BOUND.match(w):
-                    value = float(m["value"])
-                    low = abs(value - float(m["low"])) <= abs(value - float(m["high"]))
-                    flags.setdefault(m["quantity"], f"{m['quantity']} at the {'low' if low else 'high'} end of "
-                                                    f"{m['low']}-{m['high']}")
+        for w in (w for r in splits if r["split"] == split for w in r.get("warnings", [])):
+            if m := _AT_BOUND.match(w):
+                value = float(m["value"])
+                low = abs(value - float(m["low"])) <= abs(value - float(m["high"]))
+                flags.setdefault(m["quantity"], f"{m['quantity']} at the {'low' if low else 'high'} end of "
+                                                f"{m['low']}-{m['high']}")
         if flags:
             lines.append(f"- split {split}: " + "; ".join(flags.values()))
     if lines:

@@ -617,6 +617,11 @@ class _Channel:
     #: the blocks an unstructured step is tested on (None: all): where some fault could show
     stepped: np.ndarray | None = None
 
+    @property
+    def noise_blocks(self) -> np.ndarray:
+        """The blocks its noise is learned on (``quiet``, else the valid ones)."""
+        return self.valid if self.quiet is None else self.quiet
+
     def step_column(self, post: np.ndarray) -> np.ndarray:
         """An unstructured step from the onset(s) ``post`` marks, on the blocks it is tested on."""
         return post if self.stepped is None else post * self.stepped
@@ -1197,7 +1202,7 @@ class HealthMonitor:
         next (variance ``visit`` per stretch, shared by its blocks), seen between the stretches'
         means. Exponential memory ``noise_memory_s``; the first estimate is taken whole."""
         ref = slice(0, self._ref_blocks)
-        valid = (ch.valid if ch.quiet is None else ch.quiet)[ref] > 0
+        valid = ch.noise_blocks[ref] > 0
         if valid.sum() < 20:
             return
         r, lv = res[ref], ch.level[ref]
@@ -1277,19 +1282,7 @@ class HealthMonitor:
         self._ref_blocks = min(self._max_ref_blocks, self._filled - 1 - int(self._post.max()))
         win = self._window(self._ref_blocks + int(self._post.max()))
         chans = self._channels(win)
-        num = np.zeros((len(self._post), self.n_faults))
-        den = np.zeros_like(num)
-        generic = []
-        steps = self._post_masks(len(chans[0].y))
-        for ch in chans:
-            zr, zz = self._stats(ch, ch.tests, learn=self._pending is None)
-            num += zr
-            den += zz
-            # an unstructured step in this channel: the test of "something changed"
-            gr, gd = self._stats(ch, ch.step_column(steps)[:, :, None])
-            generic.append(np.where(gd[:, 0] > 0, gr[:, 0] ** 2 / np.maximum(gd[:, 0], 1e-300), 0.0))
-        theta = num / np.maximum(den, 1e-300)
-        stat = np.where((den > 0) & (theta > 0), num * num / np.maximum(den, 1e-300), 0.0)
+        stat, theta, generic = self._test(chans, slice(None), learn=self._pending is None)
         self._last = (stat, theta, generic, chans)
         t_now = float(win[-1, _T])
         h = self.threshold
@@ -1312,6 +1305,26 @@ class HealthMonitor:
         self._pending_onset_block = onset_block
         self.state = _NAMING
         return self._try_name(t_now, o)
+
+    def _test(self, chans: Sequence[_Channel], onsets: slice, learn: bool = False
+              ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+        """Every fault's GLR over both channels at once and each channel's unstructured step, at
+        the candidate onsets ``onsets`` selects: (statistic, theta: onsets x faults; per channel
+        the step's statistic per onset). ``learn``: each channel's noise learned first."""
+        steps = self._post_masks(len(chans[0].y))[onsets]
+        num = np.zeros((len(steps), self.n_faults))
+        den = np.zeros_like(num)
+        generic = []
+        for ch in chans:
+            zr, zz = self._stats(ch, ch.tests[onsets], learn=learn)
+            num += zr
+            den += zz
+            # an unstructured step in this channel: the test of "something changed"
+            gr, gd = self._stats(ch, ch.step_column(steps)[:, :, None])
+            generic.append(np.where(gd[:, 0] > 0, gr[:, 0] ** 2 / np.maximum(gd[:, 0], 1e-300), 0.0))
+        theta = num / np.maximum(den, 1e-300)
+        stat = np.where((den > 0) & (theta > 0), num * num / np.maximum(den, 1e-300), 0.0)
+        return stat, theta, generic
 
     # --- naming ----------------------------------------------------------------------------
     def _try_name(self, t_now: float, o: int) -> list[HealthEvent]:
@@ -1382,7 +1395,7 @@ class HealthMonitor:
         m = len(volt.y)
         first = m - int(self._post[o])
         learned = max(first - int(round(self.config.window_s / self.config.block_s)), 0)
-        held = volt.level[:learned][(volt.quiet if volt.quiet is not None else volt.valid)[:learned] > 0]
+        held = volt.level[:learned][volt.noise_blocks[:learned] > 0]
         if len(held) == 0:
             return None
         lo, hi = float(held.min()), float(held.max())
@@ -1392,19 +1405,8 @@ class HealthMonitor:
             return None
         kept = dataclasses.replace(volt, valid=volt.valid * known,
                                    stepped=known.astype(float) * (1.0 if volt.stepped is None else volt.stepped))
-        post = np.zeros((1, m))
-        post[0, first:] = 1.0
-        num = np.zeros(self.n_faults)
-        den = np.zeros(self.n_faults)
-        generic = 0.0
-        for ch in (speed, kept):
-            zr, zz = self._stats(ch, ch.tests[o:o + 1])
-            num += zr[0]
-            den += zz[0]
-            gr, gd = self._stats(ch, ch.step_column(post)[:, :, None])
-            generic = max(generic, float(gr[0, 0] ** 2 / gd[0, 0]) if gd[0, 0] > 0 else 0.0)
-        stat = np.where((den > 0) & (num > 0), num * num / np.maximum(den, 1e-300), 0.0)
-        best = max(float(stat.max()), generic)
+        stat, _, generic = self._test((speed, kept), slice(o, o + 1))
+        best = max(float(stat.max()), *(float(g.max()) for g in generic))
         if best >= self.threshold:
             return None
         note = f"seen only at currents its reference never held (it held {lo:.1f}-{hi:.1f} A)"
