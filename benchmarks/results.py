@@ -582,8 +582,10 @@ def render_real(f: dict[str, Any]) -> list[str]:
         if spans := f.get("speed_contradicted_s"):
             lines += ["", "`import-csv` finds the log's speed column contradicted by its thrust at "
                       + ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in spans)
-                      + " (the log's time; the probe reads far below what the load cell says): the models are "
-                      "scored and trained on those rows as read."]
+                      + " (the log's time; the probe reads far below what the load cell says): "
+                      + ("every piece is imported with the speed left out there (`--drop-contradicted`, where the "
+                         "piece's own import finds it too): the models are neither trained nor scored on it."
+                         if f.get("speed_dropped") else "the models are scored and trained on those rows as read.")]
     if revisited := f.get("revisited"):
         lines += ["", "The same command on the staircase's way up and on its way down (settled medians of the log, "
                   "no model):", "",
@@ -958,6 +960,15 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "python benchmarks/bench_real.py --jobs 1 --json docs/results/real.json",
           render_splits,
           "Every kind on the F80 log cut in three parts in time (about 4 minutes; it prints the thrust law too)."),
+    Group("real_dropped", "The F80 log without the speed its thrust contradicts",
+          "python benchmarks/bench_real.py --jobs 1 --drop-contradicted --json docs/results/real_dropped.json",
+          render_splits,
+          "As above with every piece imported with `--drop-contradicted`: no model is trained or scored on the "
+          "speed the probe reads at 1100 µs, where the load cell holds a steady 19.5 gf (the rotor at about "
+          "210 rad/s) and the supply 0.15 A more than with the ESC stopped, while the probe reads 0-260 rad/s "
+          "(about 4 minutes). Which import to prefer is the user's call (`import-csv` names the spans either way): "
+          "split 0 is scored on its way up without those rows; split 2's model, trained without a speed at "
+          "1100 µs, fits another throttle map and Kv, and extrapolates to the top of the staircase worse."),
     Group("real_f40", "Every kind on a second real log (`../shared/real/esc_test`, the F40 log)",
           "python benchmarks/bench_real.py --log f40 --jobs 1 --json docs/results/real_f40.json",
           render_splits,

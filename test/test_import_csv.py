@@ -316,6 +316,40 @@ def test_a_speed_the_thrust_contradicts_is_named_hand_computed(tmp_path: Path) -
     assert np.count_nonzero(w == 0.0) == 10 + 8, "written as read"
 
 
+def test_a_flickering_probe_is_judged_on_its_median_hand_computed(tmp_path: Path) -> None:
+    """A probe losing the rotor now and then reads the right speed for a row (the esc_test F80 at
+    1100 us): row by row, each contradiction lasts 0.1 s and none is a span; the median over
+    +-THRUST_CHECK_MIN_S / 2 (5 rows at 10 Hz) reads 0 on the rows at 3.4-4.2 s (at 3.3 s the
+    window holds 400, 400, 0, 0, 400; at 4.3 s 400, 0, 0, 400, 400)."""
+    probe = [400.0] * 3 + [0.0, 0.0, 400.0] * 3 + [0.0, 0.0] + [400.0] * 3
+    info = import_csv(_probe_log(tmp_path / "p.csv", probe), tmp_path / "p.bag")
+    assert info["speed_contradicted_by_thrust_s"] == [[pytest.approx(3.4), pytest.approx(4.2)]]
+    assert "3.4-4.2 s reads 0 rad/s where the thrust says about 400" in info["warnings"][0]
+
+
+def test_drop_contradicted_leaves_the_speed_out_there_only(tmp_path: Path) -> None:
+    probe = [400.0] * 3 + [0.0] * 8 + [400.0] * 3
+    kept = import_csv(_probe_log(tmp_path / "p.csv", probe), tmp_path / "kept.bag")
+    info = import_command.run(_parser().parse_args([str(tmp_path / "p.csv"), "-o", str(tmp_path / "p.bag"),
+                                                    "--drop-contradicted"])).data
+    assert kept["speed_left_out_s"] == [] and "--drop-contradicted leaves it out" in kept["warnings"][0]
+    assert info["speed_left_out_s"] == info["speed_contradicted_by_thrust_s"] == [[pytest.approx(3.3),
+                                                                                  pytest.approx(4.0)]]
+    [warning] = info["warnings"]
+    assert "/rotor/speed is left out there (--drop-contradicted)" in warning and "\n" not in warning
+    tw, w = read(tmp_path / "p.bag", "rotor/speed")
+    tk, wk = read(tmp_path / "kept.bag", "rotor/speed")
+    # the 8 rows 3.3-4.0 s are gone (the bag's clock starts at the log's first row), nothing else
+    assert len(tk) - len(tw) == 8 and np.count_nonzero(w == 0.0) == 10
+    np.testing.assert_array_equal(w, np.delete(wk, np.arange(33, 41)))
+    for topic in ("pwm", "thrust/measured", "battery/voltage"):
+        np.testing.assert_array_equal(read(tmp_path / "p.bag", topic)[1], read(tmp_path / "kept.bag", topic)[1])
+    sig = load_signals(tmp_path / "p.bag")
+    [(before, after)] = sig.speed_gaps
+    assert before == pytest.approx(3.2) and after == pytest.approx(4.1)
+    assert np.all(np.isnan(sig.speed[(sig.t > before) & (sig.t < after)]))
+
+
 @pytest.mark.parametrize("probe", [[400.0] * 14, [400.0] * 5 + [0.0] * 4 + [400.0] * 5, [440.0, 210.0] * 7])
 def test_a_speed_the_thrust_agrees_with_or_a_short_dropout_is_not_named(tmp_path: Path, probe: list[float]) -> None:
     """Agreement; a dropout shorter than THRUST_CHECK_MIN_S (0.3 s); readings within half the implied speed."""

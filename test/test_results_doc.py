@@ -107,6 +107,20 @@ def test_a_real_logs_rendering_states_its_rating_its_context_and_the_alarms_coun
     assert "Runs with an alarm: 1 of 2." in text
 
 
+def test_a_real_logs_rendering_says_whether_the_contradicted_speed_was_left_out():
+    """The spans import-csv names, and what the models were given there: as read, or nothing."""
+    row = {"split": 0, "kind": "physics", "percent": 1.5, "kv": 1700.0, "b": 1.0, "b_direct": 1.0,
+           "b_direct_training": 1.0}
+    base = {"log": "x.csv", "log_range_rad_s": 1671.0, "rated_kv": 1600.0, "splits": [row],
+            "speed_contradicted_s": [[10.72, 11.32], [106.03, 111.58]]}
+    read = "\n".join(results.render_real(base))
+    dropped = "\n".join(results.render_real({**base, "speed_dropped": True}))
+    for text in (read, dropped):
+        assert "contradicted by its thrust at 10.7-11.3 s, 106.0-111.6 s (the log's time" in text
+    assert "scored and trained on those rows as read" in read and "--drop-contradicted" not in read
+    assert "left out there (`--drop-contradicted`" in dropped and "as read" not in dropped
+
+
 def test_a_real_logs_rendering_lists_the_constants_its_training_left_at_a_bound():
     """train's own warning text (FitFlag.text) of a constant at a bound is listed once per split
     with the end it sits at, exponents and all; a hybrid that holds no correction is said to be

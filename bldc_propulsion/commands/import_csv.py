@@ -21,7 +21,7 @@ DESCRIPTION = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``import-csv``: ``CSV -o BAG [--force] [--pole-pairs N]
-    [--command-column NAME [--command-unit U] | --command-from ESC_LOG.csv]``."""
+    [--command-column NAME [--command-unit U] | --command-from ESC_LOG.csv] [--drop-contradicted]``."""
     parser.add_argument("csv", metavar="CSV", help="RCbenchmark / Tyto Robotics CSV log")
     parser.add_argument("-o", "--output", required=True, help="bag directory to write")
     parser.add_argument("--force", action="store_true", help="replace an existing output")
@@ -51,6 +51,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ),
     )
     parser.add_argument(
+        "--drop-contradicted", action="store_true",
+        help=(
+            "leave /rotor/speed out (a gap, which training, evaluate and health skip) where the thrust "
+            "contradicts it for half a second or more: a probe that misses the rotor at low speed. "
+            "Default: written as read, with a warning naming the spans (a load cell touched or "
+            "drifted contradicts a right speed the same way: look at the log before choosing)"
+        ),
+    )
+    parser.add_argument(
         "--command-unit", metavar="us|duty|percent",
         help=(
             "unit of --command-column: us (pulse width), duty (0..1) or percent (0..100); a duty "
@@ -69,5 +78,5 @@ def run(args: argparse.Namespace) -> CommandResult:
     progress(f"importing {args.csv}" + (f" with the command from {args.command_from}" if args.command_from else ""))
     info = import_csv(args.csv, args.output, force=args.force, pole_pairs=args.pole_pairs,
                       command_column=args.command_column, command_unit=args.command_unit,
-                      command_from=args.command_from)
+                      command_from=args.command_from, drop_contradicted=args.drop_contradicted)
     return CommandResult(info, summary_text(info), warnings=list(info.get("warnings", [])))

@@ -38,6 +38,7 @@ import csv
 import hashlib
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -364,7 +365,9 @@ def _contradicted_spans(t: np.ndarray, rpm: np.ndarray | None,
     with speed, far inside THRUST_CHECK_SHARE."""
     if rpm is None or thrust_n is None:
         return [], None
-    ok = np.isfinite(rpm) & np.isfinite(thrust_n)
+    has_speed = np.isfinite(rpm)
+    ok = has_speed & np.isfinite(thrust_n)
+    t_speed, w_speed = t[has_speed], rpm[has_speed] * RPM_TO_RAD_S
     t, w, thrust = t[ok], rpm[ok] * RPM_TO_RAD_S, thrust_n[ok]
     if len(t) < 10 or not np.any(w > 0):
         return [], None
@@ -376,16 +379,29 @@ def _contradicted_spans(t: np.ndarray, rpm: np.ndarray | None,
     noise = 1.4826 * float(np.median(np.abs(step - np.median(step)))) / math.sqrt(2.0)
     implied = np.sqrt(np.clip(thrust, 0.0, None) / b)
     loaded = thrust > max(10.0 * noise, THRUST_CHECK_MIN_SHARE * float(thrust.max()))
-    bad = loaded & (np.abs(w - implied) > THRUST_CHECK_SHARE * implied)
-    spans = [_Contradiction(float(t[i]), float(t[j - 1]), float(np.median(w[i:j])), float(np.median(implied[i:j])))
+    read = _median_around(t_speed, w_speed, t, THRUST_CHECK_MIN_S / 2.0)
+    bad = loaded & (np.abs(read - implied) > THRUST_CHECK_SHARE * implied)
+    spans = [_Contradiction(float(t[i]), float(t[j - 1]), float(np.median(read[i:j])),
+                            float(np.median(implied[i:j])))
              for i, j in true_run_pairs(bad) if t[j - 1] - t[i] >= THRUST_CHECK_MIN_S]
     return spans, b
 
 
-def _thrust_check(src: Path, t: np.ndarray, rpm: np.ndarray | None,
-                  thrust_n: np.ndarray | None) -> tuple[list[_Contradiction], list[str]]:
+def _median_around(t: np.ndarray, v: np.ndarray, at: np.ndarray, half_s: float) -> np.ndarray:
+    """Per time in ``at``, the median of ``v`` over the samples within ``half_s`` of it (``t``
+    increasing). Why a median and not the row's reading: a probe losing the rotor flickers
+    (esc_test F80 at 1100 us: 160-2475 rpm from one row to the next under a steady 19.5 gf), so
+    single rows now and then land within THRUST_CHECK_SHARE of the thrust's speed and break a
+    span into pieces shorter than THRUST_CHECK_MIN_S; a step's own rows are a few in a window."""
+    lo = np.searchsorted(t, at - half_s, side="left")
+    hi = np.searchsorted(t, at + half_s, side="right")
+    return np.array([float(np.median(v[i:j])) for i, j in zip(lo.tolist(), hi.tolist(), strict=True)])
+
+
+def _thrust_check(src: Path, t: np.ndarray, rpm: np.ndarray | None, thrust_n: np.ndarray | None,
+                  dropped: bool = False) -> tuple[list[_Contradiction], list[str]]:
     """The spans where the thrust contradicts the speed column (``_contradicted_spans``) and one
-    warning line naming them all (none: no line)."""
+    warning line naming them all (none: no line); ``dropped``: the speed is left out there."""
     spans, b = _contradicted_spans(t, rpm, thrust_n)
     if not spans or b is None:
         return spans, []
@@ -395,8 +411,22 @@ def _thrust_check(src: Path, t: np.ndarray, rpm: np.ndarray | None,
     return spans, [f"{src}: the thrust contradicts the speed column for {total:.1f} s (log time {where}; "
                    f"T = b w^2 with b = {b:.3g} N s^2/rad^2 from the rows above half the top speed): the speed "
                    f"probe misses the rotor there, or the load cell reads something else (a drifted zero, a hand "
-                   f"on the stand); /rotor/speed is written as read, and training and evaluate take it as the "
-                   f"rotor's speed"]
+                   "on the stand); " + (
+                       "/rotor/speed is left out there (--drop-contradicted): training and evaluate skip the gap"
+                       if dropped else
+                       "/rotor/speed is written as read, and training and evaluate take it as the rotor's speed "
+                       "(--drop-contradicted leaves it out)")]
+
+
+def _without(t: np.ndarray, rpm: np.ndarray | None, spans: Sequence[_Contradiction]) -> np.ndarray | None:
+    """``rpm`` with the rows of ``spans`` (their first to last contradicted row) set to NaN, so
+    that /rotor/speed has a gap there."""
+    if rpm is None or not spans:
+        return rpm
+    out = rpm.copy()
+    for sp in spans:
+        out[(t >= sp.start_s) & (t <= sp.stop_s)] = np.nan
+    return out
 
 
 def _sha256(text: str) -> str:
@@ -461,6 +491,7 @@ def import_csv(
     command_column: str | None = None,
     command_unit: str | None = None,
     command_from: str | os.PathLike[str] | None = None,
+    drop_contradicted: bool = False,
 ) -> dict[str, Any]:
     """Convert a thrust-stand CSV log into a bag at ``out_path``; returns a summary dict.
 
@@ -490,7 +521,9 @@ def import_csv(
     thrust_unit, thrust_factor = THRUST_COLUMNS[used["thrust"]] if "thrust" in used else (None, None)
     thrust = cols.get("thrust")  # (in the log's unit; present only when "thrust" is used)
     thrust_n = None if thrust is None else thrust * thrust_factor
-    streams = _streams(t, cols, frames, pwm, rpm, thrust_n)
+    contradicted, thrust_lines = _thrust_check(src, t, rpm, thrust_n, drop_contradicted)
+    left_out = contradicted if drop_contradicted else []
+    streams = _streams(t, cols, frames, pwm, _without(t, rpm, left_out), thrust_n)
 
     written = _write_bag(out, force, streams, f"imported from RCbenchmark / Tyto CSV {src.name}: ESC command "
                          f"({cmd.unit}{_whence(cmd, other_src)}) -> pwm level, held on 50 Hz frames; "
@@ -499,7 +532,6 @@ def import_csv(
     columns_used = {role: name for role, name in used.items()
                     if not role.startswith("rpm_") or role == f"rpm_{source}"}
     ratio = _speed_check(table, rpm)
-    contradicted, thrust_lines = _thrust_check(src, t, rpm, thrust_n)
     warnings = (_data_warnings(src, table, used, rpm, ratio, source, speed_note, pole_pairs) + thrust_lines
                 + _command_warnings(src, command, table, cmd.unit, cmd.alignment))
     counts = {"/" + topic: int(len(ts)) for topic, ts, _ in streams}
@@ -523,6 +555,7 @@ def import_csv(
         "pole_pairs": pole_pairs,
         "speed_check_power_over_torque_ratio": ratio,
         "speed_contradicted_by_thrust_s": [[sp.start_s, sp.stop_s] for sp in contradicted],
+        "speed_left_out_s": [[sp.start_s, sp.stop_s] for sp in left_out],
         **_signal_ranges(frames, pwm, cols, cmd.unit, rpm),
         "topics": counts,
         "added_topics": ["/" + TOPIC_BATTERY_CURRENT] if "/" + TOPIC_BATTERY_CURRENT in counts else [],
