@@ -665,8 +665,9 @@ def render_flight(f: dict[str, Any]) -> list[str]:
     for r in f["benches"]:
         lines.append(f"| {r['seed']} | " + " | ".join(" / ".join(f"{v:.2f}" for v in r[k]["percent"]) + " %"
                                                  for k in kinds) + " |")
-    lines += ["", f"RMSE in % of each scored piece's speed range, the pieces at {', '.join(f'{100 * x:.0f}' for x in tests)}"
-              f" % charge in that order; {f['flight_s']:g} s each. Over every scored piece:", ""]
+    charges = ", ".join(f"{100 * x:.0f}" for x in tests)
+    lines += ["", f"RMSE in % of each scored piece's speed range, the pieces at {charges} % charge in that order; "
+              f"{f['flight_s']:g} s each. Over every scored piece:", ""]
     for k, s in f["summary"].items():
         goal = ("" if s["goal"] is None else
                 f"; goal at most {s['goal']:g} %: {s['within']} of {s['scored']} pieces"
