@@ -659,7 +659,7 @@ def _fit_flag_lines(splits: list[dict[str, Any]]) -> list[str]:
 
 def render_flight(f: dict[str, Any]) -> list[str]:
     """bench_flight: each bench's scored pieces per kind, and the spread against issue 29's goals."""
-    kinds = list(f["summary"])
+    kinds = sorted(f["summary"], key=lambda k: KINDS.index(k) if k in KINDS else len(KINDS))
     tests = [x["soc"] for x in f["flights"] if x["role"] == "test"]
     lines = ["| bench | " + " | ".join(kinds) + " |", "|---|" + "---|" * len(kinds)]
     for r in f["benches"]:
@@ -668,7 +668,8 @@ def render_flight(f: dict[str, Any]) -> list[str]:
     charges = ", ".join(f"{100 * x:.0f}" for x in tests)
     lines += ["", f"RMSE in % of each scored piece's speed range, the pieces at {charges} % charge in that order; "
               f"{f['flight_s']:g} s each. Over every scored piece:", ""]
-    for k, s in f["summary"].items():
+    for k in kinds:
+        s = f["summary"][k]
         goal = ("" if s["goal"] is None else
                 f"; goal at most {s['goal']:g} %: {s['within']} of {s['scored']} pieces"
                 + (" (met)" if s["within"] == s["scored"] else " (**not met**)"))
@@ -1008,7 +1009,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "Issue 29's goal on another flight of the same quad (hybrid at most 1 % of the range, network at most "
           "2 %) is stated on real flight logs the project does not have; this is its stand-in on benches drawn by "
           "`sim.random_bench` (never tuned on): every kind trained on pieces of one multirotor motor's flight "
-          "(`--profile flight`) and scored on pieces of another, through `train` and `evaluate` (about 10 minutes "
+          "(`--profile flight`) and scored on pieces of another, through `train` and `evaluate` (about 5 minutes "
           "on 2 cores). The recordings are the simulator's, not a log's ESC telemetry."),
     Group("cores", "Speed of the cores", "python benchmarks/bench_cores.py --json docs/results/cores.json",
           render_speed, "CPU time of the tachometer decoder, the battery filter and one estimator update per model "

@@ -121,6 +121,23 @@ def test_a_real_logs_rendering_says_whether_the_contradicted_speed_was_left_out(
     assert "left out there (`--drop-contradicted`" in dropped and "as read" not in dropped
 
 
+def test_the_flight_benchmark_pools_every_scored_piece_against_its_goal():
+    """bench_flight.summarize: median, min, max and the pieces within issue 29's goal, hand-made
+    rows (two benches, two scored pieces each); rendered per bench in the test pieces' order."""
+    flight = load_script("benchmarks/bench_flight.py", "bench_flight")
+    rows = [{"seed": 1, "network": {"percent": [1.5, 2.5]}, "hybrid": {"percent": [0.5, 0.9]}},
+            {"seed": 2, "network": {"percent": [3.5, 1.0]}, "hybrid": {"percent": [1.2, 0.3]}}]
+    s = flight.summarize(rows, ["network", "hybrid"])
+    assert s["network"] == {"median": 2.0, "min": 1.0, "max": 3.5, "goal": 2.0, "within": 2, "scored": 4}
+    assert s["hybrid"]["median"] == pytest.approx(0.7) and s["hybrid"]["within"] == 3
+    text = "\n".join(results.render_flight({"benches": rows, "summary": s, "flight_s": 60.0,
+                                            "flights": [{"role": "train", "soc": 0.95},
+                                                        {"role": "test", "soc": 0.8}, {"role": "test", "soc": 0.6}]}))
+    assert "| bench | network | hybrid |" in text and "the pieces at 80, 60 % charge" in text
+    assert "| 2 | 3.50 / 1.00 % | 1.20 / 0.30 % |" in text
+    assert "- network: median 2.00 % [1.00, 3.50]; goal at most 2 %: 2 of 4 pieces (**not met**)" in text
+
+
 def test_a_real_logs_rendering_lists_the_constants_its_training_left_at_a_bound():
     """train's own warning text (FitFlag.text) of a constant at a bound is listed once per split
     with the end it sits at, exponents and all; a hybrid that holds no correction is said to be
