@@ -27,10 +27,7 @@ format (``test/test_import_log.py`` checks those).
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -41,6 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_real import cli_json  # noqa: E402  (the command line as a user runs it)
 from results import check_record_path, write_record  # noqa: E402
 
 from bldc_propulsion.sim import simulate  # noqa: E402
@@ -53,18 +51,6 @@ GOALS_PERCENT = {"hybrid": 1.0, "network": 2.0}
 #: (role, state of charge) of each bench's flight pieces (see the module's docstring).
 FLIGHTS = (("train", 0.95), ("train", 0.70), ("train", 0.45), ("validation", 0.85), ("validation", 0.55),
            ("test", 0.80), ("test", 0.60))
-
-
-def cli_json(*args: str) -> dict[str, Any]:
-    """``bldc-propulsion ARGS --json`` in this checkout; RuntimeError with its stderr on failure."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *sys.path])}
-    proc = subprocess.run([sys.executable, "-m", "bldc_propulsion.cli", *args, "--json"], capture_output=True,
-                          text=True, env=env, cwd=ROOT, timeout=3600)
-    if proc.returncode != 0:
-        raise RuntimeError(f"bldc-propulsion {' '.join(args[:2])} ... failed (exit {proc.returncode}): "
-                           f"{proc.stderr.strip()[-1500:]}")
-    out: dict[str, Any] = json.loads(proc.stdout)
-    return out
 
 
 def one_bench(d: Path, seed: int, duration_s: float, kinds: list[str]) -> dict[str, Any]:
