@@ -1010,7 +1010,9 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "2 %) is stated on real flight logs the project does not have; this is its stand-in on benches drawn by "
           "`sim.random_bench` (never tuned on): every kind trained on pieces of one multirotor motor's flight "
           "(`--profile flight`) and scored on pieces of another, through `train` and `evaluate` (about 5 minutes "
-          "on 2 cores). The recordings are the simulator's, not a log's ESC telemetry."),
+          "on 2 cores). The recordings are the simulator's, not a log's ESC telemetry. The spread: eight more fresh "
+          "benches (`--first-seed 990`, measured at ec0ef0c) gave hybrid 0.17 % [0.10, 0.25], 16 of 16 within 1 %; "
+          "physics 0.19 % [0.10, 0.40]; network 2.44 % [1.22, 4.37], 6 of 16 within 2 %."),
     Group("cores", "Speed of the cores", "python benchmarks/bench_cores.py --json docs/results/cores.json",
           render_speed, "CPU time of the tachometer decoder, the battery filter and one estimator update per model "
           "kind, best of several runs (seconds; CPU time, so other load disturbs it little)."),
