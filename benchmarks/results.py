@@ -1070,10 +1070,12 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "measured at 14b38b2, never run before) 14/16, 12/16 and 14/16 (two propeller losses and three packs "
           "found 6-14 s after the onset, one pack missed; one heating left unnamed, one missed), and one false "
           "alarm in 10.39 h (bench 935, a bearing friction named 1.76x at 56.5 s of a healthy flight; the same "
-          "bench raised all but one of that set's false alarms on random steps, below). The record's own "
-          "benches gave the same at 8d6fe2f, before a steady stretch far out of the others was left out of the "
-          "visit error's estimate (93670b4), but for one propeller loss found 1 s later (bench 842), and the "
-          "same run by run at 14b38b2."),
+          "bench raised all but one of that set's false alarms on random steps, below); eight more "
+          "(`--first-seed 940`, measured at ec0ef0c, never run before) 14/16, 15/16 and 15/16, and one false alarm "
+          "in 10.39 h (bench 944, a bearing friction named 5.81x at 30.7 s of a healthy flight, statistic 148). "
+          "The record's own benches gave the same at 8d6fe2f, before a steady stretch far out of the others was "
+          "left out of the visit error's estimate (93670b4), but for one propeller loss found 1 s later (bench "
+          "842), and the same run by run at 14b38b2."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,
@@ -1104,7 +1106,11 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "turning 4-5 s, two late, one at rest; three heating runs left unnamed, heating and friction alike, "
           "three missed), and three false alarms in 10.39 h, the most of any set: bench 935 a bearing friction "
           "named 2.07x at 64.3 s and an unnamed change at 62.7 s, bench 936 an unnamed change at 40.4 s "
-          "(heating and friction explaining each alike). The record's own benches gave the same, run by run, "
+          "(heating and friction explaining each alike). Eight more (`--first-seed 940`, measured at ec0ef0c, "
+          "never run before) 11/16, 14/16 and 8/16 (two propeller losses never found, the rotor turning 4-5 s "
+          "of the 5 s, three found 5.1-8.6 s after the onset; "
+          "three heating runs left unnamed, three missed), and no false alarm in 10.39 h. The record's own "
+          "benches gave the same, run by run, "
           "at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
           "estimate (93670b4), and at 14b38b2."),
     Group("band", "Uncertainty bands on held-out recordings (issue 34)",
