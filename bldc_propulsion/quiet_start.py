@@ -11,6 +11,7 @@ right. Imported as a library (tests, ``python -c``), nothing changes. Standard l
 
 from __future__ import annotations
 
+import _thread
 import os
 import signal
 import sys
@@ -24,6 +25,8 @@ _HANDLERS: dict[int, object] = {}
 #: swallowed on its way (raised inside a C call or a finalizer that only reports it) and the
 #: work then runs on to its end: outputs look here before they are moved into place.
 _INTERRUPTED = False
+#: The unraisable hook that was in place before ``end`` installed ``_pass_on_lost_interrupt``.
+_PREVIOUS_UNRAISABLE_HOOK = sys.unraisablehook
 
 
 def started_as(programs: Collection[str], modules: Collection[str] = ()) -> bool:
@@ -56,9 +59,32 @@ def end(signum: int = signal.SIGINT) -> None:
     """The program is about to do work that must clean up when interrupted: Python's own
     handling of ``signum`` again (for SIGINT, ``interrupt``: KeyboardInterrupt, recorded), if the
     start-up handler is still the one installed."""
+    global _PREVIOUS_UNRAISABLE_HOOK
     if active(signum):
         signal.signal(signum, interrupt if signum == signal.SIGINT else signal.SIG_DFL)
+        if signum == signal.SIGINT and sys.unraisablehook is not _pass_on_lost_interrupt:
+            _PREVIOUS_UNRAISABLE_HOOK = sys.unraisablehook
+            sys.unraisablehook = _pass_on_lost_interrupt
     _HANDLERS.pop(signum, None)
+
+
+def _pass_on_lost_interrupt(unraisable: sys.UnraisableHookArgs) -> None:
+    """A KeyboardInterrupt raised inside a finalizer (a weakref callback of a lazy import's
+    module lock, a ``__del__``) cannot leave it: Python would print "Exception ignored" with a
+    traceback and run on. Instead the signal is tripped again for the main thread, silently, so
+    that the interrupt lands in the work itself at a later step and ends it as a Ctrl-C should
+    (landing in a finalizer again, it comes back here)."""
+    if not (isinstance(unraisable.exc_value, KeyboardInterrupt) and _INTERRUPTED):
+        _PREVIOUS_UNRAISABLE_HOOK(unraisable)
+        return
+    # tripped from another thread: tripped here, Python would run the handler at once, inside
+    # this hook, and report that as a failed hook
+    while True:
+        try:
+            _thread.start_new_thread(_thread.interrupt_main, (signal.SIGINT,))
+            return
+        except KeyboardInterrupt:  # the new thread was quicker than this return: once more
+            continue
 
 
 def interrupt(signum: int, frame: FrameType | None) -> None:
