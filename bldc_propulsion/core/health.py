@@ -547,6 +547,9 @@ _TIMING_SHARE = 0.5
 #: reference never makes it zero.
 _SPEED_NOISE_FLOOR = 1e-3
 _VOLTAGE_NOISE_FLOOR_V = 3e-3
+#: The voltage's noise is learned only from a reference whose quiet blocks reach this share of
+#: the current its moving blocks mostly hold (their 90th percentile): see ``_learn_noise``.
+_NOISE_CURRENT_SHARE = 0.5
 #: Fewest valid blocks in a channel's reference for its tests to run (and at least 4 per
 #: nuisance column): fewer say too little of its noise and the model's error.
 _MIN_REFERENCE_BLOCKS = 40
@@ -1206,6 +1209,14 @@ class HealthMonitor:
         if valid.sum() < 20:
             return
         r, lv = res[ref], ch.level[ref]
+        if ch.stepped is not None:
+            # the voltage's noise grows with the current (the ESC's ripple through the battery
+            # filter, undone): quiet blocks at rest or idle say nothing of it at the currents the
+            # test will see. A flight's first steady seconds at 0.1-0.3 A gave 2 mV where the
+            # blocks at 3 A carry 25 mV, and a healthy flight's first burst read as a change
+            moving = np.abs(lv[ch.stepped[ref] > 0])
+            if len(moving) and float(np.abs(lv[valid]).max()) < _NOISE_CURRENT_SHARE * float(np.percentile(moving, 90)):
+                return
         runs = true_run_pairs(valid)
         dev = np.zeros(len(r))
         means: list[tuple[float, int, float]] = []
