@@ -1118,7 +1118,8 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "three heating runs left unnamed, three missed), and no false alarm in 10.39 h. Eight more "
           "(`--first-seed 950`, measured at 10d2589, never run before) 10/16, 15/16 and 11/16 (three of the six "
           "propeller losses late or missed had the rotor turning 0.5-2.1 s of the 5 s after the onset, the other "
-          "three found 5.7-6.4 s after it; four heating runs missed, one left unnamed), and no false alarm in 10.39 h. The record's own "
+          "three found 5.7-6.4 s after it; four heating runs missed, one left unnamed), and no false alarm in "
+          "10.39 h. The record's own "
           "benches gave the same, run by run, "
           "at 8d6fe2f, before a steady stretch far out of the others was left out of the visit error's "
           "estimate (93670b4), and at 14b38b2."),
