@@ -548,7 +548,7 @@ _TIMING_SHARE = 0.5
 _SPEED_NOISE_FLOOR = 1e-3
 _VOLTAGE_NOISE_FLOOR_V = 3e-3
 #: The voltage's noise is learned only from a reference whose quiet blocks reach this share of
-#: the current its moving blocks mostly hold (their 90th percentile): see ``_learn_noise``.
+#: the current its moving blocks mostly hold (their 90th percentile): see ``_quiet_reach_tested``.
 _NOISE_CURRENT_SHARE = 0.5
 #: Fewest valid blocks in a channel's reference for its tests to run (and at least 4 per
 #: nuisance column): fewer say too little of its noise and the model's error.
@@ -1209,14 +1209,8 @@ class HealthMonitor:
         if valid.sum() < 20:
             return
         r, lv = res[ref], ch.level[ref]
-        if ch.stepped is not None:
-            # the voltage's noise grows with the current (the ESC's ripple through the battery
-            # filter, undone): quiet blocks at rest or idle say nothing of it at the currents the
-            # test will see. A flight's first steady seconds at 0.1-0.3 A gave 2 mV where the
-            # blocks at 3 A carry 25 mV, and a healthy flight's first burst read as a change
-            moving = np.abs(lv[ch.stepped[ref] > 0])
-            if len(moving) and float(np.abs(lv[valid]).max()) < _NOISE_CURRENT_SHARE * float(np.percentile(moving, 90)):
-                return
+        if not self._quiet_reach_tested(ch, valid):
+            return
         runs = true_run_pairs(valid)
         dev = np.zeros(len(r))
         means: list[tuple[float, int, float]] = []
@@ -1278,6 +1272,21 @@ class HealthMonitor:
             self.noise[ch.name] = (old[0] + g * (a - old[0]), old[1] + g * (b - old[1]),
                                    visit if first_visit else old[2] + g * (visit - old[2]),
                                    old[3] + g * (kappa - old[3]))
+
+    def _quiet_reach_tested(self, ch: _Channel, quiet: np.ndarray) -> bool:
+        """Whether the reference's quiet blocks (``quiet``) reach the currents the voltage's test
+        sees (always true for the speed, whose untested speeds carry no test). Why: the voltage's
+        noise grows with the current (the ESC's ripple through the battery filter, undone), so
+        quiet blocks at rest or idle say nothing of it where the test looks: a flight's first
+        steady seconds at 0.1-0.3 A gave 2 mV where its blocks at 3 A carry 25 mV, and a healthy
+        flight's first burst read as a change."""
+        if ch.stepped is None:
+            return True
+        ref = slice(0, self._ref_blocks)
+        moving = np.abs(ch.level[ref][ch.stepped[ref] > 0])
+        if len(moving) == 0:
+            return True
+        return float(np.abs(ch.level[ref][quiet]).max()) >= _NOISE_CURRENT_SHARE * float(np.percentile(moving, 90))
 
     def _evaluate(self) -> list[HealthEvent]:
         """The tests over the window: while armed, every candidate onset of the last window_s;
