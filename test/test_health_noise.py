@@ -4,13 +4,14 @@ once passed for a change (the false alarms of issue 34)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from _health_data import monitor_events, synthetic_flight
+from _health_data import monitor_events, monitor_over, synthetic_flight
 from _models import healthy_physics_model
 from bldc_propulsion.core.health import HealthMonitor, HealthSample, _Channel, run_health
 from bldc_propulsion.model import load_model
@@ -110,3 +111,41 @@ def test_the_voltage_noise_is_learned_once_quiet_blocks_reach_the_currents_teste
     mon._learn_noise(ch, residual, 1)
     a, b, _, kappa = mon.noise["voltage"]
     assert math.sqrt(kappa * (a + b * 9.0)) == pytest.approx(0.002 + 0.008 * 3.0, rel=0.3)
+
+
+# --- the learned error below the slowest speed it was learned on -------------------------------------
+def _bending_low(seed: int) -> list[HealthSample]:
+    """100 s of holds at 330-600 rad/s (the model's error learned there: none), then 8 s of holds
+    at 300-330 rad/s, just under the slowest learned speed (within _ERROR_MARGIN of the scale, 650),
+    where the model's error bends down to -6 rad/s at 300 (a friction the model lacks, which weighs
+    more as the speed falls), then 17 s at 330-600 again: the rotor is healthy throughout."""
+    samples = synthetic_flight(125.0, seed, speeds=lambda t: (300.0, 330.0) if 100.0 <= t < 108.0 else (330.0, 600.0))
+
+    def error(w: float) -> float:
+        return -6.0 * min(max((330.0 - w) / 30.0, 0.0), 1.0) ** 2
+
+    return [dataclasses.replace(s, measured_speed_rad_s=s.measured_speed_rad_s + error(s.predicted_speed_rad_s))
+            for s in samples]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_nothing_is_seen_where_the_speed_first_falls_under_the_slowest_learned(seed):
+    """The learned error's polynomial extrapolated below its slowest speed said 0 where the model is
+    1-6 rad/s off: on both seeds a change (bearing_friction) was seen with its onset in the low
+    holds. Below the slowest learned speed a block carries no test until it is learned: no change,
+    alarm or minor, begins there."""
+    mon = monitor_over(_bending_low(seed))
+    seen = [e for e in [*mon.events, *mon.minor] if 100.0 <= e.onset_s <= 108.0]
+    assert seen == [], [e.as_dict() for e in seen]
+    assert mon.events == [], [e.as_dict() for e in mon.events]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_propeller_loss_just_above_the_fastest_learned_is_still_named(seed):
+    """Above the fastest learned speed the learned error is trusted up to _ERROR_MARGIN: learned at
+    150-540 rad/s for 100 s, then held at 540-570, a 10 % loss at 110 s is found within 2 s and named."""
+    samples = synthetic_flight(130.0, seed, (0.1, np.array([1.0, 0.0, 0.0, 0.0]), 0.0, 110.0),
+                               speeds=lambda t: (150.0, 540.0) if t < 100.0 else (540.0, 570.0))
+    events = monitor_events(samples)
+    assert len(events) == 1, [e.as_dict() for e in events]
+    assert events[0].name == "propeller_damage" and 110.0 <= events[0].detected_s <= 112.0, events[0].as_dict()
