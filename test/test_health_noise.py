@@ -118,8 +118,8 @@ def _bending_low(seed: int) -> list[HealthSample]:
     """100 s of holds at 330-600 rad/s (the model's error learned there: none), then 8 s of holds
     at 300-330 rad/s, just under the slowest learned speed (within _ERROR_MARGIN of the scale, 650),
     where the model's error bends down to -6 rad/s at 300 (a friction the model lacks, which weighs
-    more as the speed falls), then 17 s at 330-600 again: the rotor is healthy throughout."""
-    samples = synthetic_flight(125.0, seed, speeds=lambda t: (300.0, 330.0) if 100.0 <= t < 108.0 else (330.0, 600.0))
+    more as the speed falls), then 7 s at 330-600 again: the rotor is healthy throughout."""
+    samples = synthetic_flight(115.0, seed, speeds=lambda t: (300.0, 330.0) if 100.0 <= t < 108.0 else (330.0, 600.0))
 
     def error(w: float) -> float:
         return -6.0 * min(max((330.0 - w) / 30.0, 0.0), 1.0) ** 2

@@ -514,13 +514,13 @@ _SETTLED_FLOOR = 0.005
 _SPEED_TIMING_SHARE = 0.1
 #: The model's speed error is learned as a polynomial of this many terms in the predicted speed,
 #: known after _ERROR_MIN_BLOCKS steady blocks, with a memory of _ERROR_MEMORY_S of steady data,
-#: and trusted up to _ERROR_MARGIN (share of the speed scale) above the fastest speed it was
-#: learned on, never below the slowest. Why not below: toward low speeds the model's error bends
-#: fastest (the friction torque, which a fit leaves at its nominal share, and the throttle map's
-#: foot weigh more as the drag torque falls with the speed squared), so the polynomial's
-#: extrapolation there is off by what a bearing's friction or a warm winding would do: on two
-#: fresh benches the first low hold of a healthy flight, 1-5 % of the scale under the slowest
-#: learned speed, was 3-4 rad/s slower than the learned error said and was named bearing_friction.
+#: and trusted up to _ERROR_MARGIN (share of the speed scale) beyond the speeds it was learned
+#: on, but below the slowest only to tell the candidates of a change apart, never to find one.
+#: Why: toward low speeds the model's error bends fastest (a healthy flight's first low holds,
+#: 1-5 % of the scale under the slowest learned speed, were 3-4 rad/s slower than the extrapolated
+#: error said on two fresh benches, and were named bearing_friction), while a change already found
+#: where the error is known is told apart best at another load (heating and friction part at low
+#: speed: without those blocks a 30 K rise was named 16 s after its onset instead of 4 s).
 _ERROR_TERMS = 4
 _ERROR_MIN_BLOCKS = 20
 _ERROR_MEMORY_S = 60.0
@@ -642,8 +642,9 @@ class _Channel:
 # speed, d speed / d volt, the residual mean's own variance (from its samples' scatter), the model
 # current squared lagged (_current_squared), the current's polarisation lags and its filter lag
 # less itself (_current_lags), the propeller twin's static sensitivity (_SETTLED_SHARE)
-_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG, _SPS = range(19)
-_S0 = 19  #: speed sensitivities (one per fault), then current sensitivities
+_T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG, _SPS, \
+    _BELOW = range(20)
+_S0 = 20  #: speed sensitivities (one per fault), then current sensitivities
 _PROPELLER = FAULTS.index("propeller_damage")
 _ARMING, _ARMED, _NAMING, _REFINING = "arming", "armed", "naming", "refining"
 #: what a named change too small to be a fault is, after "below" or "could be below"
@@ -804,8 +805,9 @@ class HealthMonitor:
         self._filled = 0  #: blocks in the window since the last restart
         #: the model's speed error as a cubic in the predicted speed, learned (least squares with
         #: a memory of _ERROR_MEMORY_S) from steady blocks older than the test window: what is known
-        #: of the model before a change can have entered it; known from the slowest speed learned
-        #: to a little above the fastest (_ERROR_MARGIN: a polynomial does not extrapolate far)
+        #: of the model before a change can have entered it; known between the slowest and the
+        #: fastest speed learned and a little beyond (_ERROR_MARGIN: a polynomial does not
+        #: extrapolate far; below the slowest only to name a change)
         self._error_gram = np.zeros((_ERROR_TERMS, _ERROR_TERMS))
         self._error_rhs = np.zeros(_ERROR_TERMS)
         self._error_coef: np.ndarray = np.zeros(_ERROR_TERMS)
@@ -861,10 +863,13 @@ class HealthMonitor:
         return []
 
     def _against_learned(self, row: np.ndarray) -> None:
-        """Set a block's residual less the learned error (_RC) and whether its speed is known."""
+        """Set a block's residual less the learned error (_RC) and whether its speed is known
+        (_KNOWN), or known only to name a change found elsewhere (_BELOW: _ERROR_MARGIN)."""
         lo, hi = self._learned_span()
         margin = _ERROR_MARGIN * self.speed_scale
-        row[_KNOWN] = float(self._error_n >= _ERROR_MIN_BLOCKS and lo <= row[_W] <= hi + margin)
+        learned = self._error_n >= _ERROR_MIN_BLOCKS
+        row[_KNOWN] = float(learned and lo <= row[_W] <= hi + margin)
+        row[_BELOW] = float(learned and lo - margin <= row[_W] < lo)
         row[_RC] = row[_R] - float(self._terms(row[_W]) @ self._error_coef)
 
     def _restart_from(self, onset_block: int) -> None:
@@ -1022,7 +1027,8 @@ class HealthMonitor:
         volt_nuisance = np.column_stack([ones, charge, ib, cur[:, _PF], cur[:, _PS]])
         sag = self._sag_per_ampere(v, volt_nuisance)
         # a dithered block's timing error (_SPEED_TIMING_SHARE)
-        speed = _Channel("speed", cur[:, _RC], valid * cur[:, _KNOWN], w, cur[:, _R2],
+        known = cur[:, _KNOWN] + (cur[:, _BELOW] if self._pending is not None else 0.0)
+        speed = _Channel("speed", cur[:, _RC], valid * known, w, cur[:, _R2],
                          self._input_noise(cur) + (_SPEED_TIMING_SHARE * _change_beside(win[:, _W])) ** 2,
                          np.column_stack([ones, t_rel, t_rel**2]), speed_tests)
         dib = cur[:, _S0 + nf:_S0 + 2 * nf]
