@@ -641,7 +641,8 @@ class _Channel:
 # last and its time, its mean and samples, steady, the residual less the learned error, known
 # speed, d speed / d volt, the residual mean's own variance (from its samples' scatter), the model
 # current squared lagged (_current_squared), the current's polarisation lags and its filter lag
-# less itself (_current_lags), the propeller twin's static sensitivity (_SETTLED_SHARE)
+# less itself (_current_lags), the propeller twin's static sensitivity (_SETTLED_SHARE), whether
+# the speed lies just under the learned ones (known only to name a change: _ERROR_MARGIN)
 _T, _N, _R, _W, _IB, _VLAST, _TVLAST, _VMEAN, _NV, _STEADY, _RC, _KNOWN, _SV, _R2, _I2, _PF, _PS, _LAG, _SPS, \
     _BELOW = range(20)
 _S0 = 20  #: speed sensitivities (one per fault), then current sensitivities
