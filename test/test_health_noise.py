@@ -132,8 +132,8 @@ def _bending_low(seed: int) -> list[HealthSample]:
 def test_nothing_is_seen_where_the_speed_first_falls_under_the_slowest_learned(seed):
     """The learned error's polynomial extrapolated below its slowest speed said 0 where the model is
     1-6 rad/s off: on both seeds a change (bearing_friction) was seen with its onset in the low
-    holds. Below the slowest learned speed a block carries no test until it is learned: no change,
-    alarm or minor, begins there."""
+    holds. Below the slowest learned speed a block is not tested for a change until it is learned
+    (it only helps name one found elsewhere): no change, alarm or minor, begins there."""
     mon = monitor_over(_bending_low(seed))
     seen = [e for e in [*mon.events, *mon.minor] if 100.0 <= e.onset_s <= 108.0]
     assert seen == [], [e.as_dict() for e in seen]
