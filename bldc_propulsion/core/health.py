@@ -512,7 +512,7 @@ _SETTLED_FLOOR = 0.005
 #: The share of a block the model's timing of a dithered speed may be off by: a speed block
 #: carries this share of its predicted change as extra noise (the voltage's is _TIMING_SHARE).
 _SPEED_TIMING_SHARE = 0.1
-#: The model's speed error is learned as a polynomial of this many terms in the predicted speed,
+#: The model's speed error is learned as a function of the predicted speed (``_terms``),
 #: known after _ERROR_MIN_BLOCKS steady blocks, with a memory of _ERROR_MEMORY_S of steady data,
 #: and trusted up to _ERROR_MARGIN (share of the speed scale) beyond the speeds it was learned
 #: on, but below the slowest only to tell the candidates of a change apart, never to find one.
@@ -521,12 +521,19 @@ _SPEED_TIMING_SHARE = 0.1
 #: error said on two fresh benches, and were named bearing_friction), while a change already found
 #: where the error is known is told apart best at another load (heating and friction part at low
 #: speed: without those blocks a 30 K rise was named 16 s after its onset instead of 4 s).
-_ERROR_TERMS = 4
+#: The learned error is piecewise linear in the predicted speed, its knots _ERROR_MARGIN of the
+#: scale apart, its curvature penalised as much as _ERROR_SMOOTH_BLOCKS blocks weigh (a penalised
+#: spline: between and beyond the speeds learned it runs straight). Why not a polynomial: one fit
+#: over all speeds lets the speeds visited most set its shape at the others; a cubic missed its own
+#: lowest bins by 2.6-3.6 rad/s on a healthy flight of a fresh bench whose error bent fast toward
+#: low speeds, and that flight's low holds were named bearing_friction. Written by hand: the fit is
+#: recursive with a memory, which scipy's smoothing splines (batch fits) do not keep.
+_ERROR_SMOOTH_BLOCKS = 10.0
 _ERROR_MIN_BLOCKS = 20
 _ERROR_MEMORY_S = 60.0
 _ERROR_MARGIN = 0.05
 #: The learned speeds are those of the bins (_ERROR_MARGIN of the scale wide) that hold at least
-#: this many learned blocks with the error's memory: a speed the polynomial has forgotten is
+#: this many learned blocks with the error's memory: a speed the fit has forgotten is
 #: not known (tuning bench 1: a dip to idle, last visited minutes before, passed for a change).
 _SPAN_BLOCKS = 2.0
 #: The pack's polarisation, as the voltage's nuisance: the current through lags of these time
@@ -804,18 +811,21 @@ class HealthMonitor:
         """Forget the window and the model's learned error (after a gap; after a change,
         ``_restart_from`` keeps what followed its onset)."""
         self._filled = 0  #: blocks in the window since the last restart
-        #: the model's speed error as a cubic in the predicted speed, learned (least squares with
-        #: a memory of _ERROR_MEMORY_S) from steady blocks older than the test window: what is known
-        #: of the model before a change can have entered it; known between the slowest and the
-        #: fastest speed learned and a little beyond (_ERROR_MARGIN: a polynomial does not
-        #: extrapolate far; below the slowest only to name a change)
-        self._error_gram = np.zeros((_ERROR_TERMS, _ERROR_TERMS))
-        self._error_rhs = np.zeros(_ERROR_TERMS)
-        self._error_coef: np.ndarray = np.zeros(_ERROR_TERMS)
+        #: the learned blocks per speed bin (_ERROR_MARGIN of the scale wide), with the error's memory
+        self._error_hist = np.zeros(int(math.ceil(1.5 / _ERROR_MARGIN)))
+        #: the model's speed error at the bins' edges (``_terms``), learned (penalised least squares
+        #: with a memory of _ERROR_MEMORY_S) from steady blocks older than the test window: what is
+        #: known of the model before a change can have entered it; known between the slowest and
+        #: the fastest speed learned and a little beyond (_ERROR_MARGIN: a fit does not extrapolate
+        #: far; below the slowest only to name a change)
+        knots = len(self._error_hist) + 1
+        self._error_gram = np.zeros((knots, knots))
+        self._error_rhs = np.zeros(knots)
+        self._error_coef: np.ndarray = np.zeros(knots)
+        curvature = np.diff(np.eye(knots), 2, axis=0)
+        self._error_smooth = _ERROR_SMOOTH_BLOCKS * curvature.T @ curvature
         self._error_n = 0.0
         self._error_span = (math.inf, -math.inf)
-        #: the learned blocks per speed bin (_ERROR_MARGIN of the scale wide), with the same memory
-        self._error_hist = np.zeros(int(math.ceil(1.5 / _ERROR_MARGIN)))
         self._i2_lag: tuple[float, float] | None = None  #: (lagged current squared, its time)
 
     def _close_block(self) -> list[HealthEvent]:
@@ -957,8 +967,13 @@ class HealthMonitor:
         return _INPUT_NOISE_WHITE * (self.voltage_strength * cur[:, _SV]) ** 2 * filtered
 
     def _terms(self, w: float) -> np.ndarray:
-        u = w / self.speed_scale
-        return np.array([u**k for k in range(_ERROR_TERMS)])
+        """The learned error's basis at speed w: the two knots about it, weighted linearly."""
+        out = np.zeros(len(self._error_coef))
+        x = max(w / (_ERROR_MARGIN * self.speed_scale), 0.0)
+        k = min(int(x), len(out) - 2)
+        f = min(x - k, 1.0)
+        out[k], out[k + 1] = 1.0 - f, f
+        return out
 
     def _learn_error(self) -> None:
         """Add the block that just left the test window (older than window_s) to the model's
@@ -979,8 +994,10 @@ class HealthMonitor:
         self._error_span = (min(self._error_span[0], old[_W]), max(self._error_span[1], old[_W]))
         self._error_hist *= keep
         self._error_hist[self._speed_bin(old[_W])] += 1.0
-        ridge = 1e-3 * max(float(np.trace(self._error_gram)), 1e-9) / _ERROR_TERMS
-        self._error_coef = np.linalg.solve(self._error_gram + ridge * np.eye(_ERROR_TERMS), self._error_rhs)
+        knots = len(self._error_coef)
+        ridge = 1e-6 * max(float(np.trace(self._error_gram)), 1e-9) / knots
+        self._error_coef = np.linalg.solve(self._error_gram + self._error_smooth + ridge * np.eye(knots),
+                                           self._error_rhs)
 
     def _window(self, n: int) -> np.ndarray:
         """The last n + 1 blocks, oldest first (the first gives the voltage's starting point)."""
