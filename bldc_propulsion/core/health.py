@@ -969,9 +969,8 @@ class HealthMonitor:
     def _terms(self, w: float) -> np.ndarray:
         """The learned error's basis at speed w: the two knots about it, weighted linearly."""
         out = np.zeros(len(self._error_coef))
-        x = max(w / (_ERROR_MARGIN * self.speed_scale), 0.0)
-        k = min(int(x), len(out) - 2)
-        f = min(x - k, 1.0)
+        k = self._speed_bin(w)  # the knots are the bins' edges
+        f = min(max(w / (_ERROR_MARGIN * self.speed_scale), 0.0) - k, 1.0)
         out[k], out[k + 1] = 1.0 - f, f
         return out
 
