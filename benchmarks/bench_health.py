@@ -115,8 +115,17 @@ def turning_after(res: Any, onset_s: float) -> float:
     return float(np.count_nonzero(turning & inside)) * dt
 
 
-def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None) -> dict[str, Any]:
-    """One flight's outcome against its truth (``turning_s``: ``turning_after``)."""
+def tested_after(run: Any, onset_s: float, channel: str = "speed") -> float:
+    """Seconds of the DETECT_WITHIN_S after the onset the monitor's ``channel`` tested
+    (``HealthRun.tested``): where it did not, the monitor could not find the change there."""
+    end = onset_s + DETECT_WITHIN_S
+    return float(sum(max(0.0, min(b, end) - max(a, onset_s)) for a, b in run.tested.get(channel, [])))
+
+
+def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None,
+          speed_tested_s: float | None = None) -> dict[str, Any]:
+    """One flight's outcome against its truth (``turning_s``: ``turning_after``; ``speed_tested_s``:
+    ``tested_after``)."""
     if fault is None:
         return {"false_alarms": len(events)}
     before = [e for e in events if e.detected_s < fault.onset_s]
@@ -132,6 +141,7 @@ def judge(events: list[Any], fault: Fault | None, turning_s: float | None = None
     out["renamed"] = bool(first is not None and first.first_name is not None)
     out["named_right"] = bool(first is not None and first.name == fault.name and not out["renamed"])
     out["turning_s"] = turning_s
+    out["speed_tested_s"] = speed_tested_s
     sized = out["named_right"] and first is not None and first.size is not None
     out["size_error"] = (first.size - fault.size) if sized and first is not None and first.size is not None else None
     return out
@@ -169,7 +179,7 @@ def one_bench(job: dict[str, Any], t_start: float) -> dict[str, Any]:
         fault = f["fault"]
         res = simulate(job["profile"], FLIGHT_S, f["seed"], params=bench, soc=f["soc"], faults=[fault])
         run = run_health(model, *streams(res))
-        j = judge(run.events, fault, turning_after(res, fault.onset_s))
+        j = judge(run.events, fault, turning_after(res, fault.onset_s), tested_after(run, fault.onset_s))
         j.update(bench=bench_seed, seed=f["seed"], onset_s=fault.onset_s)
         results[fault.name].append(j)
         print(f"  {fault.name} @{fault.onset_s:.1f}: {j} ({time.perf_counter() - t_start:.0f} s)",
@@ -179,6 +189,7 @@ def one_bench(job: dict[str, Any], t_start: float) -> dict[str, Any]:
         res = simulate(job["profile"], HEALTHY_FLIGHT_S, h["seed"], params=bench, soc=h["soc"])
         run = run_health(model, *streams(res))
         healthy.append({"bench": bench_seed, "seed": h["seed"], "monitored_s": run.monitored_s,
+                        "speed_tested_s": run.tested_s.get("speed", 0.0),
                         "false_alarms": len(run.events), "events": [e.as_dict() for e in run.events]})
         print(f"  healthy {h['seed']}: {len(run.events)} alarms over {run.monitored_s:.0f} s "
               f"({time.perf_counter() - t_start:.0f} s)", file=sys.stderr, flush=True)
@@ -255,6 +266,10 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
                  and r["turning_s"] >= TURNING_SHARE * DETECT_WITHIN_S]
         counts["could_show"] = len(shown)
         counts["could_show_detected_and_named_right"] = sum(bool(r["detected"] and r["named_right"]) for r in shown)
+        # the monitor's speed channel tested (``tested_after``) long enough to find the change there
+        tested = [r for r in rows if (r.get("speed_tested_s") or 0.0) >= TURNING_SHARE * DETECT_WITHIN_S]
+        counts["speed_tested"] = len(tested)
+        counts["speed_tested_detected_and_named_right"] = sum(bool(r["detected"] and r["named_right"]) for r in tested)
         out["faults"][name] = {
             "counts": counts,
             "detected_and_named_right": counts["detected_and_named_right"] / n if n else None,
@@ -282,6 +297,7 @@ def summarize(results: dict[str, list[dict[str, Any]]], healthy: list[dict[str, 
         b["hours_monitored"] += h["monitored_s"] / 3600.0
         b["false_alarms"] += h["false_alarms"]
     out["healthy"] = {"flights": len(healthy), "hours_monitored": hours, "false_alarms": alarms,
+                      "hours_speed_tested": sum(h.get("speed_tested_s", 0.0) for h in healthy) / 3600.0,
                       "false_alarms_per_hour": alarms / hours if hours else None,
                       "per_bench": healthy_per_bench,
                       "alarms": [{"bench": h["bench"], "seed": h["seed"], **e} for h in healthy for e in h["events"]]}
@@ -312,10 +328,12 @@ def print_table(s: dict[str, Any]) -> None:
         print(f"{name}: rotor turning >= {TURNING_SHARE * DETECT_WITHIN_S:g} s of the {DETECT_WITHIN_S:g} s after "
               f"the onset in {c['could_show']}/{f['runs']} runs; of those detected and named right "
               f"{c['could_show_detected_and_named_right']}/{c['could_show']}; renamed while sized "
-              f"(not named right first) {c['renamed']}")
+              f"(not named right first) {c['renamed']}; the speed tested >= {TURNING_SHARE * DETECT_WITHIN_S:g} s "
+              f"of those {DETECT_WITHIN_S:g} s in {c['speed_tested']}/{f['runs']} runs, of those detected and named "
+              f"right {c['speed_tested_detected_and_named_right']}/{c['speed_tested']}")
     h = s["healthy"]
-    print(f"healthy: {h['flights']} flights, {h['hours_monitored']:.2f} h monitored, {h['false_alarms']} alarms "
-          f"({num(h['false_alarms_per_hour'])} per hour)")
+    print(f"healthy: {h['flights']} flights, {h['hours_monitored']:.2f} h monitored (the speed tested "
+          f"{h['hours_speed_tested']:.2f} h), {h['false_alarms']} alarms ({num(h['false_alarms_per_hour'])} per hour)")
 
 
 if __name__ == "__main__":

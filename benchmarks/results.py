@@ -771,6 +771,25 @@ def _health_could_show(f: dict[str, Any]) -> list[str]:
             "first: " + "; ".join(parts) + ".", ""]
 
 
+def _health_speed_tested(f: dict[str, Any]) -> list[str]:
+    """The goal's figure over the runs whose speed the monitor tested after the onset, and the
+    healthy hours it tested it (a record without it: nothing)."""
+    if "hours_speed_tested" not in f["healthy"]:
+        return []
+    within = f["detect_within_s"]
+    need = f["turning_share"] * within
+    parts = [f"{name} {_share(c['speed_tested_detected_and_named_right'], c['speed_tested'])} "
+             f"(the speed tested in {c['speed_tested']} of {f['faults'][name]['runs']} runs)"
+             for name in f["fault_order"] if (c := f["faults"][name]["counts"])]
+    h = f["healthy"]
+    return ["The monitor tests the speed only once its reference holds enough steady seconds at speeds whose model "
+            "error it has learned (`HealthMonitor.testing`; its status says so while it does not): a flight that "
+            "never holds a speed can leave it untested for a minute, the voltage alone watching. Over the runs whose "
+            f"speed it tested for at least {need:g} s of the {within:g} s after the onset, detected within "
+            f"{within:g} s and named right first: " + "; ".join(parts) + ". The healthy flights' speed was tested "
+            f"{h['hours_speed_tested']:.2f} h of the {h['hours_monitored']:.2f} h monitored.", ""]
+
+
 #: How a health record's flights are described, by their command profile (sim/profiles.py).
 PROFILE_TEXT = {
     "random_steps": "random steps (levels over the whole range held 0.5-5 s, the motor stopped at times)",
@@ -809,7 +828,7 @@ def render_health(f: dict[str, Any]) -> list[str]:
               f"up to {f['name_within_s']:g} s after the onset; \"named right ≤ {within:g} s\" also asks the name "
               f"within {within:g} s. Delays: onset to detection, over the runs detected in time; size error: "
               "reported minus injected size (propeller_damage: the fraction of CT and CP lost), over the runs "
-              "named right." + _health_renamed(f), "", *_health_could_show(f),
+              "named right." + _health_renamed(f), "", *_health_could_show(f), *_health_speed_tested(f),
               f"Healthy flights: {h['flights']} of {f['healthy_flight_s']:.0f} s, {h['hours_monitored']:.2f} h "
               f"monitored (after each flight's first full window), **{h['false_alarms']} false alarm"
               f"{'s' if h['false_alarms'] != 1 else ''}** ({num(h['false_alarms_per_hour'])} per hour)"

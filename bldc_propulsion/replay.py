@@ -119,6 +119,7 @@ class HealthJson(TypedDict):
     threshold: float
     #: changes that are no alarm (named below HealthConfig.min_size, unnamed that did not hold)
     minor: list[dict[str, object]]
+    tested_s: dict[str, float]  #: channel -> seconds its tests ran (HealthRun.tested_s)
 
 
 class ReplaySummary(TypedDict):
@@ -250,7 +251,7 @@ def _health_json(stream: HealthStream | None) -> HealthJson | None:
     run = stream.run()
     return {"events": [e.as_dict() for e in run.events], "duration_s": run.duration_s,
             "monitored_s": run.monitored_s, "threshold": run.threshold,
-            "minor": [e.as_dict() for e in run.minor]}
+            "minor": [e.as_dict() for e in run.minor], "tested_s": dict(run.tested_s)}
 
 
 def health_lines(events: list[HealthEvent], indent: str = "  ") -> list[str]:
@@ -698,7 +699,9 @@ def summary_text(info: ReplaySummary) -> str:
     if hj:
         events = [HealthEvent.from_dict(e) for e in hj["events"]]
         lines.append(f"  health monitor: {len(events)} change{'' if len(events) == 1 else 's'} over "
-                     f"{hj['monitored_s']:.1f} s monitored (threshold {hj['threshold']:.1f})"
+                     f"{hj['monitored_s']:.1f} s monitored ("
+                     + "".join(f"{name} tested {secs:.1f} s, " for name, secs in hj.get("tested_s", {}).items())
+                     + f"threshold {hj['threshold']:.1f})"
                      + ("" if events or hj["monitored_s"] > 0.0 else
                         ": too short, the first reference + window seconds are the healthy reference"))
         lines += health_lines(events, "    ")

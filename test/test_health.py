@@ -26,9 +26,11 @@ from bldc_propulsion.core.health import (
     HealthSample,
     PhysicsTwins,
     TwinSample,
+    HealthStream,
     _Channel,
     chi2_1_isf,
     run_health,
+    channel_intervals,
 )
 from bldc_propulsion.model import save_model
 from bldc_propulsion.physics import config as pc
@@ -619,7 +621,7 @@ def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
     from types import SimpleNamespace
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_health import judge, turning_after
+    from bench_health import judge, tested_after, turning_after
 
     t = np.arange(0.0, 12.0, 0.001)
     speed = np.where(t >= 3.0, 100.0, 0.0)
@@ -637,6 +639,63 @@ def test_the_benchmark_counts_the_seconds_a_rotor_turned_after_the_onset():
     assert judge([right], Fault("propeller_damage", 0.1, 1.0))["named_right"]
     out = judge([renamed], Fault("propeller_damage", 0.1, 1.0))
     assert out["renamed"] and not out["named_right"] and out["name"] == "propeller_damage"
+    # the seconds of the 5 s after the onset the monitor's speed channel tested, by hand
+    run = SimpleNamespace(tested={"speed": [(0.0, 2.0), (3.0, 10.0)], "voltage": [(0.0, 10.0)]})
+    assert tested_after(run, 1.0) == pytest.approx(1.0 + 3.0)
+    assert tested_after(run, 1.0, "voltage") == pytest.approx(5.0) and tested_after(run, 10.0) == 0.0
+
+
+def test_channel_intervals_pair_each_start_with_its_end_by_hand():
+    """A log (time, channel, testing) to each channel's intervals: one still testing at the end
+    runs to it; an end whose start was dropped from the log is left out."""
+    log = [(1.0, "speed", True), (3.0, "voltage", True), (5.0, "speed", False), (7.0, "speed", True)]
+    assert channel_intervals(log, 10.0) == {"speed": [(1.0, 5.0), (7.0, 10.0)], "voltage": [(3.0, 10.0)]}
+    assert channel_intervals([(2.0, "speed", False), (4.0, "speed", True)], 6.0) == {
+        "speed": [(4.0, 6.0)], "voltage": []}
+
+
+#: Until this time the hand-made rotor holds below min_speed_fraction (no steady block, so no
+#: channel can learn its noise); then holds at 150-600 rad/s as usual.
+_CRAWL_UNTIL_S = 60.0
+
+
+def _crawl_then_fly(duration_s: float) -> list[HealthSample]:
+    return synthetic_flight(duration_s, 5, speeds=lambda t: (20.0, 90.0) if t < _CRAWL_UNTIL_S else (150.0, 600.0))
+
+
+def test_a_channel_is_tested_only_once_its_reference_holds_and_the_seconds_add_up():
+    """Armed at 35 s (reference, window and learning done) but no block steady before 60 s: no
+    channel tests then, whatever the state says. From 60 s the speed tests once 40 valid blocks
+    (4 s at least, after its error is learned) fill its reference; the seconds each channel
+    tested agree with its intervals to an evaluation's 0.6 s."""
+    early = monitor_over(_crawl_then_fly(_CRAWL_UNTIL_S - 5.0))
+    assert early.state == "armed" and early.testing == {"speed": False, "voltage": False}
+    assert early.tested_s == {"speed": 0.0, "voltage": 0.0} and not early.testing_log
+    mon = monitor_over(_crawl_then_fly(150.0))
+    assert mon.events == [] and mon.testing == {"speed": True, "voltage": True}
+    spans = channel_intervals(mon.testing_log, 150.0)
+    for name, intervals in spans.items():
+        assert intervals and intervals[0][0] >= _CRAWL_UNTIL_S + 4.0, (name, intervals)
+        assert mon.tested_s[name] == pytest.approx(sum(b - a for a, b in intervals), abs=0.6 * len(intervals))
+    assert 60.0 < mon.tested_s["speed"] < 150.0 - _CRAWL_UNTIL_S - 4.0
+
+
+def test_the_status_says_which_channel_is_not_tested_while_armed(model_path):
+    """'no change' while armed is qualified when a channel tests nothing (a flight that never
+    holds a speed); the diagnostics carry each channel's state."""
+    from bldc_propulsion.core.estimator import ThrustEstimator
+    from bldc_propulsion.model import load_model
+
+    stream = HealthStream(ThrustEstimator(load_model(model_path)))
+    stream.monitor = monitor_over(_crawl_then_fly(_CRAWL_UNTIL_S - 5.0))
+    st = stream.status()
+    assert st.level == 0 and st.message == "no change (neither channel is tested yet)"
+    assert st.values["speed_tested"] == "False" and st.values["voltage_tested"] == "False"
+    stream.monitor.testing["voltage"] = True
+    assert "the speed is not tested yet" in stream.status().message
+    stream.monitor = monitor_over(_crawl_then_fly(150.0))
+    st = stream.status()
+    assert st.message == "no change" and st.values["speed_tested"] == "True"
 
 
 def test_one_outlying_stretch_does_not_set_the_visit_error():

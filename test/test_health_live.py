@@ -105,6 +105,10 @@ def test_replay_health_gives_the_health_commands_events_and_diagnostics(flight, 
     info = run_json(capsys, "replay", d / "faulted", "-o", tmp_path / "out", "--model", d / "physics.npz", "--health")
     assert info["health"]["events"] == offline["events"]  # the same code on the same inputs: equal
     assert info["health"]["monitored_s"] == offline["monitored_s"]
+    # the seconds each channel tested: the same in both, none beyond what was monitored
+    assert info["health"]["tested_s"] == offline["tested_s"]
+    assert set(offline["tested_s"]) == {"speed", "voltage"}
+    assert 0.0 < offline["tested_s"]["speed"] <= offline["monitored_s"] + 1.0
     assert info["health"]["threshold"] == offline["threshold"]
     (final,) = [s for s in info["status"] if s["name"] == "health"]
     e = offline["events"][0]

@@ -104,19 +104,21 @@ class RecordingHealth(TypedDict):
     minor: list[dict[str, object]]  #: no alarm: named below the smallest worth one, or unnamed that did not hold
     injected_faults: list[str]
     noise: dict[str, dict[str, float]]  #: channel -> the monitor's noise figures (a, b, visit, kappa)
+    tested_s: dict[str, float]  #: channel -> seconds its tests ran (HealthRun.tested_s)
 
 
 def recording_dict(path: str, r: HealthRun, injected: list[str]) -> RecordingHealth:
     """One recording's result as --json gives it."""
     return {"path": path, "duration_s": r.duration_s, "monitored_s": r.monitored_s, "threshold": r.threshold,
             "events": [e.as_dict() for e in r.events], "minor": [e.as_dict() for e in r.minor],
-            "injected_faults": injected,
+            "injected_faults": injected, "tested_s": dict(r.tested_s),
             "noise": {k: {"a": v[0], "b": v[1], "visit": v[2], "kappa": v[3]} for k, v in r.noise.items()}}
 
 
 def timeline(path: str, r: HealthRun, injected: list[str]) -> list[str]:
     """One recording's timeline as text: a line per change, or that none was found."""
-    head = f"{path}: {r.duration_s:.1f} s, monitored {r.monitored_s:.1f} s (threshold {r.threshold:.1f})"
+    tested = "".join(f"{name} tested {secs:.1f} s, " for name, secs in r.tested_s.items())
+    head = f"{path}: {r.duration_s:.1f} s, monitored {r.monitored_s:.1f} s ({tested}threshold {r.threshold:.1f})"
     if injected:
         head += f"; injected (simulated truth): {', '.join(injected)}"
     out = [head]

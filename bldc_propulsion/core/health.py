@@ -57,6 +57,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol, cast
@@ -596,6 +597,11 @@ _CURRENT_MARGIN = 0.05
 #: window's last seconds for bending (a 30 K winding rise on tuning bench 1: statistic 67 against
 #: the offset alone, 45 with the drift, 21 with the curvature, under the threshold 34: never found).
 _BENDING_COLUMNS = {"speed": (1, 2)}
+#: The channels, in the order the tests take them.
+CHANNELS: tuple[str, ...] = ("speed", "voltage")
+#: Changes of a channel's testing state kept (``HealthMonitor.testing_log``): a few per minute of
+#: flight, so hours; the running totals (``tested_s``) are kept for all time.
+_TESTING_LOG = 10_000
 
 
 def _lag_of_blocks(t: np.ndarray, values: np.ndarray, tau_s: float) -> np.ndarray:
@@ -710,6 +716,17 @@ class HealthMonitor:
         self.blocks = 0  #: blocks closed since the start
         self.evaluations = 0
         self.state = _ARMING
+        #: channel -> whether its tests ran at the latest evaluation: a channel tests nothing while
+        #: its reference holds too few valid blocks (the speed's: steady, at speeds whose model error
+        #: is learned) or its noise is not learned yet, whatever ``state`` says; a flight that
+        #: never holds a speed can leave the speed untested for a minute (``status`` says so)
+        self.testing: dict[str, bool] = dict.fromkeys(CHANNELS, False)
+        #: (time, channel, testing) at each change of ``testing``, the latest _TESTING_LOG of them
+        self.testing_log: deque[tuple[float, str, bool]] = deque(maxlen=_TESTING_LOG)
+        #: channel -> seconds its tests ran (from each evaluation to the next that found it testing)
+        self.tested_s: dict[str, float] = dict.fromkeys(CHANNELS, 0.0)
+        self._tested_since: float | None = None  #: the latest evaluation's time
+        self._last_t: float | None = None
         #: channel -> (a, b, visit, kappa): a block's noise variance a + b level^2, the variance of
         #: the model's error from one steady stretch to the next, the short correlation factor
         self.noise: dict[str, tuple[float, float, float, float]] = {}
@@ -725,7 +742,6 @@ class HealthMonitor:
         self._reset_window()
         self._block: list[float] | None = None
         self._block_index = 0
-        self._last_t: float | None = None
         self._pending: HealthEvent | None = None
         self._lead: tuple[str, float] | None = None  #: ``leading``'s, set by each naming test
         self._pending_onset_block = 0
@@ -785,6 +801,8 @@ class HealthMonitor:
         unnamed and did not hold or shows only at currents never held (the same rules as at the
         end of its sizing or naming: flights end, and data stop, mid-change)."""
         out = self._close_block()
+        if self._last_t is not None:  # the seconds tested up to the last sample
+            self._note_testing(self._last_t, dict(self.testing))
         if self._pending is not None:
             if self.state == _REFINING:
                 return out + self._report_named()
@@ -809,7 +827,9 @@ class HealthMonitor:
     # --- blocks ----------------------------------------------------------------------------
     def _reset_window(self) -> None:
         """Forget the window and the model's learned error (after a gap; after a change,
-        ``_restart_from`` keeps what followed its onset)."""
+        ``_restart_from`` keeps what followed its onset); no channel tests until it refills."""
+        if self._last_t is not None:
+            self._note_testing(self._last_t, dict.fromkeys(CHANNELS, False))
         self._filled = 0  #: blocks in the window since the last restart
         #: the learned blocks per speed bin (_ERROR_MARGIN of the scale wide), with the error's memory
         self._error_hist = np.zeros(int(math.ceil(1.5 / _ERROR_MARGIN)))
@@ -1114,8 +1134,7 @@ class HealthMonitor:
         learned yet, even after ``learn``: too few quiet blocks) tests nothing: zeros."""
         N = ch.nuisance
         empty = np.zeros(tests.shape[::2])
-        if ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS, 4 * N.shape[1]) \
-                or len(true_run_pairs(ch.valid[:self._ref_blocks] > 0)) < ch.min_stretches:
+        if not self._reference_holds(ch):
             return empty, empty
         if not learn and ch.name not in self.noise:
             return empty, empty
@@ -1135,6 +1154,24 @@ class HealthMonitor:
         zN = np.einsum("omf,mi->ofi", Zw, N) - np.einsum("ojf,j,ji->ofi", PZw, c, PWN)
         den = np.maximum(zz - np.einsum("ofi,ij,ofj->of", zN, Ginv, zN), 0.0)
         return zr / kappa, den / kappa
+
+    def _reference_holds(self, ch: _Channel) -> bool:
+        """Whether the channel's reference holds enough valid blocks (and stretches) to test."""
+        ref = ch.valid[:self._ref_blocks]
+        return bool(ref.sum() >= max(_MIN_REFERENCE_BLOCKS, 4 * ch.nuisance.shape[1])
+                    and len(true_run_pairs(ref > 0)) >= ch.min_stretches)
+
+    def _note_testing(self, t: float, now: Mapping[str, bool]) -> None:
+        """Each channel's testing state from time t on (``testing``, ``testing_log``, ``tested_s``)."""
+        if self._tested_since is not None:
+            for name, on in self.testing.items():
+                if on:
+                    self.tested_s[name] += max(t - self._tested_since, 0.0)
+        self._tested_since = t
+        for name, on in now.items():
+            if on != self.testing[name]:
+                self.testing[name] = on
+                self.testing_log.append((t, name, on))
 
     def _visit_prior(self, name: str) -> float:
         """The visit error's variance before the flight has shown it (_VISIT_PRIOR)."""
@@ -1334,6 +1371,7 @@ class HealthMonitor:
         stat, theta, generic = self._test(chans, slice(None), learn=self._pending is None)
         self._last = (stat, theta, generic, chans)
         t_now = float(win[-1, _T])
+        self._note_testing(t_now, {ch.name: self._reference_holds(ch) and ch.name in self.noise for ch in chans})
         h = self.threshold
         if self.state == _REFINING:
             return self._refine(t_now, 0)
@@ -1602,6 +1640,27 @@ class HealthRun:
     noise: dict[str, tuple[float, float, float, float]]  #: channel -> HealthMonitor.noise at the end
     #: changes that are no alarm (named below HealthConfig.min_size, unnamed that did not hold), in time order
     minor: list[HealthEvent] = field(default_factory=list)
+    #: channel -> seconds its tests ran (``HealthMonitor.tested_s``): what the monitor could find
+    #: a change in, where monitored_s says only how long it was armed
+    tested_s: dict[str, float] = field(default_factory=dict)
+    #: channel -> the (start, end) times its tests ran (:func:`channel_intervals`)
+    tested: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+
+
+def channel_intervals(log: Sequence[tuple[float, str, bool]], end_s: float) -> dict[str, list[tuple[float, float]]]:
+    """Per channel, the (start, end) times its tests ran, from ``HealthMonitor.testing_log`` (a
+    channel still testing at the end runs to ``end_s``; an end with no start, where the log's
+    oldest entries were dropped, is left out)."""
+    out: dict[str, list[tuple[float, float]]] = {name: [] for name in CHANNELS}
+    since: dict[str, float] = {}
+    for t, name, on in log:
+        if on:
+            since[name] = t
+        elif name in since:
+            out[name].append((since.pop(name), t))
+    for name, t in since.items():
+        out[name].append((t, max(end_s, t)))
+    return out
 
 
 class _Hybrid(Protocol):
@@ -1773,8 +1832,9 @@ class HealthStream:
         duration = self.last_s - self.first_s if self.last_s == self.last_s else 0.0
         cfg = self.monitor.config
         armed = max(0.0, duration - cfg.arming_reference_s - cfg.window_s)
-        return HealthRun(list(self.monitor.events), duration, armed, self.monitor.threshold, dict(self.monitor.noise),
-                         list(self.monitor.minor))
+        mon = self.monitor
+        return HealthRun(list(mon.events), duration, armed, mon.threshold, dict(mon.noise), list(mon.minor),
+                         dict(mon.tested_s), channel_intervals(mon.testing_log, self.last_s))
 
     def status(self) -> CoreStatus:
         """The health status ("health"): OK while no change was seen; WARN while a change is being
@@ -1787,7 +1847,8 @@ class HealthStream:
         if pending is not None and pending.name != UNNAMED:
             named.append(pending)  # named, its size still being refined
         values: dict[str, object] = {"state": mon.state, "changes": len(mon.events),
-                                     "minor_changes": len(mon.minor), "threshold": mon.threshold}
+                                     "minor_changes": len(mon.minor), "threshold": mon.threshold,
+                                     **{f"{name}_tested": on for name, on in mon.testing.items()}}
         if named:
             ev, level = named[-1], ERROR
             msg = f"{ev.name} {_size_text(cast(float, ev.size), ev.unit)} since {ev.onset_s:.2f} s"
@@ -1800,13 +1861,22 @@ class HealthStream:
             ev, level = mon.events[-1], WARN
             msg = f"{UNNAMED} since {ev.onset_s:.2f} s" + (f": {ev.note}" if ev.note else "")
         else:
-            learning = mon.state == _ARMING
-            return CoreStatus("health", OK, "no change" + (" (learning the healthy reference)" if learning else ""),
-                              counters(**values))
+            return CoreStatus("health", OK, "no change" + _watching(mon), counters(**values))
         values.update(effect=ev.name, size=math.nan if ev.size is None else ev.size, unit=ev.unit or "none",
                       onset_s=ev.onset_s, detected_s=ev.detected_s,
                       named_s=math.nan if ev.named_s is None else ev.named_s, statistic=ev.statistic)
         return CoreStatus("health", level, msg, counters(**values))
+
+
+def _watching(mon: HealthMonitor) -> str:
+    """What an OK status leaves out: still learning, or a channel not tested (its reference holds
+    too few valid blocks), so that 'no change' is never read as 'nothing could have changed'."""
+    if mon.state == _ARMING:
+        return " (learning the healthy reference)"
+    if not mon.testing["speed"]:
+        return (" seen in the voltage; the speed is not tested yet (too few steady seconds at speeds whose "
+                "model error is learned)") if mon.testing["voltage"] else " (neither channel is tested yet)"
+    return "" if mon.testing["voltage"] else " (the voltage is not tested yet)"
 
 
 def run_health(model: SpeedModel, pwm: tuple[np.ndarray, np.ndarray], voltage: tuple[np.ndarray, np.ndarray],
