@@ -1175,9 +1175,9 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "`HealthMonitor.leading`) (about 10 minutes on one core). A change being sized that another "
           "candidate comes to lead by the naming rule is renamed, and the adapter drops what the first name "
           "added; two flights here are (bench 311): 3110001, a tripled friction named motor_heating 1.4 s "
-          "after its onset and bearing_friction 3.26x at 10.4 s (9.55x the twin's RMSE before renames, "
-          "1.59x now), and 3110102, a 30 K heating named bearing_friction at 70.1 s and motor_heating 22.2 K "
-          "at 72.3 s (3.40x, 2.14x); the name counted below is the one reported."),
+          "after its onset and bearing_friction 3.22x at 10.4 s (after the change, 1.58x the twin's RMSE), and "
+          "3110102, a 30 K heating named bearing_friction at 69.9 s and motor_heating 22.8 K at 72.3 s (1.92x); "
+          "the name counted below is the one reported."),
     Group("adaptation_health_steps", "Online adaptation with the health monitor, on random steps (issue 34)",
           "python benchmarks/bench_adaptation.py --seeds 4 --first-seed 308 --flights 2 --profile random_steps "
           "--health --json docs/results/adaptation_health_steps.json",
