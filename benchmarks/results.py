@@ -1075,7 +1075,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "| `--first-seed` | measured at | propeller_damage | pack_resistance | motor_heating "
           "| false alarms in 10.39 h |\n"
           "|---|---|---|---|---|---|\n"
-          "| 840 (this record) | b496522 | 16/16 | 16/16 | 15/16 | 0 |\n"
+          "| 840 (this record) | 5135399 | 16/16 | 16/16 | 15/16 | 0 |\n"
           "| 850 | 9e52286 | 11/16 | 15/16 | 11/16 | 0 |\n"
           "| 860 | 8fb8faa | 13/16 | 15/16 | 15/16 | 0 |\n"
           "| 870 | 77bad59 | 13/16 | 15/16 | 10/16 | 0 |\n"
@@ -1086,7 +1086,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "| 930 | b496522 | 14/16 | 13/16 | 11/16 | 0 (b) |\n"
           "| 940 | 10d2589 | 14/16 | 15/16 | 15/16 | 0 (c) |\n"
           "| 950 | b496522 | 15/16 | 14/16 | 13/16 | 0 (d) |\n"
-          "| 960 | b496522 | 15/16 | 15/16 | 13/16 | 0 |\n\n"
+          "| 960 | 5135399 | 15/16 | 15/16 | 13/16 | 0 |\n\n"
           "Sets 930, 940 and 950 hold the flights the last three changes to the monitor were found on (b-d); "
           "840 and 960 do not. The false alarms, and what became of them: (a) bench 897, twice a propeller loss "
           "named and then reported with an earlier fit's size though the latest fit found it reversed: such a "
@@ -1104,7 +1104,10 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "full load only, and the runs missed or left unnamed are those whose 5 s after the onset hold low "
           "loads, where heating and a bearing's friction look alike; which of them a change to the monitor "
           "finds moves by one or two per set (on this record's set, bench 845's at d0943c8, bench 847's at "
-          "b496522)."),
+          "b496522). On set 960 two of the three heating runs missed had the speed untested for most of the 5 s "
+          "after the onset (flights of fast manoeuvres, a third of their blocks steady: bench 967's speed was "
+          "tested from 61.8 s, its onset at 56.4 s); the third (bench 965 at 74.2 s) held 0-4 steady blocks "
+          "in those 5 s and its statistic peaked at 33.2 against 33.9."),
     Group("health_steps", "Health monitor on random steps on randomized benches (issue 34)",
           "python benchmarks/bench_health.py --first-seed 830 --seeds 8 --flights 2 --hours 11 --jobs 2 "
           "--profile random_steps --json docs/results/health_steps.json", render_health,

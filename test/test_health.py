@@ -24,13 +24,13 @@ from bldc_propulsion.core.health import (
     HealthEvent,
     HealthMonitor,
     HealthSample,
+    HealthStream,
     PhysicsTwins,
     TwinSample,
-    HealthStream,
     _Channel,
+    channel_intervals,
     chi2_1_isf,
     run_health,
-    channel_intervals,
 )
 from bldc_propulsion.model import save_model
 from bldc_propulsion.physics import config as pc
