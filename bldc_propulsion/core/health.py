@@ -716,10 +716,9 @@ class HealthMonitor:
         self.blocks = 0  #: blocks closed since the start
         self.evaluations = 0
         self.state = _ARMING
-        #: channel -> whether its tests ran at the latest evaluation: a channel tests nothing while
-        #: its reference holds too few valid blocks (the speed's: steady, at speeds whose model error
-        #: is learned) or its noise is not learned yet, whatever ``state`` says; a flight that
-        #: never holds a speed can leave the speed untested for a minute (``status`` says so)
+        #: channel -> whether its tests ran at the latest evaluation: not while its reference holds too
+        #: few valid blocks (the speed's: steady, at speeds whose model error is learned) or its noise is
+        #: not learned, whatever ``state`` says (a flight that never holds a speed: for a minute)
         self.testing: dict[str, bool] = dict.fromkeys(CHANNELS, False)
         #: (time, channel, testing) at each change of ``testing``, the latest _TESTING_LOG of them
         self.testing_log: deque[tuple[float, str, bool]] = deque(maxlen=_TESTING_LOG)
