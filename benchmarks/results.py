@@ -785,7 +785,8 @@ def _health_speed_tested(f: dict[str, Any]) -> list[str]:
     return ["The monitor tests the speed only once its reference holds enough steady seconds at speeds whose model "
             "error it has learned (`HealthMonitor.testing`; its status says so while it does not): a flight that "
             "never holds a speed can leave it untested for a minute, the voltage alone watching. Over the runs whose "
-            f"speed it tested for at least {need:g} s of the {within:g} s after the onset, detected within "
+            f"speed tests ran for at least {need:g} s of the {within:g} s after the onset (they run with the rotor "
+            f"at rest too, where no block is steady), detected within "
             f"{within:g} s and named right first: " + "; ".join(parts) + ". The healthy flights' speed was tested "
             f"{h['hours_speed_tested']:.2f} h of the {h['hours_monitored']:.2f} h monitored.", ""]
 
@@ -1121,7 +1122,7 @@ GROUPS: dict[str, Group] = {g.name: g for g in [
           "| `--first-seed` | measured at | propeller_damage | pack_resistance | motor_heating "
           "| false alarms in 10.39 h |\n"
           "|---|---|---|---|---|---|\n"
-          "| 830 (this record) | b496522 | 13/16 | 13/16 | 8/16 | 1 (the one above) |\n"
+          "| 830 (this record) | 64b4522 | 13/16 | 13/16 | 8/16 | 1 (the one above) |\n"
           "| 890 | 0217125 | 13/16 | 15/16 | 9/16 | 1 (a) |\n"
           "| 900 | a5964b2 | 12/16 | 13/16 | 12/16 | 1 (a) |\n"
           "| 910 | 8d6fe2f | 10/16 | 12/16 | 13/16 | 0 |\n"
