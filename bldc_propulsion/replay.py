@@ -53,7 +53,7 @@ from .bagio import MOTOR_TOPICS, BagWriter, Bulk, Recording, open_recording, veh
 from .core.adaptation import ADAPTED, ADAPTED_LABEL, UNITS, PhysicsAdapter, adapter_for, finite_or_none
 from .core.battery_filter import BatteryFilter, BatteryFilterConfig
 from .core.estimator import NO_THRUST_MESSAGE, ThrustEstimator
-from .core.health import HealthEvent, HealthStream, require_physics
+from .core.health import HealthEvent, HealthStream, require_physics, seconds_tested_text
 from .core.status import CoreStatus
 from .core.tach_output import SpeedOutput
 from .core.tachometer import Samples, TachometerConfig, TachometerDecoder
@@ -700,8 +700,7 @@ def summary_text(info: ReplaySummary) -> str:
         events = [HealthEvent.from_dict(e) for e in hj["events"]]
         lines.append(f"  health monitor: {len(events)} change{'' if len(events) == 1 else 's'} over "
                      f"{hj['monitored_s']:.1f} s monitored ("
-                     + "".join(f"{name} tested {secs:.1f} s, " for name, secs in hj.get("tested_s", {}).items())
-                     + f"threshold {hj['threshold']:.1f})"
+                     + seconds_tested_text(hj["tested_s"]) + f"threshold {hj['threshold']:.1f})"
                      + ("" if events or hj["monitored_s"] > 0.0 else
                         ": too short, the first reference + window seconds are the healthy reference"))
         lines += health_lines(events, "    ")

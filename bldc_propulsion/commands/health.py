@@ -117,8 +117,10 @@ def recording_dict(path: str, r: HealthRun, injected: list[str]) -> RecordingHea
 
 def timeline(path: str, r: HealthRun, injected: list[str]) -> list[str]:
     """One recording's timeline as text: a line per change, or that none was found."""
-    tested = "".join(f"{name} tested {secs:.1f} s, " for name, secs in r.tested_s.items())
-    head = f"{path}: {r.duration_s:.1f} s, monitored {r.monitored_s:.1f} s ({tested}threshold {r.threshold:.1f})"
+    from ..core.health import seconds_tested_text
+
+    head = (f"{path}: {r.duration_s:.1f} s, monitored {r.monitored_s:.1f} s ({seconds_tested_text(r.tested_s)}"
+            f"threshold {r.threshold:.1f})")
     if injected:
         head += f"; injected (simulated truth): {', '.join(injected)}"
     out = [head]

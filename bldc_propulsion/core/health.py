@@ -468,6 +468,12 @@ class HealthEvent:
                 f"found at {self.detected_s:.2f} s)" + (f"; {self.note}" if self.note else ""))
 
 
+def seconds_tested_text(tested_s: Mapping[str, float]) -> str:
+    """Each channel's seconds tested (``HealthRun.tested_s``) as the health summaries print them,
+    each followed by ', '."""
+    return "".join(f"{name} tested {secs:.1f} s, " for name, secs in tested_s.items())
+
+
 def _size_text(size: float, unit: str) -> str:
     if unit == "fraction":
         return f"{100.0 * size:.1f} %"
@@ -1255,10 +1261,7 @@ class HealthMonitor:
 
     def _single(self, ch: _Channel, N: np.ndarray, z: np.ndarray) -> float:
         """The chi-square(1) statistic of one test column z against the nuisance N (0 if the
-        channel tests nothing now)."""
-        if ch.name not in self.noise or ch.valid[:self._ref_blocks].sum() < max(_MIN_REFERENCE_BLOCKS,
-                                                                                4 * N.shape[1]):
-            return 0.0
+        channel tests nothing now: ``_stats`` gives it zeros)."""
         stat, den = self._stats(dataclasses.replace(ch, nuisance=N), z[None, :, None])
         return float(stat[0, 0] ** 2 / den[0, 0]) if den[0, 0] > 0 else 0.0
 
